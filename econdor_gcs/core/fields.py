@@ -1,0 +1,255 @@
+"""Synthetic and raster field models g(x, y).
+
+A field is a callable ``field(x_m, y_m) -> values`` (numpy-vectorised; scalars in give
+a 0-d result) with a ``region`` attribute. The models:
+
+* :class:`GaussianSumField` — the paper's eq. (8)-(9): two groups of isotropic 2-D
+  Gaussians (``sigma1_m`` = 10 and ``sigma2_m`` = 15 m) with random centres in the area and
+  positive random weights, scaled so that the field lies in (0, peak).
+* :func:`authors_field` — the generator of the authors' MATLAB code: 150 Gaussians with
+  sigma 10 and weights ``2 peak (U - 0.5) / sqrt(2 pi) / sigma`` plus 150 with sigma 15
+  and weights ``5 (U - 0.5) / sqrt(2 pi) / sigma``, normalised on the 101 x 101 grid as
+  ``peak/2 * Z / range(Z) + 50``.
+* :func:`plume_field` — a few narrow sources on a flat background (sharp features that
+  the two diagonals can miss entirely).
+* :class:`RasterField` — a grid loaded from ``.npy``, ``.npz``, ``.mat`` or ``.csv``,
+  spanning the region node-to-node, interpolated between nodes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.interpolate import RegularGridInterpolator
+
+from ..errors import FieldError
+from .geometry import FloatArray, Grid, Region
+
+
+class Field(Protocol):
+    region: Region
+
+    def __call__(self, x_m: ArrayLike, y_m: ArrayLike) -> FloatArray: ...
+
+
+class GaussianSumField:
+    """``g(x, y) = offset + scale * sum_p w_p exp(-((x - mx_p)^2 + (y - my_p)^2) / (2 s_p^2))``."""
+
+    def __init__(
+        self,
+        region: Region,
+        centres_m: FloatArray,
+        sigmas_m: FloatArray,
+        weights: FloatArray,
+        scale: float = 1.0,
+        offset: float = 0.0,
+    ) -> None:
+        self.region = region
+        self.centres_m = np.asarray(centres_m, dtype=float).reshape(-1, 2)
+        self.sigmas_m = np.asarray(sigmas_m, dtype=float).ravel()
+        self.weights = np.asarray(weights, dtype=float).ravel()
+        if not (len(self.centres_m) == len(self.sigmas_m) == len(self.weights)):
+            raise FieldError("centres, sigmas and weights must have the same length")
+        self.scale = float(scale)
+        self.offset = float(offset)
+        self._inv2s2 = 1.0 / (2.0 * self.sigmas_m**2)
+
+    def raw(self, x_m: ArrayLike, y_m: ArrayLike) -> FloatArray:
+        """The unscaled Gaussian sum."""
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        shape = np.broadcast(x, y).shape
+        xf = np.broadcast_to(x, shape).ravel()
+        yf = np.broadcast_to(y, shape).ravel()
+        out = np.empty(xf.size)
+        chunk = max(1, 2_000_000 // max(1, len(self.weights)))
+        for s in range(0, xf.size, chunk):
+            dx = xf[s : s + chunk, None] - self.centres_m[None, :, 0]
+            dy = yf[s : s + chunk, None] - self.centres_m[None, :, 1]
+            out[s : s + chunk] = np.exp(-(dx * dx + dy * dy) * self._inv2s2) @ self.weights
+        return out.reshape(shape)
+
+    def __call__(self, x_m: ArrayLike, y_m: ArrayLike) -> FloatArray:
+        return self.offset + self.scale * self.raw(x_m, y_m)
+
+
+def _norm_grid(region: Region) -> Grid:
+    """The grid the generators normalise on: 101 x 101 nodes, as in the authors' code."""
+    return Grid(region, 101, 101)
+
+
+def paper_field(
+    region: Region,
+    seed: int,
+    n1: int = 20,
+    n2: int = 20,
+    sigma1_m: float = 10.0,
+    sigma2_m: float = 15.0,
+    peak: float = 100.0,
+) -> GaussianSumField:
+    """The paper's eq. (8)-(9) with positive random weights, scaled into (0, peak).
+
+    The weights ``a_p, b_p ~ U(0, 1)``; the sum is then scaled so its maximum over the
+    101 x 101 grid is ``0.95 * peak`` (all values stay positive).
+    """
+    rng = np.random.default_rng(seed)
+    n = n1 + n2
+    centres = np.column_stack(
+        [rng.uniform(region.xmin, region.xmax, n), rng.uniform(region.ymin, region.ymax, n)]
+    )
+    sigmas = np.r_[np.full(n1, sigma1_m), np.full(n2, sigma2_m)]
+    weights = rng.uniform(0.0, 1.0, n)
+    f = GaussianSumField(region, centres, sigmas, weights)
+    xx, yy = _norm_grid(region).mesh
+    f.scale = 0.95 * peak / float(np.max(f.raw(xx, yy)))
+    return f
+
+
+def authors_field(
+    region: Region,
+    seed: int,
+    n1: int = 150,
+    n2: int = 150,
+    sigma1_m: float = 10.0,
+    sigma2_m: float = 15.0,
+    peak: float = 100.0,
+) -> GaussianSumField:
+    """The field generator of the authors' MATLAB code (see module docstring)."""
+    rng = np.random.default_rng(seed)
+    c1 = np.column_stack(
+        [rng.uniform(region.xmin, region.xmax, n1), rng.uniform(region.ymin, region.ymax, n1)]
+    )
+    w1 = 2 * peak * (rng.uniform(size=n1) - 0.5) / np.sqrt(2 * np.pi) / sigma1_m
+    c2 = np.column_stack(
+        [rng.uniform(region.xmin, region.xmax, n2), rng.uniform(region.ymin, region.ymax, n2)]
+    )
+    w2 = 5 * (rng.uniform(size=n2) - 0.5) / np.sqrt(2 * np.pi) / sigma2_m
+    f = GaussianSumField(
+        region,
+        np.vstack([c1, c2]),
+        np.r_[np.full(n1, sigma1_m), np.full(n2, sigma2_m)],
+        np.r_[w1, w2],
+    )
+    xx, yy = _norm_grid(region).mesh
+    z = f.raw(xx, yy)
+    span = float(np.ptp(z))
+    if span <= 0:
+        raise FieldError("authors field: degenerate (zero range)")
+    f.scale = peak / 2 / span
+    f.offset = 50.0 * peak / 100.0
+    return f
+
+
+def plume_field(
+    region: Region,
+    seed: int,
+    sources: int = 3,
+    sigma_min_m: float = 2.0,
+    sigma_max_m: float = 5.0,
+    background: float = 10.0,
+    peak: float = 100.0,
+) -> GaussianSumField:
+    """A few narrow Gaussian sources on a flat background, peak value ``peak``."""
+    rng = np.random.default_rng(seed)
+    margin = 0.1
+    centres = np.column_stack(
+        [
+            rng.uniform(region.xmin + margin * region.width_m, region.xmax - margin * region.width_m,
+                        sources),
+            rng.uniform(region.ymin + margin * region.height_m,
+                        region.ymax - margin * region.height_m, sources),
+        ]
+    )
+    sigmas = rng.uniform(sigma_min_m, sigma_max_m, sources)
+    weights = rng.uniform(0.4, 1.0, sources)
+    f = GaussianSumField(region, centres, sigmas, weights, offset=background)
+    # Normalise on a grid fine enough to see the narrowest source.
+    fine = Grid.with_spacing(region, min(0.5, sigma_min_m / 4))
+    xx, yy = fine.mesh
+    f.scale = (peak - background) / float(np.max(f.raw(xx, yy)))
+    return f
+
+
+class RasterField:
+    """A field given as a grid of values spanning ``region`` node to node.
+
+    ``values[row, col]`` with row 0 at ``ymin`` (see :mod:`.geometry`). Points outside the
+    region take the nearest edge value.
+    """
+
+    def __init__(self, region: Region, values: ArrayLike, method: str = "cubic") -> None:
+        v = np.asarray(values, dtype=float)
+        if v.ndim != 2 or min(v.shape) < 2:
+            raise FieldError(f"raster must be a 2-D grid of at least 2 x 2, got shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise FieldError("raster contains NaN or infinite values")
+        if method == "cubic" and min(v.shape) < 4:
+            method = "linear"
+        self.region = region
+        self.values = v
+        ny, nx = v.shape
+        self._x = np.linspace(region.xmin, region.xmax, nx)
+        self._y = np.linspace(region.ymin, region.ymax, ny)
+        self._interp = RegularGridInterpolator((self._y, self._x), v, method=method)
+
+    def __call__(self, x_m: ArrayLike, y_m: ArrayLike) -> FloatArray:
+        x = np.clip(np.asarray(x_m, dtype=float), self.region.xmin, self.region.xmax)
+        y = np.clip(np.asarray(y_m, dtype=float), self.region.ymin, self.region.ymax)
+        shape = np.broadcast(x, y).shape
+        pts = np.column_stack([np.broadcast_to(y, shape).ravel(),
+                               np.broadcast_to(x, shape).ravel()])
+        return self._interp(pts).reshape(shape)
+
+
+def load_raster(path: str | Path, variable: str = "") -> FloatArray:
+    """Load a 2-D grid from ``.npy``, ``.npz``, ``.mat`` (scipy.io) or ``.csv``."""
+    p = Path(path)
+    if not p.exists():
+        raise FieldError(f"raster file not found: {p}")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".npy":
+            return np.load(p, allow_pickle=False)
+        if suffix == ".npz":
+            with np.load(p, allow_pickle=False) as data:
+                return _pick(dict(data), variable, p)
+        if suffix == ".mat":
+            import scipy.io
+
+            data = {k: v for k, v in scipy.io.loadmat(p).items() if not k.startswith("__")}
+            return _pick(data, variable, p)
+        if suffix == ".csv":
+            return np.loadtxt(p, delimiter=",", ndmin=2)
+    except FieldError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise FieldError(f"cannot read raster {p}: {exc}") from exc
+    raise FieldError(f"raster {p}: unsupported format {suffix!r} (use .npy, .npz, .mat or .csv)")
+
+
+def _pick(data: dict[str, Any], variable: str, p: Path) -> FloatArray:
+    if variable:
+        if variable not in data:
+            raise FieldError(f"raster {p}: no variable {variable!r} (has {', '.join(data)})")
+        return np.asarray(data[variable])
+    grids = [k for k, v in data.items() if np.ndim(v) == 2]
+    if not grids:
+        raise FieldError(f"raster {p}: no 2-D array inside")
+    return np.asarray(data[grids[0]])
+
+
+def make_field(model: str, params: dict[str, Any], region: Region, seed: int) -> Field:
+    """Build a field model by name (the ``field:`` section of a mission)."""
+    if model == "paper":
+        return paper_field(region, seed, **params)
+    if model == "authors":
+        return authors_field(region, seed, **params)
+    if model == "plume":
+        return plume_field(region, seed, **params)
+    if model == "raster":
+        values = load_raster(params["path"], params.get("variable", ""))
+        return RasterField(region, values, params.get("method", "cubic"))
+    raise FieldError(f"unknown field model {model!r}")

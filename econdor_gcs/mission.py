@@ -1,0 +1,357 @@
+"""Mission files: YAML in, a validated :class:`Mission` out.
+
+Every problem is reported as one :class:`~econdor_gcs.errors.MissionError` line that
+names the key (``field.sigma1_m: must be > 0, got -3``). Unknown keys are errors, so a
+typo never silently falls back to a default.
+
+Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
+
+    name: demo
+    seed: 0                          # field seed (studies override it per run)
+    area: {width_m: 100, height_m: 100}
+    origin: {lat_deg: 47.3977, lon_deg: 8.5456, alt_m: 488}
+    field: {model: paper | authors | plume | raster, ...model keys...}
+    vehicles: {count, speed_mps, max_accel_mps2, max_turn_rate_dps, sample_rate_hz,
+               altitude_m, noise_std, speedup}
+    initiation: {pattern: diagonals | lawnmower, spacing_m, samples_per_diagonal}
+    algorithm: {planner, m0, max_iterations, grid_spacing_m, search_radius_m,
+                max_trace_length_m, stop_lambda, min_iterations, flight_budget_m,
+                lloyd_bins, lloyd_iterations, reconstruction, paper_compatible}
+    lawnmower: {spacing_m, budget_m}
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .core.geometry import Grid, Region
+from .errors import MissionError
+from .geodesy import Origin
+
+_REQUIRED = object()
+
+Check = Callable[[Any], str | None]
+
+
+def _positive(v: Any) -> str | None:
+    return None if v > 0 else f"must be > 0, got {v}"
+
+
+def _non_negative(v: Any) -> str | None:
+    return None if v >= 0 else f"must be >= 0, got {v}"
+
+
+def _one_of(*choices: str) -> Check:
+    def check(v: Any) -> str | None:
+        return None if v in choices else f"must be one of {', '.join(choices)}; got {v!r}"
+
+    return check
+
+
+def _range(lo: float, hi: float) -> Check:
+    def check(v: Any) -> str | None:
+        return None if lo <= v <= hi else f"must be within [{lo}, {hi}], got {v}"
+
+    return check
+
+
+# section -> key -> (type, default, check)
+_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
+    "area": {
+        "width_m": (float, 100.0, _positive),
+        "height_m": (float, 100.0, _positive),
+    },
+    "origin": {
+        "lat_deg": (float, 47.397742, _range(-90, 90)),
+        "lon_deg": (float, 8.545594, _range(-180, 180)),
+        "alt_m": (float, 488.0, None),
+    },
+    "vehicles": {
+        "count": (int, 3, _range(1, 250)),
+        "speed_mps": (float, 8.0, _positive),
+        "max_speed_mps": (float, 12.0, _positive),
+        "max_accel_mps2": (float, 5.0, _positive),
+        "max_turn_rate_dps": (float, 180.0, _positive),
+        "sample_rate_hz": (float, 10.0, _positive),
+        "altitude_m": (float, 30.0, _positive),
+        "noise_std": (float, 0.0, _non_negative),
+        "speedup": (float, 50.0, _positive),
+    },
+    "initiation": {
+        "pattern": (str, "diagonals", _one_of("diagonals", "lawnmower")),
+        "spacing_m": (float, 25.0, _positive),
+        "samples_per_diagonal": (int, 0, _non_negative),
+    },
+    "algorithm": {
+        "planner": (str, "econdor", _one_of("econdor", "no-sg", "lawnmower")),
+        "m0": (int, 3, _range(1, 1000)),
+        "max_iterations": (int, 8, _range(1, 1000)),
+        "min_iterations": (int, 3, _range(1, 1000)),
+        "grid_spacing_m": (float, 1.0, _positive),
+        "search_radius_m": (float, 10.0, _positive),
+        "max_trace_length_m": (float, 0.0, _non_negative),
+        "stop_lambda": (float, 0.0, _non_negative),
+        "flight_budget_m": (float, 0.0, _non_negative),
+        "lloyd_bins": (int, 200, _range(2, 100000)),
+        "lloyd_iterations": (int, 100, _range(1, 100000)),
+        "reconstruction": (str, "auto", _one_of("auto", "exact", "fast")),
+        "min_piece_length_m": (float, 2.0, _non_negative),
+        "keep_diagonals": (bool, True, None),
+    },
+    "lawnmower": {
+        "spacing_m": (float, 0.0, _non_negative),
+        "budget_m": (float, 0.0, _non_negative),
+    },
+}
+
+_FIELD_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
+    "paper": {
+        "n1": (int, 20, _range(1, 100000)),
+        "n2": (int, 20, _range(0, 100000)),
+        "sigma1_m": (float, 10.0, _positive),
+        "sigma2_m": (float, 15.0, _positive),
+        "peak": (float, 100.0, _positive),
+    },
+    "authors": {
+        "n1": (int, 150, _range(1, 100000)),
+        "n2": (int, 150, _range(0, 100000)),
+        "sigma1_m": (float, 10.0, _positive),
+        "sigma2_m": (float, 15.0, _positive),
+        "peak": (float, 100.0, _positive),
+    },
+    "plume": {
+        "sources": (int, 3, _range(1, 1000)),
+        "sigma_min_m": (float, 2.0, _positive),
+        "sigma_max_m": (float, 5.0, _positive),
+        "background": (float, 10.0, None),
+        "peak": (float, 100.0, _positive),
+    },
+    "raster": {
+        "path": (str, _REQUIRED, None),
+        "variable": (str, "", None),
+        "method": (str, "cubic", _one_of("linear", "cubic")),
+    },
+}
+
+
+def _coerce(where: str, value: Any, typ: type | tuple[type, ...]) -> Any:
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise MissionError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise MissionError(f"{where}: must be finite, got {value!r}")
+        return float(value)
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise MissionError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise MissionError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if typ is str:
+        if not isinstance(value, str):
+            raise MissionError(f"{where}: expected a string, got {value!r}")
+        return value
+    raise AssertionError(typ)  # pragma: no cover
+
+
+def _section(
+    name: str, raw: Any, schema: Mapping[str, tuple[type | tuple[type, ...], Any, Check | None]]
+) -> dict[str, Any]:
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, Mapping):
+        raise MissionError(f"{name}: expected a mapping, got {type(raw).__name__}")
+    unknown = sorted(set(raw) - set(schema))
+    if unknown:
+        raise MissionError(
+            f"{name}.{unknown[0]}: unknown key (allowed: {', '.join(sorted(schema))})"
+        )
+    out: dict[str, Any] = {}
+    for key, (typ, default, check) in schema.items():
+        where = f"{name}.{key}"
+        if key not in raw:
+            if default is _REQUIRED:
+                raise MissionError(f"{where}: missing required key")
+            out[key] = default
+            continue
+        value = _coerce(where, raw[key], typ)
+        if check is not None and (problem := check(value)) is not None:
+            raise MissionError(f"{where}: {problem}")
+        out[key] = value
+    return out
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    count: int
+    speed_mps: float
+    max_speed_mps: float
+    max_accel_mps2: float
+    max_turn_rate_dps: float
+    sample_rate_hz: float
+    altitude_m: float
+    noise_std: float
+    speedup: float
+
+
+@dataclass(frozen=True)
+class InitiationConfig:
+    pattern: str
+    spacing_m: float
+    samples_per_diagonal: int
+
+
+@dataclass(frozen=True)
+class AlgorithmConfig:
+    planner: str
+    m0: int
+    max_iterations: int
+    min_iterations: int
+    grid_spacing_m: float
+    search_radius_m: float
+    max_trace_length_m: float
+    stop_lambda: float
+    flight_budget_m: float
+    lloyd_bins: int
+    lloyd_iterations: int
+    reconstruction: str
+    min_piece_length_m: float
+    keep_diagonals: bool
+
+
+@dataclass(frozen=True)
+class LawnmowerConfig:
+    spacing_m: float
+    budget_m: float
+
+
+@dataclass(frozen=True)
+class Mission:
+    """A validated mission. Build fields with :meth:`build_field`."""
+
+    name: str
+    seed: int
+    region: Region
+    origin: Origin
+    field_model: str
+    field_params: dict[str, Any]
+    vehicles: VehicleConfig
+    initiation: InitiationConfig
+    algorithm: AlgorithmConfig
+    lawnmower: LawnmowerConfig
+    base_dir: Path = field(default_factory=Path.cwd)
+
+    @property
+    def grid(self) -> Grid:
+        """The P x Q evaluation grid (MAE, learning error, reconstruction)."""
+        return Grid.with_spacing(self.region, self.algorithm.grid_spacing_m)
+
+    def build_field(self, seed: int | None = None):  # -> Field
+        """The synthetic (or raster) true field for ``seed`` (default: the mission's)."""
+        from .core.fields import make_field
+
+        params = dict(self.field_params)
+        if self.field_model == "raster":
+            p = Path(params["path"])
+            params["path"] = str(p if p.is_absolute() else self.base_dir / p)
+        return make_field(self.field_model, params, self.region,
+                          self.seed if seed is None else seed)
+
+    def with_overrides(self, **algorithm: Any) -> Mission:
+        """A copy with some ``algorithm`` keys replaced (validated like the file)."""
+        raw = {k: getattr(self.algorithm, k) for k in _SCHEMA["algorithm"]}
+        raw.update(algorithm)
+        algo = AlgorithmConfig(**_section("algorithm", raw, _SCHEMA["algorithm"]))
+        return _replace(self, algorithm=algo)
+
+    def with_vehicles(self, **vehicles: Any) -> Mission:
+        raw = {k: getattr(self.vehicles, k) for k in _SCHEMA["vehicles"]}
+        raw.update(vehicles)
+        return _replace(self, vehicles=VehicleConfig(**_section("vehicles", raw,
+                                                                 _SCHEMA["vehicles"])))
+
+
+def _replace(m: Mission, **kw: Any) -> Mission:
+    from dataclasses import replace
+
+    return replace(m, **kw)
+
+
+_TOP_KEYS = {"name", "seed", "field", *(_SCHEMA)}
+
+
+def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission") -> Mission:
+    """Validate an already-parsed YAML document."""
+    if not isinstance(raw, Mapping):
+        raise MissionError(f"{source}: expected a mapping at the top level")
+    unknown = sorted(set(raw) - _TOP_KEYS)
+    if unknown:
+        raise MissionError(f"{unknown[0]}: unknown key (allowed: {', '.join(sorted(_TOP_KEYS))})")
+    if "field" not in raw:
+        raise MissionError("field: missing required key")
+    fraw = raw["field"]
+    if not isinstance(fraw, Mapping):
+        raise MissionError("field: expected a mapping")
+    model = fraw.get("model")
+    if model is None:
+        raise MissionError("field.model: missing required key")
+    if model not in _FIELD_SCHEMA:
+        raise MissionError(f"field.model: must be one of {', '.join(_FIELD_SCHEMA)}; got {model!r}")
+    fparams = _section("field", {k: v for k, v in fraw.items() if k != "model"},
+                       _FIELD_SCHEMA[model])
+    if model == "plume" and fparams["sigma_max_m"] < fparams["sigma_min_m"]:
+        raise MissionError("field.sigma_max_m: must be >= field.sigma_min_m")
+    name = raw.get("name", "mission")
+    if not isinstance(name, str):
+        raise MissionError(f"name: expected a string, got {name!r}")
+    seed = _coerce("seed", raw.get("seed", 0), int)
+    if seed < 0:
+        raise MissionError(f"seed: must be >= 0, got {seed}")
+    sec = {s: _section(s, raw.get(s), _SCHEMA[s]) for s in _SCHEMA}
+    algo = sec["algorithm"]
+    if algo["min_iterations"] > algo["max_iterations"]:
+        raise MissionError("algorithm.min_iterations: must be <= algorithm.max_iterations")
+    veh = sec["vehicles"]
+    if veh["speed_mps"] > veh["max_speed_mps"]:
+        raise MissionError("vehicles.speed_mps: must be <= vehicles.max_speed_mps")
+    area = sec["area"]
+    return Mission(
+        name=name,
+        seed=seed,
+        region=Region(0.0, area["width_m"], 0.0, area["height_m"]),
+        origin=Origin(**sec["origin"]),
+        field_model=model,
+        field_params=fparams,
+        vehicles=VehicleConfig(**veh),
+        initiation=InitiationConfig(**sec["initiation"]),
+        algorithm=AlgorithmConfig(**algo),
+        lawnmower=LawnmowerConfig(**sec["lawnmower"]),
+        base_dir=base_dir or Path.cwd(),
+    )
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read and validate a mission YAML file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise MissionError(f"{p}: no such mission file") from exc
+    except OSError as exc:
+        raise MissionError(f"{p}: cannot read ({exc.strerror})") from exc
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise MissionError(f"{p}: malformed YAML{where}: {problem}") from exc
+    return parse_mission(raw, base_dir=p.resolve().parent, source=str(p))

@@ -1,0 +1,1 @@
+"""Simulated MAVLink UAVs: kinematics, sensing, contour tracer and the vehicle side of MAVLink."""
