@@ -1,0 +1,207 @@
+"""Contour search / trace on analytic fields, and the in-process executor."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Generator
+
+import numpy as np
+import pytest
+
+from econdor_gcs.core.geometry import Region, path_length
+from econdor_gcs.core.tasks import Phase, TaskOutcome, TraceTask, Waypoint
+from sim_vehicle.body import Sample, SimBody
+from sim_vehicle.executor import run_plan, run_task
+from sim_vehicle.tracer import TracerParams, fly_to, trace_contour
+
+REGION = Region(0.0, 100.0, 0.0, 100.0)
+SIGMA_M = 25.0
+
+
+def gaussian(cx_m: float, cy_m: float):
+    """Radial Gaussian bump of height 100 (vectorised, like the project's field models)."""
+
+    def field(x, y):
+        return 100.0 * np.exp(-((x - cx_m) ** 2 + (y - cy_m) ** 2) / (2.0 * SIGMA_M**2))
+
+    return field
+
+
+def level_at(r_m: float) -> float:
+    return 100.0 * math.exp(-(r_m**2) / (2.0 * SIGMA_M**2))
+
+
+def drain(gen: Generator[Sample, None, TaskOutcome]) -> tuple[list[Sample], TaskOutcome]:
+    samples: list[Sample] = []
+    while True:
+        try:
+            samples.append(next(gen))
+        except StopIteration as stop:
+            return samples, stop.value
+
+
+def trace_circle(noise_std: float = 0.0, seed: int = 0, angle_rad: float = 0.4,
+                 offset_m: float = 4.0):
+    field = gaussian(50.0, 50.0)
+    body = SimBody(field, REGION, 5.0, 5.0, noise_std=noise_std,
+                   rng=np.random.default_rng(seed))
+    r = 20.0 + offset_m
+    task = TraceTask(level_at(20.0), 50.0 + r * math.cos(angle_rad),
+                     50.0 + r * math.sin(angle_rad), 10.0, 0.0, 7)
+    events: list[str] = []
+    samples, outcome = drain(trace_contour(body, task, TracerParams(speed_mps=8.0),
+                                           events.append))
+    arr = np.array([(s.x_m, s.y_m, s.phase) for s in samples])
+    trace = arr[arr[:, 2] == Phase.TRACE]
+    dist = np.abs(np.hypot(trace[:, 0] - 50.0, trace[:, 1] - 50.0) - 20.0)
+    return samples, outcome, events, dist
+
+
+def test_trace_circle_noise_free() -> None:
+    samples, outcome, events, dist = trace_circle()
+    assert outcome.status == "closed"
+    assert events[0] == "contour found" and events[-1] == "loop closed"
+    # measured at 8 m/s, 10 Hz: max ~0.37 m, mean ~0.06 m, length error ~+1 %
+    assert dist.max() < 0.6
+    assert dist.mean() < 0.12
+    assert outcome.traced_m == pytest.approx(2.0 * math.pi * 20.0, rel=0.03)
+    phases = [s.phase for s in samples]
+    # transit, then search, then trace, in that order
+    assert phases[0] == Phase.TRANSIT
+    first_search = phases.index(Phase.SEARCH)
+    first_trace = phases.index(Phase.TRACE)
+    assert first_search < first_trace
+    assert Phase.TRANSIT not in phases[first_search:]
+    flown = path_length(np.array([5.0] + [s.x_m for s in samples]),
+                        np.array([5.0] + [s.y_m for s in samples]))
+    # the odometer integrates the sub-steps, the samples are one chord per tick
+    assert outcome.flown_m == pytest.approx(flown, rel=1e-3)
+    assert outcome.flown_m >= flown
+
+
+@pytest.mark.parametrize("angle_rad, offset_m", [(2.0, 4.0), (4.0, -4.0)])
+def test_trace_circle_other_starts(angle_rad: float, offset_m: float) -> None:
+    _, outcome, _, dist = trace_circle(angle_rad=angle_rad, offset_m=offset_m)
+    assert outcome.status == "closed"
+    assert dist.max() < 0.8
+    assert outcome.traced_m == pytest.approx(2.0 * math.pi * 20.0, rel=0.05)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_trace_circle_with_noise(seed: int) -> None:
+    _, outcome, _, dist = trace_circle(noise_std=0.05, seed=seed)
+    assert outcome.status == "closed"
+    # measured: max ~0.4 m, mean ~0.08 m
+    assert dist.max() < 0.8
+    assert dist.mean() < 0.2
+    assert outcome.traced_m == pytest.approx(2.0 * math.pi * 20.0, rel=0.05)
+
+
+def test_contour_leaving_area_traces_both_arcs() -> None:
+    # circle of radius 20 centred 5 m inside the east edge: the inside arc spans
+    # angles 75.5 deg .. 284.5 deg (through 180 deg), 72.9 m long
+    field = gaussian(95.0, 50.0)
+    body = SimBody(field, REGION, 50.0, 50.0)
+    task = TraceTask(level_at(20.0), 71.0, 52.0, 10.0, 0.0, 1)
+    events: list[str] = []
+    samples, outcome = drain(trace_contour(body, task, on_event=events.append))
+    assert outcome.status == "boundary"
+    assert "boundary reached, tracing other direction" in events
+    arr = np.array([(s.x_m, s.y_m, s.phase) for s in samples])
+    assert all(REGION.contains(x, y) for x, y, _ in arr)
+    trace = arr[arr[:, 2] == Phase.TRACE]
+    ang = np.degrees(np.arctan2(trace[:, 1] - 50.0, trace[:, 0] - 95.0)) % 360.0
+    assert ang.min() < 85.0 and ang.max() > 275.0  # both ends near the edge
+    dist = np.abs(np.hypot(trace[:, 0] - 95.0, trace[:, 1] - 50.0) - 20.0)
+    assert dist.max() < 0.8
+    arc_m = 20.0 * 2.0 * (math.pi - math.acos(5.0 / 20.0))
+    assert outcome.traced_m == pytest.approx(arc_m, rel=0.1)
+
+
+def test_max_length_respected() -> None:
+    body = SimBody(gaussian(50.0, 50.0), REGION, 50.0, 20.0)
+    task = TraceTask(level_at(20.0), 74.0, 50.0, 10.0, 40.0, 2)
+    events: list[str] = []
+    _, outcome = drain(trace_contour(body, task, on_event=events.append))
+    assert outcome.status == "length_limit"
+    assert events[-1] == "length limit"
+    step_m = 8.0 * body.dt_s
+    assert 40.0 <= outcome.traced_m <= 40.0 + step_m + 1e-6
+
+
+@pytest.mark.parametrize("level", [150.0, level_at(45.0)])
+def test_level_not_nearby_gives_not_found(level: float) -> None:
+    body = SimBody(gaussian(50.0, 50.0), REGION, 50.0, 20.0)
+    task = TraceTask(level, 74.0, 50.0, 10.0, 0.0, 3)
+    events: list[str] = []
+    samples, outcome = drain(trace_contour(body, task, on_event=events.append))
+    assert outcome.status == "not_found"
+    assert events == ["contour not found"]
+    assert outcome.traced_m == 0.0
+    search = [s for s in samples if s.phase == Phase.SEARCH]
+    assert search, "the vehicle must have searched"
+    dists = [math.hypot(s.x_m - 74.0, s.y_m - 50.0) for s in search]
+    assert max(dists) < 10.0 + 3.0
+    # budget: about the area of the search disc / spiral spacing, plus slack
+    assert len(samples) < 600
+
+
+def test_senses_only_at_own_position() -> None:
+    inner = gaussian(50.0, 50.0)
+    holder: dict[str, SimBody] = {}
+    calls = [0]
+
+    def spy(x, y):
+        body = holder["body"]
+        assert float(x) == body.x_m and float(y) == body.y_m
+        calls[0] += 1
+        return inner(x, y)
+
+    body = SimBody(spy, REGION, 5.0, 5.0, noise_std=0.05, rng=np.random.default_rng(3))
+    holder["body"] = body
+    samples, outcome = drain(trace_contour(body, TraceTask(level_at(20.0), 74.0, 50.0, 10.0,
+                                                           60.0, 0)))
+    assert outcome.status == "length_limit"
+    assert calls[0] == len(samples) == body.ticks
+
+
+def test_fly_to_reaches_target() -> None:
+    body = SimBody(gaussian(50.0, 50.0), REGION, 10.0, 10.0)
+    samples, outcome = drain(fly_to(body, 80.0, 30.0, tolerance_m=0.5))
+    assert outcome.status == "reached"
+    assert outcome.task == Waypoint(80.0, 30.0)
+    assert math.hypot(body.x_m - 80.0, body.y_m - 30.0) <= 0.5
+    assert all(s.phase == Phase.TRANSIT for s in samples)
+    assert max(math.hypot(s.x_m - 10.0, s.y_m - 10.0) for s in samples) < 73.0  # no overshoot
+
+
+def test_run_task_dispatch() -> None:
+    body = SimBody(gaussian(50.0, 50.0), REGION, 10.0, 10.0)
+    _, out = drain(run_task(body, Waypoint(20.0, 10.0)))
+    assert out.status == "reached" and out.task == Waypoint(20.0, 10.0)
+    with pytest.raises(TypeError):
+        drain(run_task(body, "not a task"))  # type: ignore[arg-type]
+
+
+def test_run_plan_collects_samples() -> None:
+    body = SimBody(gaussian(50.0, 50.0), REGION, 5.0, 5.0, t_s=100.0)
+    tasks = [Waypoint(30.0, 30.0), TraceTask(level_at(20.0), 74.0, 50.0, 10.0, 0.0, 4),
+             Waypoint(60.0, 20.0)]
+    report = run_plan(body, tasks, vehicle=3, return_to=(5.0, 5.0))
+    log = report.samples
+    assert report.vehicle == 3
+    assert len(log) > 100
+    assert np.all(np.diff(log.t_s) > 0.0)
+    assert np.all(log.vehicle == 3)
+    assert set(np.unique(log.phase)) == {Phase.TRANSIT, Phase.SEARCH, Phase.TRACE}
+    assert [o.status for o in report.outcomes] == ["reached", "closed", "reached"]
+    assert report.outcomes[1].task is tasks[1]
+    flown = path_length(np.r_[5.0, log.x_m], np.r_[5.0, log.y_m])
+    assert report.flown_m == pytest.approx(flown, rel=1e-3)
+    assert report.flown_m >= flown
+    assert report.flown_m >= sum(o.flown_m for o in report.outcomes)
+    assert report.traced_m == pytest.approx(report.outcomes[1].traced_m)
+    assert report.sim_s == pytest.approx(len(log) * body.dt_s)
+    assert log.t_s[-1] == pytest.approx(100.0 + report.sim_s)
+    assert math.hypot(report.end_x_m - 5.0, report.end_y_m - 5.0) <= 1.0
+    assert (report.end_x_m, report.end_y_m) == (log.x_m[-1], log.y_m[-1])
