@@ -1,0 +1,409 @@
+"""The UDP router against fake vehicles on real loopback sockets (port 0 everywhere)."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+
+import pytest
+
+from econdor_gcs.core.tasks import TraceTask
+from econdor_gcs.errors import LinkError, ProtocolError, VehicleTimeout
+from econdor_gcs.geodesy import Origin
+from econdor_gcs.link.codec import Codec, Parser, mavlink
+from econdor_gcs.link.mission import CommandSender, MissionItemSpec, build_mission
+from econdor_gcs.link.router import (
+    MissionItemReached,
+    Router,
+    Sample,
+    SamplePairer,
+    StatusText,
+    VehicleDiscovered,
+    VehicleLost,
+    VehicleRecovered,
+    parse_endpoint,
+)
+from econdor_gcs.link.tlog import TlogWriter, read_tlog
+
+ENDPOINT = "udpin:127.0.0.1:0"
+ORIGIN = Origin(47.397742, 8.545594, 488.0)
+
+
+class FakeUdpVehicle(asyncio.DatagramProtocol):
+    """A vehicle on its own UDP socket: heartbeats, a mission server, accepts every command."""
+
+    def __init__(self, sysid: int, *, deny: set[int] | None = None) -> None:
+        self.sysid = sysid
+        self.codec = Codec(sysid, 1)
+        self.parser = Parser()
+        self.inbox: asyncio.Queue = asyncio.Queue()
+        self.got: list = []
+        self.mission: list[MissionItemSpec] = []
+        self.incoming: list[MissionItemSpec] = []
+        self.expected: int | None = None
+        self.deny = deny or set()
+        self.base_mode = 0
+        self.transport: asyncio.DatagramTransport | None = None
+
+    async def start(self, router_address) -> FakeUdpVehicle:
+        loop = asyncio.get_running_loop()
+        await loop.create_datagram_endpoint(lambda: self, local_addr=("127.0.0.1", 0),
+                                            remote_addr=router_address)
+        return self
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+
+    @property
+    def address(self):
+        return self.transport.get_extra_info("sockname")[:2]
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def send(self, msg) -> None:
+        self.transport.sendto(self.codec.encode(msg))
+
+    def heartbeat(self) -> None:
+        self.send(mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC, self.base_mode, 4,
+            mavlink.MAV_STATE_ACTIVE, 3))
+
+    async def wait_for(self, kind: str, timeout_s: float = 3.0):
+        async with asyncio.timeout(timeout_s):
+            while True:
+                msg = await self.inbox.get()
+                if msg.get_type() == kind:
+                    return msg
+
+    def datagram_received(self, data, addr) -> None:
+        for msg in self.parser.feed(data):
+            self.got.append(msg)
+            self.inbox.put_nowait(msg)
+            for reply in self.handle(msg):
+                self.send(reply)
+
+    def _ack(self, result: int):
+        return mavlink.MAVLink_mission_ack_message(255, 190, result, 0)
+
+    def handle(self, msg) -> list:
+        kind = msg.get_type()
+        if kind == "MISSION_COUNT":
+            self.expected, self.incoming = msg.count, []
+            return [mavlink.MAVLink_mission_request_int_message(255, 190, 0, 0)]
+        if kind == "MISSION_ITEM_INT" and self.expected is not None:
+            if msg.seq == len(self.incoming):
+                self.incoming.append(MissionItemSpec.from_message(msg))
+            if len(self.incoming) == self.expected:
+                self.mission = list(self.incoming)
+                return [self._ack(mavlink.MAV_MISSION_ACCEPTED)]
+            return [mavlink.MAVLink_mission_request_int_message(255, 190, len(self.incoming), 0)]
+        if kind == "MISSION_REQUEST_LIST":
+            return [mavlink.MAVLink_mission_count_message(255, 190, len(self.mission), 0)]
+        if kind == "MISSION_REQUEST_INT":
+            return [self.mission[msg.seq].to_message(255, 190)]
+        if kind == "MISSION_CLEAR_ALL":
+            self.mission = []
+            return [self._ack(mavlink.MAV_MISSION_ACCEPTED)]
+        if kind == "COMMAND_LONG":
+            result = (mavlink.MAV_RESULT_DENIED if msg.command in self.deny
+                      else mavlink.MAV_RESULT_ACCEPTED)
+            if msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and result == 0:
+                self.base_mode = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if msg.param1 else 0
+            return [mavlink.MAVLink_command_ack_message(msg.command, result, 0, 0, 255, 190)]
+        return []
+
+
+async def next_event(queue: asyncio.Queue, kind: type, timeout_s: float = 3.0):
+    async with asyncio.timeout(timeout_s):
+        while True:
+            event = await queue.get()
+            if isinstance(event, kind):
+                return event
+
+
+def run(coro):
+    return asyncio.run(asyncio.wait_for(coro, 20.0))
+
+
+def test_parse_endpoint():
+    assert parse_endpoint("udpin:127.0.0.1:14550") == ("127.0.0.1", 14550)
+    assert parse_endpoint("udp:0.0.0.0:14551") == ("0.0.0.0", 14551)
+    for bad in ("tcp:1.2.3.4:5", "udpin:host", "udpin:h:port", "udpin:h:70000", "14550"):
+        with pytest.raises(LinkError):
+            parse_endpoint(bad)
+
+
+def test_two_vehicles_discovered_and_routed_by_sysid():
+    async def main():
+        async with Router(ENDPOINT, gcs_heartbeat_s=0.1) as router:
+            events = router.event_queue()
+            v1 = await FakeUdpVehicle(1).start(router.local_address)
+            v2 = await FakeUdpVehicle(2).start(router.local_address)
+            v1.heartbeat()
+            v2.heartbeat()
+            assert await router.wait_for_vehicles([1, 2], timeout_s=3.0) == [1, 2]
+            assert router.vehicles[1].address == v1.address
+            assert router.vehicles[2].address == v2.address
+            seen = {(await next_event(events, VehicleDiscovered)).sysid for _ in range(2)}
+            assert seen == {1, 2}
+
+            router.send(1, mavlink.MAVLink_statustext_message(6, b"for one"))
+            router.send(2, mavlink.MAVLink_statustext_message(6, b"for two"))
+            assert (await v1.wait_for("STATUSTEXT")).text == "for one"
+            assert (await v2.wait_for("STATUSTEXT")).text == "for two"
+            texts = [m.text for m in v1.got if m.get_type() == "STATUSTEXT"]
+            assert texts == ["for one"]
+
+            # the GCS heartbeat reaches every known vehicle, as 255/190, MAV_TYPE_GCS
+            hb = await v2.wait_for("HEARTBEAT")
+            assert (hb.type, hb.autopilot) == (mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID)
+            assert (hb.get_srcSystem(), hb.get_srcComponent()) == (255, 190)
+
+            # a vehicle that moves to another port is followed
+            v1b = await FakeUdpVehicle(1).start(router.local_address)
+            v1b.heartbeat()
+            await v1b.wait_for("HEARTBEAT")
+            assert router.vehicles[1].address == v1b.address
+            for v in (v1, v2, v1b):
+                v.close()
+
+            with pytest.raises(LinkError, match="vehicle 9"):
+                router.send(9, mavlink.MAVLink_statustext_message(6, b"nobody"))
+
+    run(main())
+
+
+def test_wait_for_vehicles_names_the_missing_ones():
+    async def main():
+        async with Router(ENDPOINT) as router:
+            v1 = await FakeUdpVehicle(1).start(router.local_address)
+            v1.heartbeat()
+            with pytest.raises(VehicleTimeout, match=r"^vehicle 3 never appeared within 0.3 s$"):
+                await router.wait_for_vehicles([1, 3], timeout_s=0.3)
+            with pytest.raises(VehicleTimeout, match="only 1 of 2 vehicles"):
+                await router.wait_for_vehicles(2, timeout_s=0.2)
+            assert await router.wait_for_vehicles(1, timeout_s=1.0) == [1]
+            v1.close()
+
+    run(main())
+
+
+def test_silent_vehicle_is_lost_then_recovered():
+    async def main():
+        async with Router(ENDPOINT, heartbeat_timeout_s=0.3) as router:
+            events = router.event_queue()
+            v = await FakeUdpVehicle(4).start(router.local_address)
+            v.heartbeat()
+            await next_event(events, VehicleDiscovered)
+            lost = await next_event(events, VehicleLost, timeout_s=3.0)
+            assert lost.sysid == 4 and lost.silent_s > 0.3
+            assert router.vehicles[4].lost
+            v.heartbeat()
+            assert (await next_event(events, VehicleRecovered)).sysid == 4
+            assert not router.vehicles[4].lost
+            v.close()
+
+    run(main())
+
+
+def test_garbage_datagrams_are_counted_and_harmless():
+    async def main():
+        async with Router(ENDPOINT) as router:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind(("127.0.0.1", 0))
+            codec = Codec(6, 1)
+            good = codec.encode(mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, 3, 3))
+            bad_crc = bytearray(good)
+            bad_crc[-2] ^= 0x55
+            for junk in (b"\x00" * 50, b"\xfd\xff" + b"x" * 20, bytes(bad_crc), good[:9], b""):
+                sock.sendto(junk, router.local_address)
+            sock.sendto(good, router.local_address)
+            await router.wait_for_vehicles([6], timeout_s=3.0)
+            assert router.bad_packets >= 4
+            assert router.stats["datagrams_in"] == 6
+            sock.close()
+
+    run(main())
+
+
+def test_mission_transfer_and_commands_over_udp_with_loss():
+    items = build_mission(ORIGIN, [TraceTask(50.0, 20.0, 30.0, 10.0, 0.0, 1),
+                                   TraceTask(70.0, 60.0, 20.0, 10.0, 100.0, 2)], 25.0)
+
+    async def main():
+        async with Router(ENDPOINT) as router:
+            v1 = await FakeUdpVehicle(1).start(router.local_address)
+            v2 = await FakeUdpVehicle(2, deny={mavlink.MAV_CMD_MISSION_START}).start(
+                router.local_address)
+            v1.heartbeat()
+            v2.heartbeat()
+            await router.wait_for_vehicles(2, timeout_s=3.0)
+
+            # lose every 3rd datagram the router sends (simulated loss by patching sendto)
+            transport = router._transport
+            real_sendto = transport.sendto
+            counter = {"n": 0, "dropped": 0}
+
+            def lossy_sendto(data, addr=None):
+                counter["n"] += 1
+                if counter["n"] % 3 == 0:
+                    counter["dropped"] += 1
+                    return
+                real_sendto(data, addr)
+
+            transport.sendto = lossy_sendto
+            n1, n2 = await asyncio.gather(
+                router.upload_mission(1, items, timeout_s=0.15, retries=5),
+                router.upload_mission(2, items[:3], timeout_s=0.15, retries=5))
+            assert (n1, n2) == (len(items), 3)
+            assert v1.mission == items and v2.mission == items[:3]
+            assert await router.download_mission(1, timeout_s=0.15) == items
+            transport.sendto = real_sendto
+            assert counter["dropped"] > 0
+
+            await router.arm(1)
+            await router.start_mission(1)
+            with pytest.raises(ProtocolError, match="MAV_CMD_MISSION_START.*MAV_RESULT_DENIED"):
+                await router.start_mission(2)
+            await router.clear_mission(2, timeout_s=0.2)
+            assert v2.mission == []
+            # wait for the armed heartbeat to be processed
+            async with asyncio.timeout(3.0):
+                while not router.vehicles[1].armed:
+                    v1.heartbeat()
+                    await asyncio.sleep(0.02)
+            v1.close()
+            v2.close()
+
+    run(main())
+
+
+def test_run_protocol_times_out_against_a_mute_vehicle():
+    async def main():
+        async with Router(ENDPOINT) as router:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind(("127.0.0.1", 0))
+            sock.sendto(Codec(8, 1).encode(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 3, 3)),
+                        router.local_address)
+            await router.wait_for_vehicles([8], timeout_s=3.0)
+            with pytest.raises(VehicleTimeout, match="vehicle 8.*mission clear"):
+                await router.clear_mission(8, timeout_s=0.05, retries=2)
+            with pytest.raises(VehicleTimeout, match="within 0.1 s"):
+                await router.run_protocol(8, CommandSender(8, 1, 400, [1], timeout_s=1.0),
+                                          timeout_s=0.1)
+            sock.close()
+
+    run(main())
+
+
+def test_telemetry_events_samples_and_tlog(tmp_path):
+    path = tmp_path / "telemetry.tlog"
+
+    async def main():
+        tlog = TlogWriter(path)
+        async with Router(ENDPOINT, tlog=tlog) as router:
+            events = router.event_queue()
+            samples = router.sample_queue()
+            seen_msgs: list[tuple[int, str]] = []
+            router.add_message_handler(lambda s, m: seen_msgs.append((s, m.get_type())))
+            v1 = await FakeUdpVehicle(1).start(router.local_address)
+            v2 = await FakeUdpVehicle(2).start(router.local_address)
+            v1.heartbeat()
+            v2.heartbeat()
+            await router.wait_for_vehicles(2, timeout_s=3.0)
+
+            def pos(t, lat, lon):
+                return mavlink.MAVLink_global_position_int_message(
+                    t, int(lat * 1e7), int(lon * 1e7), 510_000, 22_000, 0, 0, 0, 0)
+
+            def value(t, val):
+                return mavlink.MAVLink_named_value_float_message(t, b"FIELD", val)
+
+            v1.send(pos(1000, 47.1, 8.1))
+            v1.send(value(1000, 12.5))
+            v2.send(value(1000, 99.0))  # same time, other vehicle: must not pair with v1's
+            v2.send(pos(1000, 47.2, 8.2))
+            got = {}
+            for _ in range(2):
+                async with asyncio.timeout(3.0):
+                    s = await samples.get()
+                got[s.sysid] = s
+            assert got[1] == Sample(1, 1000, 47.1, 8.1, 22.0, 12.5)
+            assert got[2].value == 99.0 and got[2].lat_deg == pytest.approx(47.2)
+
+            v1.send(mavlink.MAVLink_mission_current_message(3))
+            v1.send(mavlink.MAVLink_mission_item_reached_message(3))
+            v2.send(mavlink.MAVLink_statustext_message(4, b"trace done"))
+            assert await next_event(events, MissionItemReached) == MissionItemReached(1, 3)
+            assert await next_event(events, StatusText) == StatusText(2, 4, "trace done")
+            link = router.vehicles[1]
+            assert link.mission_current == 3 and link.mission_reached == 3
+            assert link.rel_alt_m == pytest.approx(22.0) and link.lat_deg == pytest.approx(47.1)
+            assert router.vehicles[2].statustexts[-1][1:] == (4, "trace done")
+            assert (1, "MISSION_ITEM_REACHED") in seen_msgs
+            await router.command(2, mavlink.MAV_CMD_DO_SET_MODE, 1, 4)
+            v1.close()
+            v2.close()
+        tlog.close()
+
+    run(main())
+    msgs = read_tlog(path)
+    sources = {m.get_srcSystem() for m in msgs}
+    assert {1, 2, 255} <= sources
+    kinds_out = {m.get_type() for m in msgs if m.get_srcSystem() == 255}
+    assert "COMMAND_LONG" in kinds_out
+    kinds_in = {m.get_type() for m in msgs if m.get_srcSystem() == 2}
+    assert {"HEARTBEAT", "NAMED_VALUE_FLOAT", "STATUSTEXT", "COMMAND_ACK"} <= kinds_in
+
+
+def test_port_in_use_is_a_link_error():
+    async def main():
+        async with Router(ENDPOINT) as first:
+            host, port = first.local_address
+            with pytest.raises(LinkError, match="cannot listen"):
+                await Router(f"udpin:{host}:{port}").start()
+
+    run(main())
+
+
+# -- SamplePairer without sockets -----------------------------------------------------------
+
+
+def _pos(t, lat=47.0, lon=8.0, rel_mm=15_000):
+    return mavlink.MAVLink_global_position_int_message(t, int(lat * 1e7), int(lon * 1e7),
+                                                      0, rel_mm, 0, 0, 0, 0)
+
+
+def _val(t, v, name=b"FIELD"):
+    return mavlink.MAVLink_named_value_float_message(t, name, v)
+
+
+def test_pairer_pairs_either_order():
+    p = SamplePairer(horizon_s=2.0)
+    assert p.add(1, _val(10, 3.0), 0.0) is None
+    assert p.add(1, _pos(20), 0.0) is None
+    assert p.add(1, _pos(10, 47.5, 8.5), 0.1) == Sample(1, 10, 47.5, 8.5, 15.0, 3.0)
+    assert p.add(1, _val(20, 4.0), 0.2) == Sample(1, 20, 47.0, 8.0, 15.0, 4.0)
+    assert p.pending == 0 and p.paired == 2 and p.dropped == 0
+
+
+def test_pairer_ignores_other_names_and_keeps_vehicles_apart():
+    p = SamplePairer()
+    assert p.add(1, _val(10, 1.0, b"OTHER"), 0.0) is None
+    assert p.add(1, _pos(10), 0.0) is None
+    assert p.add(2, _val(10, 2.0), 0.0) is None  # same time_boot_ms, other vehicle
+    assert p.add(1, mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 3, 3), 0.0) is None
+    assert p.pending == 2
+    assert p.add(2, _pos(10), 0.1).sysid == 2
+
+
+def test_pairer_drops_stale_halves():
+    p = SamplePairer(horizon_s=1.0)
+    p.add(1, _pos(10), 0.0)
+    p.add(1, _val(11, 5.0), 0.5)
+    p.add(1, _pos(12), 1.2)  # expires the first position (waited 1.2 s > 1.0 s)
+    assert p.dropped == 1
+    assert p.add(1, _val(10, 9.0), 1.3) is None  # its partner is gone: it waits in turn
+    assert p.expire(5.0) == 3 and p.pending == 0 and p.dropped == 4
