@@ -1,0 +1,190 @@
+"""``sim-vehicle``: run simulated MAVLink vehicles.
+
+    sim-vehicle --sysid N --mission MISSION.yaml --connect udpout:127.0.0.1:14550
+                [--speedup X] [--home LAT,LON,ALT] [--seed S] [--count N --sysid-base B]
+
+One process per vehicle. With ``--count N`` this process launches N child ``sim-vehicle``
+processes (system ids B..B+N-1, B defaults to ``--sysid``) and waits for them; for ``udpin``
+and ``tcpin`` endpoints vehicle i listens on PORT+i (PORT 0: each picks an ephemeral port).
+SIGTERM / SIGINT stop the vehicle(s) cleanly with exit status 0.
+
+At start each vehicle prints one line on stderr:
+``sim-vehicle SYSID: ready on KIND:HOST:PORT`` (the actually bound local address for
+``udpin``/``tcpin``); at exit one line with the achieved speedup and the link counters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import subprocess
+import sys
+import time
+from typing import Any
+
+from econdor_gcs.errors import EcondorError
+
+
+def _home(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}")
+    try:
+        lat, lon, alt = (float(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three numbers LAT,LON,ALT, got {text!r}"
+                                         ) from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError(f"home out of range: {text!r}")
+    return lat, lon, alt
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0 or v != v or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
+def _sysid(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 1 <= v <= 254:
+        raise argparse.ArgumentTypeError(f"system id must be within 1..254, got {v}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="sim-vehicle",
+        description="Simulated multicopter(s) speaking MAVLink 2 (PX4-like) for econdor.")
+    p.add_argument("--sysid", type=_sysid, default=1, help="MAVLink system id (default 1)")
+    p.add_argument("--mission", required=True, help="mission YAML (field, area, origin)")
+    p.add_argument("--connect", default="udpout:127.0.0.1:14550",
+                   help="udpout:HOST:PORT (default udpout:127.0.0.1:14550), udpin:HOST:PORT "
+                        "or tcpin:HOST:PORT")
+    p.add_argument("--speedup", type=_positive, default=None,
+                   help="sim time / wall time (default: the mission's vehicles.speedup)")
+    p.add_argument("--home", type=_home, default=None,
+                   help="home LAT,LON,ALT (AMSL); default the mission origin")
+    p.add_argument("--seed", type=int, default=None, help="field seed (default mission seed)")
+    p.add_argument("--count", type=int, default=1, help="launch this many vehicles")
+    p.add_argument("--sysid-base", type=_sysid, default=None,
+                   help="first system id with --count (default --sysid)")
+    p.add_argument("--tel-rate", type=_positive, default=None,
+                   help="position telemetry rate, Hz of sim time (default min(10, sample rate))")
+    return p
+
+
+def _run_one(args: argparse.Namespace) -> int:
+    from econdor_gcs.mission import load_mission
+
+    from .mavlink_vehicle import MavlinkVehicle
+    from .transport import parse_endpoint
+
+    mission = load_mission(args.mission)
+    ep = parse_endpoint(args.connect)
+    if args.seed is not None and args.seed < 0:
+        raise EcondorError(f"--seed must be >= 0, got {args.seed}")
+    overrides: dict[str, Any] = {}
+    if args.tel_rate is not None:
+        overrides["tel_rate_hz"] = args.tel_rate
+    try:
+        vehicle = MavlinkVehicle.from_mission(mission, sysid=args.sysid, connect=ep,
+                                              speedup=args.speedup, seed=args.seed,
+                                              home=args.home, **overrides)
+    except OSError as exc:
+        raise EcondorError(f"cannot open {args.connect}: {exc.strerror or exc}") from exc
+
+    def on_signal(signum: int, frame: Any) -> None:
+        vehicle.request_stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    host, port = vehicle.local_address
+    where = args.connect if ep.kind == "udpout" else f"{ep.kind}:{host}:{port}"
+    print(f"sim-vehicle {args.sysid}: ready on {where}", file=sys.stderr, flush=True)
+    t0 = time.monotonic()
+    vehicle.run()
+    wall = time.monotonic() - t0
+    print(f"sim-vehicle {args.sysid}: stopped after {wall:.1f} s wall, {vehicle.sim_time_s:.1f} s"
+          f" sim (achieved {vehicle.achieved_speedup():.1f}x of "
+          f"{vehicle.params['SPEEDUP']:g}x); samples {vehicle.counters['samples']}; "
+          f"{vehicle.counters_line()}", file=sys.stderr, flush=True)
+    return 0
+
+
+def _run_many(args: argparse.Namespace) -> int:
+    from econdor_gcs.mission import load_mission
+
+    from .transport import parse_endpoint
+
+    load_mission(args.mission)  # fail fast, once, with one line
+    ep = parse_endpoint(args.connect)
+    base = args.sysid_base if args.sysid_base is not None else args.sysid
+    if base + args.count - 1 > 254:
+        raise EcondorError(f"system ids {base}..{base + args.count - 1} exceed 254")
+    children: list[subprocess.Popen[bytes]] = []
+    stopping = False
+
+    def on_signal(signum: int, frame: Any) -> None:
+        nonlocal stopping
+        stopping = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    for i in range(args.count):
+        port = ep.port if ep.kind == "udpout" or ep.port == 0 else ep.port + i
+        cmd = [sys.executable, "-m", "sim_vehicle.cli", "--sysid", str(base + i),
+               "--mission", args.mission, "--connect", f"{ep.kind}:{ep.host}:{port}"]
+        if args.speedup is not None:
+            cmd += ["--speedup", repr(args.speedup)]
+        if args.home is not None:
+            cmd += ["--home", ",".join(repr(v) for v in args.home)]
+        if args.seed is not None:
+            cmd += ["--seed", str(args.seed)]
+        if args.tel_rate is not None:
+            cmd += ["--tel-rate", repr(args.tel_rate)]
+        children.append(subprocess.Popen(cmd))
+    status = 0
+    try:
+        while not stopping and any(c.poll() is None for c in children):
+            time.sleep(0.1)
+    finally:
+        for c in children:
+            if c.poll() is None:
+                c.terminate()
+        deadline = time.monotonic() + 5.0
+        for c in children:
+            try:
+                c.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                c.kill()
+                c.wait()
+            if c.returncode not in (0, -signal.SIGTERM):
+                status = 1
+    return status
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.count < 1:
+            raise EcondorError(f"--count must be >= 1, got {args.count}")
+        return _run_many(args) if args.count > 1 else _run_one(args)
+    except (EcondorError, ValueError) as exc:
+        print(f"sim-vehicle: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":
+    with contextlib.suppress(BrokenPipeError):
+        sys.exit(main())
