@@ -307,6 +307,11 @@ def test_telemetry_events_samples_and_tlog(tmp_path):
             events = router.event_queue()
             samples = router.sample_queue()
             seen_msgs: list[tuple[int, str]] = []
+
+            def broken(sysid, msg):
+                raise RuntimeError("a buggy consumer")
+
+            router.add_message_handler(broken)  # must not starve the others
             router.add_message_handler(lambda s, m: seen_msgs.append((s, m.get_type())))
             v1 = await FakeUdpVehicle(1).start(router.local_address)
             v2 = await FakeUdpVehicle(2).start(router.local_address)
@@ -344,6 +349,7 @@ def test_telemetry_events_samples_and_tlog(tmp_path):
             assert router.vehicles[2].statustexts[-1][1:] == (4, "trace done")
             assert (1, "MISSION_ITEM_REACHED") in seen_msgs
             await router.command(2, mavlink.MAV_CMD_DO_SET_MODE, 1, 4)
+            assert router.stats["handler_errors"] >= len(seen_msgs) > 0
             v1.close()
             v2.close()
         tlog.close()

@@ -12,6 +12,7 @@ Build messages with the dialect module re-exported here, e.g.
 from __future__ import annotations
 
 import struct
+from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -20,7 +21,7 @@ __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "Codec", "MAVLinkMessage", "Pars
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190
 
-MAVLinkMessage = mavlink.MAVLink_message
+MAVLinkMessage: TypeAlias = mavlink.MAVLink_message
 
 
 class Codec:

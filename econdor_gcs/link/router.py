@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -51,6 +52,7 @@ __all__ = [
 ]
 
 DEFAULT_ENDPOINT = "udpin:127.0.0.1:14550"
+log = logging.getLogger(__name__)
 SAMPLE_NAME = "FIELD"
 Address = tuple[str, int]
 
@@ -302,7 +304,7 @@ class Router:
         self.vehicles: dict[int, VehicleLink] = {}
         self.stats: dict[str, int] = {
             "datagrams_in": 0, "messages_in": 0, "messages_out": 0, "foreign": 0,
-            "socket_errors": 0,
+            "socket_errors": 0, "handler_errors": 0,
         }
         self._transport: asyncio.DatagramTransport | None = None
         self._housekeeping: asyncio.Task[None] | None = None
@@ -466,18 +468,26 @@ class Router:
         if kind in ("GLOBAL_POSITION_INT", "NAMED_VALUE_FLOAT"):
             sample = self.pairer.add(sysid, msg, now_mono)
             if sample is not None:
-                for handler in self._sample_handlers:
-                    handler(sample)
+                for on_sample in self._sample_handlers:
+                    self._call(on_sample, sample)
                 for q in self._sample_queues:
                     q.put_nowait(sample)
         for handler in self._message_handlers:
-            handler(sysid, msg)
+            self._call(handler, sysid, msg)
         for q in self._protocol_queues.get(sysid, ()):
             q.put_nowait(msg)
 
+    def _call(self, handler: Callable[..., None], *args: Any) -> None:
+        """Run a user callback; a failing one is logged and counted, never kills the endpoint."""
+        try:
+            handler(*args)
+        except Exception:
+            self.stats["handler_errors"] += 1
+            log.exception("GCS endpoint: a %s handler failed", type(args[-1]).__name__)
+
     def _emit(self, event: Event) -> None:
         for handler in self._event_handlers:
-            handler(event)
+            self._call(handler, event)
         for q in self._event_queues:
             q.put_nowait(event)
 
@@ -620,6 +630,12 @@ class Router:
         return await self.command(sysid, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, message_id,
                                   interval_us)
 
+    def request_data_streams(self, sysid: int, rate_hz: int = 4) -> None:
+        """Ask for all telemetry streams the legacy way (REQUEST_DATA_STREAM; ArduPilot sends only
+        heartbeats until asked).  Fire and forget; PX4 and our simulated vehicle ignore it."""
+        self.send(sysid, mavlink.MAVLink_request_data_stream_message(
+            sysid, self._compid(sysid), mavlink.MAV_DATA_STREAM_ALL, rate_hz, 1))
+
     async def wait_for_vehicles(self, vehicles: int | Iterable[int],
                                 timeout_s: float = 10.0) -> list[int]:
         """Wait until ``vehicles`` (a count, or the system ids) have heartbeated.
@@ -627,12 +643,13 @@ class Router:
         Returns the sorted system ids seen (for a count: the first ``n`` once ``n`` are seen).
         Raises :class:`VehicleTimeout` naming the missing ones.
         """
+        count = vehicles if isinstance(vehicles, int) else None
         wanted = None if isinstance(vehicles, int) else sorted(set(vehicles))
 
         def ready() -> bool:
-            if wanted is None:
-                return len(self.vehicles) >= vehicles  # type: ignore[operator]
-            return all(s in self.vehicles for s in wanted)
+            if count is not None:
+                return len(self.vehicles) >= count
+            return all(s in self.vehicles for s in wanted or ())
 
         try:
             async with asyncio.timeout(timeout_s):
@@ -640,18 +657,18 @@ class Router:
                     self._changed.clear()
                     await self._changed.wait()
         except TimeoutError:
-            if wanted is None:
+            if count is not None:
                 raise VehicleTimeout(
-                    f"only {len(self.vehicles)} of {vehicles} vehicles appeared within "
+                    f"only {len(self.vehicles)} of {count} vehicles appeared within "
                     f"{timeout_s:g} s") from None
-            missing = [s for s in wanted if s not in self.vehicles]
+            missing = [s for s in wanted or () if s not in self.vehicles]
             plural = "s" if len(missing) > 1 else ""
             raise VehicleTimeout(
                 f"vehicle{plural} {', '.join(map(str, missing))} never appeared within "
                 f"{timeout_s:g} s") from None
-        if wanted is None:
-            return sorted(self.vehicles)[: int(vehicles)]  # type: ignore[call-overload]
-        return wanted
+        if count is not None:
+            return sorted(self.vehicles)[:count]
+        return wanted or []
 
 
 GcsEndpoint = Router
