@@ -90,6 +90,9 @@ class TracerParams:
         Radius of the local search used to reacquire a lost contour.
     max_reacquire
         Maximum number of reacquisition attempts per task.
+    min_loop_radius_m
+        A full turn of the heading within ``2 pi`` times this path length (without the
+        loop closing) is taken as orbiting off the contour, i.e. the contour is lost.
     budget_factor
         Trace tick budget: this many region perimeters (plus ``max_length_m``) at
         half the cruise speed.
@@ -116,6 +119,7 @@ class TracerParams:
     lost_time_s: float = 3.0
     reacquire_radius_m: float = 8.0
     max_reacquire: int = 2
+    min_loop_radius_m: float = 3.0
     budget_factor: float = 4.0
 
 
@@ -351,9 +355,15 @@ def _bracket(prev: Sample | None, cur: Sample, level: float) -> tuple[float, flo
 
 
 def _found(
-    meter: _Meter, params: TracerParams, prev: Sample, cur: Sample, cross: tuple[float, float]
+    meter: _Meter,
+    params: TracerParams,
+    prev: Sample | None,
+    cur: Sample,
+    cross: tuple[float, float],
 ) -> _Found:
     gx, gy, _ = _fit_recent(meter.recent, params.gradient_window)
+    if prev is None:
+        return _Found(cross[0], cross[1], gx, gy)
     # the bracketing pair gives the derivative along the last step: trust its sign
     sx, sy = cur.x_m - prev.x_m, cur.y_m - prev.y_m
     step = math.hypot(sx, sy)
@@ -392,9 +402,9 @@ def _search(
     # ---- probe: a short leg across the arrival direction (two if still degenerate)
     arrival = 0.0
     if len(meter.recent) >= 2:
-        a, b = meter.recent[-2], meter.recent[-1]
-        if math.hypot(b.x_m - a.x_m, b.y_m - a.y_m) > 1e-6:
-            arrival = math.atan2(b.y_m - a.y_m, b.x_m - a.x_m)
+        q0, q1 = meter.recent[-2], meter.recent[-1]
+        if math.hypot(q1.x_m - q0.x_m, q1.y_m - q0.y_m) > 1e-6:
+            arrival = math.atan2(q1.y_m - q0.y_m, q1.x_m - q0.x_m)
     probe_dirs = [arrival + 0.5 * math.pi, arrival]
     for k, ang in enumerate(probe_dirs):
         _, _, spread = _fit_recent(meter.recent, params.gradient_window)
@@ -451,7 +461,7 @@ def _search(
             break
 
     # ---- expanding Archimedean spiral around the start point
-    b = params.spiral_spacing_m / (2.0 * math.pi)
+    pitch = params.spiral_spacing_m / (2.0 * math.pi)
     phi0 = math.atan2(body.y_m - cy_m, body.x_m - cx_m)
     theta = 2.0 * math.pi
     lookahead_m = 2.0
@@ -459,23 +469,23 @@ def _search(
                     / (0.5 * v_min) / body.dt_s) + 100
 
     def spiral_point(th: float) -> tuple[float, float]:
-        r = b * th
+        r = pitch * th
         return region.clip(cx_m + r * math.cos(th + phi0), cy_m + r * math.sin(th + phi0))
 
     for _ in range(max_ticks):
-        if b * theta > radius_m:
+        if pitch * theta > radius_m:
             return None
         px, py = spiral_point(theta)
-        while math.hypot(px - body.x_m, py - body.y_m) < lookahead_m and b * theta <= radius_m:
-            r = b * theta
-            theta += 0.3 / math.hypot(r, b)
+        while math.hypot(px - body.x_m, py - body.y_m) < lookahead_m and pitch * theta <= radius_m:
+            r = pitch * theta
+            theta += 0.3 / math.hypot(r, pitch)
             px, py = spiral_point(theta)
-        r = b * theta
+        r = pitch * theta
         v = min(v_search, max(v_min, math.sqrt(0.5 * accel * r)))
         ex, ey = px - body.x_m, py - body.y_m
         dist = math.hypot(ex, ey)
         if dist < 1e-9:
-            theta += 0.3 / math.hypot(r, b)
+            theta += 0.3 / math.hypot(r, pitch)
             continue
         cur = step(v * ex / dist, v * ey / dist)
         yield cur
@@ -536,6 +546,10 @@ def _trace_leg(
     d_clip = 1.5 * params.lost_offset_m
     lost_s = 0.0
     prev_dist: float | None = None
+    n_fit = 0
+    turned_rad = 0.0
+    turn_hist: deque[tuple[float, float]] = deque()
+    orbit_m = 2.0 * math.pi * params.min_loop_radius_m
     window: deque[Sample] = deque(maxlen=params.gradient_window)
 
     # turn onto the initial heading slowly before the controller takes over
@@ -562,6 +576,7 @@ def _trace_leg(
         d_c = max(-d_clip, min(d_clip, d_f))
         w_max = min(turn_max, lat_accel / speed)
         omega = speed * kappa - kp * d_c - kd * dd_f
+        k_need = max(abs(kappa), abs(omega) / speed)  # curvature the controller asks for
         omega = max(-w_max, min(w_max, omega))
         kappa -= ki / speed * d_c * dt
         k_max = w_max / speed
@@ -572,8 +587,9 @@ def _trace_leg(
         ux, uy = math.cos(psi), math.sin(psi)
         # --- speed: cruise, slowed in bends and when the boundary is ahead
         v_target = cruise
-        if abs(kappa) > 1e-9:
-            v_target = min(v_target, math.sqrt(0.7 * lat_accel / abs(kappa)))
+        heading_before = body.heading_rad
+        if k_need > 1e-9:
+            v_target = min(v_target, math.sqrt(0.7 * lat_accel / k_need))
         edge = _ray_to_edge_m(region, body.x_m, body.y_m, ux, uy)
         v_target = min(v_target, math.sqrt(2.0 * 0.5 * lim.max_accel_mps2
                                            * max(edge - params.boundary_margin_m, 0.0)) + 0.5)
@@ -586,7 +602,8 @@ def _trace_leg(
         yield cur
         # --- measurement update
         window.append(cur)
-        if len(window) >= max(6, params.gradient_window // 2):
+        n_fit += 1
+        if n_fit % 4 == 0 and len(window) >= max(6, params.gradient_window // 2):
             gn, spread = _fit_cross_gradient(window)
             if spread >= params.min_spread_m and gn > 0.0:
                 g_new = 0.8 * state.grad_mag + 0.2 * gn
@@ -610,6 +627,12 @@ def _trace_leg(
             _ray_to_edge_m(region, cur.x_m, cur.y_m, ux, uy) < params.boundary_margin_m
         ):
             return "boundary"
+        turned_rad += wrap_angle_rad(body.heading_rad - heading_before)
+        turn_hist.append((body.odometer_m, turned_rad))
+        while body.odometer_m - turn_hist[0][0] > orbit_m:
+            turn_hist.popleft()
+        if abs(turned_rad - turn_hist[0][1]) >= 2.0 * math.pi:
+            return "lost"
         lost_s = lost_s + dt if abs(d_meas) > params.lost_offset_m else 0.0
         if lost_s > params.lost_time_s:
             return "lost"
@@ -675,6 +698,7 @@ def trace_contour(
     reacquired = 0
     side = 1.0
     heading = heading0
+    status = "lost"
     while True:
         status = yield from _trace_leg(meter, task, params, state, heading, side)
         if status == "lost" and reacquired < params.max_reacquire:

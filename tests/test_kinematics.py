@@ -98,7 +98,8 @@ def test_body_tick_clock_and_own_position_sensing() -> None:
     calls: list[tuple[float, float]] = []
     region = Region(0.0, 100.0, 0.0, 100.0)
 
-    def field(x: np.float64, y: np.float64) -> np.float64:
+    def field(x: float, y: float) -> float:
+        assert isinstance(x, np.float64) and isinstance(y, np.float64)
         calls.append((float(x), float(y)))
         return np.float64(2.0 * x + y)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from econdor_gcs.core.geometry import Region, path_length
-from econdor_gcs.core.tasks import Phase, TaskOutcome, TraceTask, Waypoint
+from econdor_gcs.core.tasks import Phase, Task, TaskOutcome, TraceTask, Waypoint
 from sim_vehicle.body import Sample, SimBody
 from sim_vehicle.executor import run_plan, run_task
 from sim_vehicle.tracer import TracerParams, fly_to, trace_contour
@@ -185,7 +185,7 @@ def test_run_task_dispatch() -> None:
 
 def test_run_plan_collects_samples() -> None:
     body = SimBody(gaussian(50.0, 50.0), REGION, 5.0, 5.0, t_s=100.0)
-    tasks = [Waypoint(30.0, 30.0), TraceTask(level_at(20.0), 74.0, 50.0, 10.0, 0.0, 4),
+    tasks: list[Task] = [Waypoint(30.0, 30.0), TraceTask(level_at(20.0), 74.0, 50.0, 10.0, 0.0, 4),
              Waypoint(60.0, 20.0)]
     report = run_plan(body, tasks, vehicle=3, return_to=(5.0, 5.0))
     log = report.samples
@@ -205,3 +205,44 @@ def test_run_plan_collects_samples() -> None:
     assert log.t_s[-1] == pytest.approx(100.0 + report.sim_s)
     assert math.hypot(report.end_x_m - 5.0, report.end_y_m - 5.0) <= 1.0
     assert (report.end_x_m, report.end_y_m) == (log.x_m[-1], log.y_m[-1])
+
+
+@pytest.mark.parametrize("noise_std", [0.0, 0.05])
+def test_wavy_open_contour(noise_std: float) -> None:
+    # g = 5 sin(x / 10) + 0.5 y: the level 25 is y = 50 - 10 sin(x / 10), an open wavy
+    # line across the whole area (curvature up to 0.1 1/m, gradient 0.5 .. 0.7 /m)
+    def field(x, y):
+        return 5.0 * np.sin(x / 10.0) + 0.5 * y
+
+    def contour_y(x):
+        return 50.0 - 10.0 * np.sin(x / 10.0)
+
+    body = SimBody(field, REGION, 10.0, 10.0, noise_std=noise_std,
+                   rng=np.random.default_rng(5))
+    task = TraceTask(25.0, 55.0, float(contour_y(55.0)) + 4.0, 10.0, 0.0, 0)
+    samples, outcome = drain(trace_contour(body, task))
+    assert outcome.status == "boundary"
+    trace = np.array([(s.x_m, s.y_m) for s in samples if s.phase == Phase.TRACE])
+    xx = np.linspace(0.0, 100.0, 20001)
+    yy = contour_y(xx)
+    dist = np.array([np.min(np.hypot(xx - x, yy - y)) for x, y in trace])
+    assert dist.max() < 1.0
+    assert trace[:, 0].min() < 2.0 and trace[:, 0].max() > 98.0  # both edges reached
+    true_len = path_length(xx, yy)
+    assert outcome.traced_m == pytest.approx(true_len, rel=0.1)
+
+
+@pytest.mark.parametrize(
+    "field, level",
+    [
+        (lambda x, y: 0.0 * x + 5.0, 5.0),  # flat field exactly at the level, noisy
+        (lambda x, y: 100.0 * np.exp(-((x - 50) ** 2 + (y - 50) ** 2) / 50.0), 92.0),  # r=2 m
+        (lambda x, y: 10.0 * np.tanh((x - 50.0) / 0.3), 0.0),  # near-discontinuity
+    ],
+)
+def test_pathological_fields_terminate(field, level: float) -> None:
+    body = SimBody(field, REGION, 10.0, 10.0, noise_std=0.1, rng=np.random.default_rng(0))
+    samples, outcome = drain(trace_contour(body, TraceTask(level, 52.0, 48.0, 10.0, 0.0, 0)))
+    assert outcome.status in {"closed", "boundary", "length_limit", "not_found", "lost"}
+    # hard budget: 4 region perimeters at half cruise speed plus transit/search
+    assert len(samples) < 5000
