@@ -105,6 +105,12 @@ PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_S
                "ALT_M", "SPEEDUP")
 
 
+def _reset_parser(parser: mavlink.MAVLink) -> None:
+    parser.buf = bytearray()
+    parser.buf_index = 0
+    parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+
+
 class _Sink:
     """File-like shim: pymavlink's MAVLink.send() writes here, we forward to the transport."""
 
@@ -366,13 +372,15 @@ class MavlinkVehicle:
                 parser = mavlink.MAVLink(None)
                 parser.robust_parsing = True
                 self._parsers[peer] = parser
+            if not self.transport.stream and parser.buf_len() > 0:
+                # a datagram is self-contained: leftovers of the previous one are garbage
+                self.counters["rx_bad"] += 1
+                _reset_parser(parser)
             try:
                 msgs = parser.parse_buffer(data) or []
             except Exception:  # noqa: BLE001 - never let a peer's bytes kill the vehicle
                 self.counters["rx_bad"] += 1
-                parser.buf = bytearray()
-                parser.buf_index = 0
-                parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+                _reset_parser(parser)
                 continue
             for msg in msgs:
                 if isinstance(msg, mavlink.MAVLink_bad_data):

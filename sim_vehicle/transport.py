@@ -15,6 +15,7 @@ peer can have its own parser. Sending never blocks: what does not fit is dropped
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import socket
 import time
@@ -56,6 +57,9 @@ def parse_endpoint(text: str) -> Endpoint:
 class Transport:
     """Base: subclasses fill ``recv_all`` and ``send``."""
 
+    stream = False
+    """True for byte streams (TCP): a parser keeps partial packets across reads."""
+
     def __init__(self) -> None:
         self.tx_dropped = 0
         self.tx_packets = 0
@@ -94,10 +98,8 @@ class UdpTransport(Transport):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
         for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
-            try:
+            with contextlib.suppress(OSError):  # platform limits
                 self.sock.setsockopt(socket.SOL_SOCKET, opt, 1 << 20)
-            except OSError:  # pragma: no cover - platform limits
-                pass
         self.fixed: tuple[str, int] | None = None
         try:
             if ep.kind == "udpout":
@@ -179,6 +181,8 @@ class _TcpClient:
 
 
 class TcpServerTransport(Transport):
+    stream = True
+
     def __init__(self, ep: Endpoint) -> None:
         super().__init__()
         self.server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -223,10 +227,8 @@ class TcpServerTransport(Transport):
 
     def _drop(self, sock: socket.socket) -> None:
         self.clients.pop(sock, None)
-        try:
+        with contextlib.suppress(OSError):
             sock.close()
-        except OSError:  # pragma: no cover
-            pass
 
     def recv_all(self, max_chunks: int) -> list[tuple[object, bytes]]:
         self._accept()
@@ -247,7 +249,7 @@ class TcpServerTransport(Transport):
         return out
 
     def send(self, data: bytes) -> None:
-        for sock, client in list(self.clients.items()):
+        for client in list(self.clients.values()):
             if len(client.pending) + len(data) > TCP_PENDING_LIMIT:
                 self.tx_dropped += 1
                 continue
