@@ -11,9 +11,6 @@ from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
-
-from econdor_gcs.mission import load_mission
-from sim_vehicle.mission_server import MissionServer
 from vehicle_helpers import (
     DEMO,
     GcsLink,
@@ -23,6 +20,9 @@ from vehicle_helpers import (
     sim_vehicle_cmd,
     wait_for,
 )
+
+from econdor_gcs.mission import load_mission
+from sim_vehicle.mission_server import MissionServer
 
 GCS = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
 DECODER = mavlink.MAVLink(None)
@@ -233,7 +233,8 @@ def test_heartbeat_and_version(vehicle, gcs):
                            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED
     av = gcs.recv_match("AUTOPILOT_VERSION")
-    need = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    need = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
     assert av.capabilities & need == need
     gcs.command_long(1, mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1)
