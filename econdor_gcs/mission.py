@@ -103,6 +103,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "reconstruction": (str, "auto", _one_of("auto", "exact", "fast")),
         "min_piece_length_m": (float, 2.0, _non_negative),
         "keep_diagonals": (bool, True, None),
+        "max_idle_iterations": (int, 2, _non_negative),
     },
     "lawnmower": {
         "spacing_m": (float, 0.0, _non_negative),
@@ -225,6 +226,7 @@ class AlgorithmConfig:
     reconstruction: str
     min_piece_length_m: float
     keep_diagonals: bool
+    max_idle_iterations: int
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,158 @@
+"""The ``econdor`` command line: a thin shell over the library.
+
+Any :class:`~econdor_gcs.errors.EcondorError` becomes one line on stderr and exit 1;
+usage errors exit 2 (argparse). No traceback for a user's mistake.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from .errors import EcondorError
+from .mission import load_mission
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="econdor", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a mission over MAVLink (starts simulated vehicles "
+                                     "unless --connect is given)")
+    run.add_argument("mission", type=Path)
+    run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<name>-<time>)")
+    run.add_argument("--planner", choices=("econdor", "no-sg", "lawnmower"), default=None)
+    run.add_argument("--vehicles", type=_positive_int, default=None)
+    run.add_argument("--speedup", type=_positive_float, default=None)
+    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--connect", default=None,
+                     help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
+    run.add_argument("--timeout", type=_positive_float, default=20.0,
+                     help="seconds to wait for vehicles to appear / answer (default 20)")
+    run.add_argument("--quiet", action="store_true")
+
+    st = sub.add_parser("study", help="in-process study over many seeds")
+    st.add_argument("mission", type=Path)
+    st.add_argument("--seeds", default="0:4", help="A:B (B excluded) or a comma list")
+    st.add_argument("--planner", choices=("econdor", "no-sg", "lawnmower", "all"), default="econdor")
+    st.add_argument("--out", type=Path, required=True)
+    st.add_argument("--workers", type=_positive_int, default=None,
+                    help="local worker processes (default: number of cores)")
+    st.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
+    st.add_argument("--vehicles", type=_positive_int, default=None)
+    st.add_argument("--no-figures", action="store_true")
+    st.add_argument("--quiet", action="store_true")
+
+    rep = sub.add_parser("report", help="redraw the figures of a run directory")
+    rep.add_argument("run_dir", type=Path)
+
+    ex = sub.add_parser("export", help="export the missions of a run for real autopilots")
+    ex.add_argument("run_dir", type=Path)
+    ex.add_argument("--format", choices=("wpl", "plan", "geojson"), required=True)
+    ex.add_argument("--out", type=Path, required=True)
+    ex.add_argument("--iteration", type=int, default=None)
+    ex.add_argument("--vehicle", type=int, default=None)
+    return p
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    from .study import PLANNERS, default_workers, parse_seeds, run_study
+
+    mission = load_mission(args.mission)
+    if args.vehicles:
+        mission = mission.with_vehicles(count=args.vehicles)
+    seeds = parse_seeds(args.seeds)
+    planners = list(PLANNERS) if args.planner == "all" else [args.planner]
+    total = len(seeds) * len(planners)
+    workers = args.workers or default_workers()
+    if args.quiet:
+        summary = run_study(mission, seeds, planners, args.out, workers, args.scheduler,
+                            figures=not args.no_figures)
+    else:
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        console = Console(stderr=True)
+        columns = (TextColumn("[bold]study[/]"), BarColumn(),
+                   TextColumn("{task.completed}/{task.total} runs"), TimeElapsedColumn())
+        with Progress(*columns, console=console) as prog:
+            task = prog.add_task("", total=total)
+
+            def tick(r: dict[str, Any]) -> None:
+                s = r["summary"]
+                prog.advance(task)
+                prog.console.print(
+                    f"  {s['planner']:>9} seed {s['seed']:>3}: {s['iterations']} it, "
+                    f"MAE {s['final_mae_db']:.1f} dB, flown {s['flight_distance_m']:.0f} m, "
+                    f"{s['wall_s']:.1f} s")
+
+            summary = run_study(mission, seeds, planners, args.out, workers, args.scheduler,
+                                progress=tick, figures=not args.no_figures)
+    for planner, agg in summary["by_planner"].items():
+        print(f"{planner:>9}: median final MAE {agg['median_final_mae_db']:.1f} dB over "
+              f"{agg['runs']} runs, median flown {agg['median_flight_distance_m']:.0f} m")
+    print(f"wrote {args.out / 'study.csv'}")
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .figures import plot_run
+
+    if not (args.run_dir / "metrics.csv").exists():
+        raise EcondorError(f"{args.run_dir}: not a run directory (no metrics.csv)")
+    for path in plot_run(args.run_dir):
+        print(path)
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .gcs import run_mission_cli
+
+    return run_mission_cli(args)
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .export import export_cli
+
+    return export_cli(args)
+
+
+COMMANDS = {"study": _cmd_study, "report": _cmd_report, "run": _cmd_run, "export": _cmd_export}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except EcondorError as exc:
+        print(f"econdor: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("econdor: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

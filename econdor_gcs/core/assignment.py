@@ -1,0 +1,55 @@
+"""Fleet assignment: split jobs over vehicles so the fleet finishes soon and transit is short.
+
+A greedy longest-processing-time heuristic with transit: jobs in decreasing length go to
+the vehicle whose finish time (current load + transit to the job + job length) is
+smallest; each vehicle's jobs are then ordered by nearest neighbour from its position,
+and contour pieces are entered at their point nearest to where the vehicle comes from.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from .planners import Job
+from .tasks import Task
+
+
+def assign_jobs(
+    jobs: Sequence[Job],
+    positions_m: Sequence[tuple[float, float]],
+    search_radius_m: float = 10.0,
+    first_piece_id: int = 0,
+) -> list[list[Task]]:
+    """Return one task list per vehicle (same order as ``positions_m``)."""
+    n = len(positions_m)
+    loads = [0.0] * n
+    ends = list(positions_m)
+    buckets: list[list[Job]] = [[] for _ in range(n)]
+    for job in sorted(jobs, key=lambda j: -j.length_m):
+        costs = [loads[v] + math.dist(ends[v], job.start_m) + job.length_m for v in range(n)]
+        v = min(range(n), key=costs.__getitem__)
+        loads[v] = costs[v]
+        ends[v] = job.end_m
+        buckets[v].append(job)
+    plans: list[list[Task]] = []
+    piece_id = first_piece_id
+    for v in range(n):
+        pos = positions_m[v]
+        todo = list(buckets[v])
+        tasks: list[Task] = []
+        while todo:
+            for j in todo:
+                if j.piece is not None:
+                    task0 = j.tasks[0]
+                    j.retarget(*pos, search_radius_m, getattr(task0, "max_length_m", 0.0),
+                               piece_id)
+            k = min(range(len(todo)), key=lambda i: math.dist(pos, todo[i].start_m))
+            job = todo.pop(k)
+            if job.piece is not None:
+                job.retarget(*pos, search_radius_m, job.tasks[0].max_length_m, piece_id)  # type: ignore[union-attr]
+                piece_id += 1
+            tasks.extend(job.tasks)
+            pos = job.end_m
+        plans.append(tasks)
+    return plans

@@ -1,0 +1,228 @@
+"""Planners: what the fleet flies in each iteration.
+
+All planners share the DFC loop, the reconstruction and the cost accounting; they
+differ only in what they ask the vehicles to fly:
+
+* ``econdor`` — the paper's dual SG: ``M_n = M_{n-1} + kappa_n`` Lloyd-Max levels of the
+  current estimate, minus the levels within ``delta_n`` of an already traced level.
+* ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
+  level re-traced, nothing dropped.
+* ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
+  flying the lines in between (or one survey sized for ``budget_m``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .contours import ContourPiece, contour_pieces
+from .geometry import FloatArray, Grid, Region
+from .levels import lloyd_max
+from .sg import drop_redundant, initial_delta, update_delta, update_kappa
+from .tasks import Task, TraceTask, Waypoint
+
+
+@dataclass
+class Job:
+    """A unit of work for one vehicle: a contour piece to trace or a survey line."""
+
+    tasks: list[Task]
+    start_m: tuple[float, float]
+    end_m: tuple[float, float]
+    length_m: float
+    piece: ContourPiece | None = None
+
+    def retarget(self, x_m: float, y_m: float, search_radius_m: float, max_len: float,
+                 piece_id: int) -> None:
+        """For a contour piece: start at the piece point nearest to ``(x_m, y_m)``."""
+        if self.piece is None:
+            return
+        sx, sy = self.piece.nearest_point(x_m, y_m)
+        self.start_m = (sx, sy)
+        if self.piece.closed:
+            self.end_m = (sx, sy)
+        else:
+            ends = self.piece.points_m[[0, -1]]
+            far = int(np.argmax(np.hypot(ends[:, 0] - sx, ends[:, 1] - sy)))
+            self.end_m = (float(ends[far, 0]), float(ends[far, 1]))
+        self.tasks = [TraceTask(self.piece.level, sx, sy, search_radius_m, max_len, piece_id)]
+
+
+@dataclass
+class Batch:
+    """What one iteration flies, and the bookkeeping the reports need."""
+
+    jobs: list[Job]
+    levels_planned: int
+    levels: FloatArray = field(default_factory=lambda: np.zeros(0))
+    dropped: FloatArray = field(default_factory=lambda: np.zeros(0))
+    kappa: int = 0
+    delta: float = 0.0
+    survey_m: float = 0.0
+
+
+def diagonal_jobs(region: Region, n_vehicles: int) -> list[Job]:
+    """The two main diagonals, cut into ``n_vehicles`` pieces of equal length."""
+    diag = [((region.xmin, region.ymin), (region.xmax, region.ymax)),
+            ((region.xmax, region.ymin), (region.xmin, region.ymax))]
+    d = math.hypot(region.width_m, region.height_m)
+    total = 2 * d
+    cuts = np.linspace(0.0, total, n_vehicles + 1)
+    jobs: list[Job] = []
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        pts: list[tuple[float, float]] = []
+        for k, (p, q) in enumerate(diag):
+            lo, hi = max(a, k * d), min(b, (k + 1) * d)
+            if hi <= lo:
+                continue
+            for s in (lo, hi):
+                t = (s - k * d) / d
+                pts.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
+        tasks: list[Task] = [Waypoint(*pt) for pt in pts]
+        length = sum(math.dist(u, v) for u, v in zip(pts[:-1], pts[1:], strict=True))
+        jobs.append(Job(tasks, pts[0], pts[-1], length))
+    return jobs
+
+
+def survey_jobs(region: Region, xs: FloatArray) -> list[Job]:
+    """North-south survey lines at the given eastings, alternating direction."""
+    jobs = []
+    for i, x in enumerate(np.sort(np.asarray(xs, dtype=float))):
+        a, b = (region.ymin, region.ymax) if i % 2 == 0 else (region.ymax, region.ymin)
+        jobs.append(Job([Waypoint(float(x), a), Waypoint(float(x), b)], (float(x), a),
+                        (float(x), b), region.height_m))
+    return jobs
+
+
+def lawnmower_lines_for_budget(region: Region, budget_m: float) -> int:
+    """How many north-south lines fit a flight budget (lines plus the cross-track legs)."""
+    n = int((budget_m - region.width_m) // region.height_m)
+    return max(2, n)
+
+
+class ContourPlanner:
+    """E-CONDOR (``sg=True``) or the no-SG baseline (``sg=False``)."""
+
+    def __init__(
+        self,
+        m0: int = 3,
+        sg: bool = True,
+        lloyd_bins: int | None = 200,
+        lloyd_iterations: int = 100,
+        min_piece_length_m: float = 2.0,
+        search_radius_m: float = 10.0,
+        max_trace_length_m: float = 0.0,
+    ) -> None:
+        self.m0 = m0
+        self.sg = sg
+        self.lloyd_bins = lloyd_bins
+        self.lloyd_iterations = lloyd_iterations
+        self.min_piece_length_m = min_piece_length_m
+        self.search_radius_m = search_radius_m
+        self.max_trace_length_m = max_trace_length_m
+        self.name = "econdor" if sg else "no-sg"
+        self.m = 0
+        self.kappa = 1
+        self.delta = 0.0
+        self.errors: list[float] = []
+        self.traced: list[float] = []
+        self.batches = 0
+
+    def observe(self, learning_error: float) -> None:
+        """Record the learning error of the iteration just finished (eq. 3)."""
+        self.errors.append(float(learning_error))
+
+    def _levels(self, estimate: FloatArray) -> FloatArray:
+        return lloyd_max(estimate, self.m, self.lloyd_bins, self.lloyd_iterations)
+
+    def next_batch(self, estimate: FloatArray, grid: Grid) -> Batch:
+        """Levels and contour pieces for the next iteration.
+
+        As in the authors' implementation: batch 1 traces ``m0`` levels and sets the
+        initial ``delta`` to their smallest gap; batch 2 adds one level (``kappa = 1``,
+        only one learning error exists yet) and drops nothing; from batch 3 on, kappa and
+        delta follow eqs. (6)-(7) and redundant levels are dropped. Without SG every batch
+        adds one level and re-traces all of them.
+        """
+        self.batches += 1
+        if self.batches == 1:
+            self.m = self.m0
+            levels = self._levels(estimate)
+            self.delta = initial_delta(levels[:3])
+        elif not self.sg or self.batches == 2:
+            self.m += 1
+            levels = self._levels(estimate)
+        else:
+            e2 = self.errors[-2] if len(self.errors) >= 2 else None
+            e1 = self.errors[-1] if self.errors else None
+            self.kappa = update_kappa(self.kappa, e2, e1)
+            self.delta = update_delta(self.delta, e2, e1)
+            self.m += self.kappa
+            levels = self._levels(estimate)
+        if self.sg and self.batches >= 3:
+            keep, dropped = drop_redundant(levels, self.traced, self.delta)
+        else:
+            keep, dropped = levels, np.zeros(0)
+        pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+        jobs = []
+        for p in pieces:
+            max_len = self.max_trace_length_m or max(4.0 * p.length_m, 100.0)
+            job = Job([], (0.0, 0.0), (0.0, 0.0), p.length_m, piece=p)
+            job.retarget(*p.midpoint(), self.search_radius_m, max_len, 0)
+            jobs.append(job)
+        self.traced.extend(float(v) for v in keep)
+        return Batch(jobs, levels_planned=len(levels), levels=keep, dropped=dropped,
+                     kappa=self.kappa, delta=self.delta)
+
+
+class LawnmowerPlanner:
+    """Boustrophedon survey refined each iteration (spacing halves), or sized for a budget."""
+
+    name = "lawnmower"
+
+    def __init__(self, region: Region, spacing_m: float = 0.0, budget_m: float = 0.0) -> None:
+        self.region = region
+        self.budget_m = budget_m
+        self.spacing_m = spacing_m or region.width_m / 4
+        self.flown_x: set[float] = set()
+        self.iteration = 0
+
+    def observe(self, learning_error: float) -> None:
+        pass
+
+    def lines(self) -> FloatArray:
+        r = self.region
+        if self.budget_m > 0:
+            n = lawnmower_lines_for_budget(r, self.budget_m)
+            if self.iteration > 0:
+                return np.zeros(0)
+            return np.linspace(r.xmin, r.xmax, n)
+        s = self.spacing_m / 2**self.iteration
+        xs = np.arange(r.xmin, r.xmax + 1e-9, s)
+        if xs[-1] < r.xmax - 1e-9:
+            xs = np.r_[xs, r.xmax]
+        return np.array([x for x in np.round(xs, 6) if x not in self.flown_x])
+
+    def next_batch(self, estimate: FloatArray | None = None, grid: Grid | None = None) -> Batch:
+        xs = self.lines()
+        self.iteration += 1
+        self.flown_x.update(float(x) for x in xs)
+        jobs = survey_jobs(self.region, xs)
+        return Batch(jobs, levels_planned=0, survey_m=sum(j.length_m for j in jobs))
+
+
+def make_planner(name: str, mission) -> ContourPlanner | LawnmowerPlanner:  # noqa: ANN001
+    a = mission.algorithm
+    if name in ("econdor", "no-sg"):
+        return ContourPlanner(
+            m0=a.m0, sg=(name == "econdor"), lloyd_bins=a.lloyd_bins,
+            lloyd_iterations=a.lloyd_iterations, min_piece_length_m=a.min_piece_length_m,
+            search_radius_m=a.search_radius_m, max_trace_length_m=a.max_trace_length_m,
+        )
+    if name == "lawnmower":
+        return LawnmowerPlanner(mission.region, mission.lawnmower.spacing_m,
+                                mission.lawnmower.budget_m)
+    raise ValueError(f"planner: unknown planner {name!r} (econdor, no-sg, lawnmower)")

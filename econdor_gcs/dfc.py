@@ -1,0 +1,383 @@
+"""The data fusion center loop, independent of the transport.
+
+The DFC flies the initiation pattern, reconstructs the field, asks the planner for a
+batch of jobs, assigns them to the fleet, has an :class:`Executor` fly them, collects the
+samples, re-estimates, updates the planner (kappa, delta) and repeats until the stop rule.
+The in-process executor (:mod:`econdor_gcs.inprocess`) calls the tracer directly; the
+MAVLink executor uploads missions to vehicles. Only the transport differs.
+
+Stop rule (all configurable in the mission's ``algorithm`` section):
+
+* ``max_iterations`` reached;
+* ``flight_budget_m`` (> 0) spent;
+* after ``min_iterations``: ``gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2})`` within
+  ``1 +- stop_lambda`` (``stop_lambda`` > 0; the learning error has levelled off) and the
+  span of the estimate changed by less than 1 % in the last iteration;
+* ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
+  redundant or without a contour piece): the run has stalled. An idle iteration still
+  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from .core import metrics
+from .core.assignment import assign_jobs
+from .core.fields import Field
+from .core.geometry import FloatArray, Grid
+from .core.planners import (
+    Batch,
+    ContourPlanner,
+    LawnmowerPlanner,
+    diagonal_jobs,
+    make_planner,
+    survey_jobs,
+)
+from .core.spline import reconstruct
+from .core.tasks import FlightReport, Phase, SampleLog, Task
+from .mission import Mission
+
+
+class Executor(Protocol):
+    """Flies per-vehicle task lists and reports what happened."""
+
+    n_vehicles: int
+
+    def positions(self) -> list[tuple[float, float]]: ...
+
+    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]: ...
+
+    def finish(self) -> list[FlightReport]:
+        """Bring every vehicle home; return what was flown doing so."""
+        ...
+
+
+@dataclass
+class IterationRecord:
+    """One row of ``metrics.csv`` (DESIGN.md §5)."""
+
+    iteration: int
+    levels_planned: int
+    levels_traced: int
+    kappa: int
+    delta: float
+    learning_error: float
+    mae: float
+    mae_db: float
+    span_ratio: float
+    contour_distance_m: float
+    flight_distance_m: float
+    samples: int
+    mae_rel: float = math.nan
+    sim_s: float = 0.0
+    reconstruction_s: float = 0.0
+    levels: list[float] = field(default_factory=list)
+    dropped: list[float] = field(default_factory=list)
+    pieces: int = 0
+    outcomes: dict[str, int] = field(default_factory=dict)
+
+    CSV_COLUMNS = (
+        "iteration", "levels_planned", "levels_traced", "kappa", "delta", "learning_error",
+        "mae", "mae_db", "span_ratio", "contour_distance_m", "flight_distance_m", "samples",
+    )
+
+    def csv_row(self) -> dict[str, Any]:
+        d = asdict(self)
+        return {k: d[k] for k in self.CSV_COLUMNS}
+
+
+@dataclass
+class RunResult:
+    planner: str
+    seed: int
+    records: list[IterationRecord]
+    samples: SampleLog
+    grid: Grid
+    estimate: FloatArray
+    truth: FloatArray | None
+    converged: bool
+    stop_reason: str
+    vehicles: int
+    sim_s: float
+    wall_s: float
+    reconstruction_s: float
+    flight_distance_m: float
+    contour_distance_m: float
+    isoline_error_m: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        last = self.records[-1] if self.records else None
+        return {
+            "planner": self.planner,
+            "seed": self.seed,
+            "iterations": len(self.records),
+            "final_mae": last.mae if last else math.nan,
+            "final_mae_db": last.mae_db if last else math.nan,
+            "final_mae_rel": last.mae_rel if last else math.nan,
+            "span_ratio": last.span_ratio if last else math.nan,
+            "flight_distance_m": self.flight_distance_m,
+            "contour_distance_m": self.contour_distance_m,
+            "samples": len(self.samples),
+            "converged": self.converged,
+            "stop_reason": self.stop_reason,
+            "wall_s": self.wall_s,
+            "sim_s": self.sim_s,
+            "reconstruction_s": self.reconstruction_s,
+            "vehicles": self.vehicles,
+            "isoline_error_m": self.isoline_error_m,
+        }
+
+
+Progress = Callable[[str, dict[str, Any]], None]
+
+
+def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
+    lo, hi = float(np.min(truth)), float(np.max(truth))
+    return [lo + f * (hi - lo) for f in fractions]
+
+
+class Dfc:
+    """One DFC run. ``truth`` (the true field) is only used for metrics, never for planning."""
+
+    def __init__(
+        self,
+        mission: Mission,
+        executor: Executor,
+        planner: str | None = None,
+        truth: Field | None = None,
+        seed: int | None = None,
+        progress: Progress | None = None,
+        on_samples: Callable[[SampleLog], None] | None = None,
+    ) -> None:
+        self.mission = mission
+        self.executor = executor
+        self.planner_name = planner or mission.algorithm.planner
+        self.planner: ContourPlanner | LawnmowerPlanner = make_planner(self.planner_name, mission)
+        self.truth_field = truth
+        self.seed = mission.seed if seed is None else seed
+        self.progress = progress or (lambda event, info: None)
+        self.on_samples = on_samples
+        self.grid = mission.grid
+        self.truth = None
+        if truth is not None:
+            xx, yy = self.grid.mesh
+            self.truth = np.asarray(truth(xx, yy), dtype=float)
+        self.logs: list[SampleLog] = []
+        self.records: list[IterationRecord] = []
+        self.flight_m = 0.0
+        self.contour_m = 0.0
+        self.sim_s = 0.0
+        self.recon_s = 0.0
+
+    # -- helpers --------------------------------------------------------------------------
+    def _samples(self) -> SampleLog:
+        return SampleLog.concat(self.logs)
+
+    def _reconstruct(self) -> FloatArray:
+        s = self._samples()
+        if not self.mission.algorithm.keep_diagonals and len(self.records) > 0:
+            keep = s.phase != Phase.SURVEY
+            s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
+                          s.vehicle[keep])
+        t0 = time.perf_counter()
+        est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
+                          method=self.mission.algorithm.reconstruction)
+        self.recon_s += time.perf_counter() - t0
+        self._last_recon_s = time.perf_counter() - t0
+        return est
+
+    def _fly(self, jobs_or_plans: list[list[Task]], iteration: int, initiation: bool = False
+             ) -> tuple[list[FlightReport], float, float]:
+        reports = self.executor.fly(jobs_or_plans, iteration)
+        return self._account(reports, initiation)
+
+    def _account(self, reports: list[FlightReport], initiation: bool = False
+                 ) -> tuple[list[FlightReport], float, float]:
+        flown = sum(r.flown_m for r in reports)
+        traced = sum(r.traced_m for r in reports)
+        for r in reports:
+            log = r.samples
+            if initiation:
+                log.phase = np.full(len(log), Phase.SURVEY, dtype=np.int8)
+            self.logs.append(log)
+            if self.on_samples is not None:
+                self.on_samples(log)
+        self.flight_m += flown
+        self.contour_m += traced
+        self.sim_s += max((r.sim_s for r in reports), default=0.0)
+        return reports, flown, traced
+
+    def _initiation_plans(self) -> list[list[Task]]:
+        m = self.mission
+        n = self.executor.n_vehicles
+        if isinstance(self.planner, LawnmowerPlanner):
+            jobs = self.planner.next_batch().jobs
+        elif m.initiation.pattern == "lawnmower":
+            xs = np.arange(m.region.xmin, m.region.xmax + 1e-9, m.initiation.spacing_m)
+            jobs = survey_jobs(m.region, xs)
+        else:
+            jobs = diagonal_jobs(m.region, n)
+            if len(jobs) == n:  # one diagonal share per vehicle, in order
+                return [list(j.tasks) for j in jobs]
+        return assign_jobs(jobs, self.executor.positions(), m.algorithm.search_radius_m)
+
+    def _subsample_initiation(self, reports: list[FlightReport]) -> None:
+        k = self.mission.initiation.samples_per_diagonal
+        if k <= 0:
+            return
+        total = 2 * k
+        per = max(1, total // max(1, len(reports)))
+        for r in reports:
+            s = r.samples
+            if len(s) > per:
+                idx = np.unique(np.linspace(0, len(s) - 1, per).round().astype(int))
+                r.samples = SampleLog(s.t_s[idx], s.x_m[idx], s.y_m[idx], s.value[idx],
+                                      s.phase[idx], s.vehicle[idx])
+
+    def _record(self, it: int, batch: Batch | None, estimate: FloatArray,
+                previous: FloatArray | None, reports: list[FlightReport]) -> IterationRecord:
+        le = metrics.learning_error(estimate, previous) if previous is not None else math.nan
+        if self.truth is not None:
+            mae = metrics.mae(self.truth, estimate)
+            span_t = metrics.span(self.truth)
+            rec_mae_rel = mae / span_t if span_t > 0 else math.nan
+            sr = metrics.span_ratio(estimate, self.truth)
+        else:
+            mae, rec_mae_rel, sr = math.nan, math.nan, math.nan
+        outcomes: dict[str, int] = {}
+        for r in reports:
+            for o in r.outcomes:
+                outcomes[o.status] = outcomes.get(o.status, 0) + 1
+        contour_m = self.contour_m
+        if isinstance(self.planner, LawnmowerPlanner):
+            contour_m = self.contour_m_survey
+        rec = IterationRecord(
+            iteration=it,
+            levels_planned=batch.levels_planned if batch else 0,
+            levels_traced=len(batch.levels) if batch else 0,
+            kappa=batch.kappa if batch else 0,
+            delta=batch.delta if batch else 0.0,
+            learning_error=le,
+            mae=mae,
+            mae_db=metrics.to_db(mae) if not math.isnan(mae) else math.nan,
+            span_ratio=sr,
+            contour_distance_m=contour_m,
+            flight_distance_m=self.flight_m,
+            samples=sum(len(s) for s in self.logs),
+            mae_rel=rec_mae_rel,
+            sim_s=self.sim_s,
+            reconstruction_s=self._last_recon_s,
+            levels=[float(v) for v in batch.levels] if batch else [],
+            dropped=[float(v) for v in batch.dropped] if batch else [],
+            pieces=len(batch.jobs) if batch else 0,
+            outcomes=outcomes,
+        )
+        self.records.append(rec)
+        self.progress("iteration", asdict(rec))
+        return rec
+
+    # -- the loop -------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        wall0 = time.perf_counter()
+        a = self.mission.algorithm
+        self.contour_m_survey = 0.0
+        self.progress("start", {"planner": self.planner_name, "seed": self.seed,
+                                "vehicles": self.executor.n_vehicles})
+        plans = self._initiation_plans()
+        reports = self.executor.fly(plans, 0)
+        if not isinstance(self.planner, LawnmowerPlanner):
+            self._subsample_initiation(reports)
+        self._account(reports, initiation=not isinstance(self.planner, LawnmowerPlanner))
+        if isinstance(self.planner, LawnmowerPlanner):
+            self.contour_m_survey = self._survey_m(plans)
+        estimate = self._reconstruct()
+        self._record(0, None, estimate, None, reports)
+        converged, reason = False, "max_iterations"
+        span_prev = metrics.span(estimate)
+        idle = 0
+        for it in range(1, a.max_iterations + 1):
+            if a.flight_budget_m > 0 and self.flight_m >= a.flight_budget_m:
+                reason = "flight_budget"
+                break
+            batch = self.planner.next_batch(estimate, self.grid)
+            idle = 0 if batch.jobs else idle + 1
+            if idle > a.max_idle_iterations:
+                reason = "stalled"
+                break
+            plans = assign_jobs(batch.jobs, self.executor.positions(), a.search_radius_m,
+                                first_piece_id=1000 * it)
+            self.progress("plan", {"iteration": it, "levels": [float(v) for v in batch.levels],
+                                   "dropped": [float(v) for v in batch.dropped],
+                                   "pieces": len(batch.jobs), "kappa": batch.kappa,
+                                   "delta": batch.delta})
+            previous = estimate
+            if batch.jobs:
+                reports, _, _ = self._fly(plans, it)
+                if isinstance(self.planner, LawnmowerPlanner):
+                    self.contour_m_survey += batch.survey_m
+                estimate = self._reconstruct()
+            else:  # nothing new: the estimate (and so E_n = 0) is unchanged
+                reports = []
+                self._last_recon_s = 0.0
+            rec = self._record(it, batch, estimate, previous, reports)
+            self.planner.observe(rec.learning_error)
+            span_now = metrics.span(estimate)
+            if it >= a.min_iterations and self._gamma_converged(span_prev, span_now):
+                converged, reason = True, "learning_error_converged"
+                break
+            span_prev = span_now
+        else:
+            reason = "max_iterations"
+        home = self.executor.finish()
+        if home:
+            self._account(home)
+            if self.records:
+                self.records[-1].flight_distance_m = self.flight_m
+                self.records[-1].samples = sum(len(s) for s in self.logs)
+        result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
+        self.progress("done", result.summary())
+        return result
+
+    @staticmethod
+    def _survey_m(plans: list[list[Task]]) -> float:
+        total = 0.0
+        for tasks in plans:
+            for p, q in zip(tasks[:-1], tasks[1:], strict=False):
+                if getattr(p, "x_m", None) == getattr(q, "x_m", None):
+                    total += abs(q.y_m - p.y_m)  # type: ignore[union-attr]
+        return total
+
+    def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
+        lam = self.mission.algorithm.stop_lambda
+        errs = [r.learning_error for r in self.records if not math.isnan(r.learning_error)]
+        if lam <= 0 or len(errs) < 3:
+            return False
+        e0, e1, e2 = errs[-1], errs[-2], errs[-3]
+        denom = e0 + e1 + e2
+        gamma = 3 * e0 / denom if denom > 0 else 1.0
+        span_ok = span_now > 0 and abs(span_now - span_prev) / span_now < 0.01
+        return abs(gamma - 1.0) <= lam and span_ok
+
+    def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float
+                ) -> RunResult:
+        iso: dict[str, float] = {}
+        if self.truth is not None:
+            for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True):
+                iso[f"p{frac}"] = metrics.isoline_error(self.truth, estimate, self.grid, lv)
+        return RunResult(
+            planner=self.planner_name, seed=self.seed, records=self.records,
+            samples=self._samples(), grid=self.grid, estimate=estimate, truth=self.truth,
+            converged=converged, stop_reason=reason, vehicles=self.executor.n_vehicles,
+            sim_s=self.sim_s, wall_s=wall_s, reconstruction_s=self.recon_s,
+            flight_distance_m=self.flight_m,
+            contour_distance_m=(self.contour_m_survey
+                                if isinstance(self.planner, LawnmowerPlanner) else self.contour_m),
+            isoline_error_m=iso,
+        )

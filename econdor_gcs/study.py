@@ -1,0 +1,179 @@
+"""In-process studies: the whole DFC loop over many seeds and planners, in parallel.
+
+Each (seed, planner) run builds the seed's true field, flies the in-process executor
+(the same tracer as the MAVLink vehicle) and writes a small run directory under
+``OUT/runs/<planner>-<seed>/``. Runs go to local worker processes, or to an existing Dask
+cluster when a scheduler address is given. The study writes ``OUT/study.csv`` (one row
+per seed, planner and iteration), ``OUT/summary.json`` and the figures.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import statistics
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+from .dfc import Dfc, IterationRecord
+from .errors import EcondorError
+from .inprocess import InProcessExecutor
+from .mission import Mission
+from .rundir import RunDir, write_json
+
+PLANNERS = ("econdor", "no-sg", "lawnmower")
+STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"A:B"`` -> A..B-1 (Python slice convention); ``"3"`` -> [3]; ``"1,4,7"`` -> list."""
+    try:
+        if ":" in text:
+            a, b = text.split(":", 1)
+            seeds = list(range(int(a), int(b)))
+        else:
+            seeds = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError as exc:
+        raise EcondorError(f"--seeds: expected A:B or a comma list of integers, got {text!r}") from exc
+    if not seeds or min(seeds) < 0:
+        raise EcondorError(f"--seeds: need at least one seed >= 0, got {text!r}")
+    return seeds
+
+
+def run_seed(mission: Mission, seed: int, planner: str, out_dir: str | None,
+             n_vehicles: int | None = None) -> dict[str, Any]:
+    """One in-process run. Returns ``{"summary": ..., "rows": [...], "run_dir": ...}``."""
+    field = mission.build_field(seed)
+    executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed)
+    run_dir = None
+    rd = None
+    if out_dir is not None:
+        run_dir = str(Path(out_dir) / "runs" / f"{planner}-{seed}")
+        rd = RunDir(run_dir)
+    try:
+        dfc = Dfc(mission, executor, planner=planner, truth=field, seed=seed,
+                  on_samples=rd.append_samples if rd else None)
+        result = dfc.run()
+        if rd is not None:
+            rd.write_result(result, {"mission": mission.name, "transport": "in-process"})
+    finally:
+        if rd is not None:
+            rd.close()
+    rows = [{"seed": seed, "planner": planner, **r.csv_row()} for r in result.records]
+    return {"summary": result.summary(), "rows": rows, "run_dir": run_dir,
+            "levels": [r.levels for r in result.records],
+            "kappa": [r.kappa for r in result.records],
+            "delta": [r.delta for r in result.records]}
+
+
+def _median(values: Iterable[float]) -> float:
+    v = [x for x in values if x is not None and not math.isnan(x)]
+    return statistics.median(v) if v else math.nan
+
+
+def aggregate(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per-planner medians of the final metrics."""
+    out: dict[str, Any] = {}
+    for planner in sorted({r["summary"]["planner"] for r in results}):
+        rs = [r["summary"] for r in results if r["summary"]["planner"] == planner]
+        out[planner] = {
+            "runs": len(rs),
+            "median_final_mae_db": _median(s["final_mae_db"] for s in rs),
+            "median_final_mae": _median(s["final_mae"] for s in rs),
+            "median_flight_distance_m": _median(s["flight_distance_m"] for s in rs),
+            "median_contour_distance_m": _median(s["contour_distance_m"] for s in rs),
+            "median_iterations": _median(s["iterations"] for s in rs),
+            "median_span_ratio": _median(s["span_ratio"] for s in rs),
+            "converged": sum(bool(s["converged"]) for s in rs),
+            "median_isoline_error_m": {
+                k: _median(s["isoline_error_m"].get(k, math.nan) for s in rs)
+                for k in ("p25", "p50", "p75")
+            },
+        }
+    return out
+
+
+def run_study(
+    mission: Mission,
+    seeds: list[int],
+    planners: list[str],
+    out_dir: str | Path,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+    figures: bool = True,
+) -> dict[str, Any]:
+    """Run every (seed, planner) and write the study outputs. Returns the summary."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [(seed, planner) for seed in seeds for planner in planners]
+    t0 = time.perf_counter()
+    results: list[dict[str, Any]] = []
+    notify = progress or (lambda r: None)
+    if scheduler:
+        results = _run_dask(mission, jobs, str(out), scheduler, notify)
+    elif (workers or 1) <= 1 or len(jobs) == 1:
+        for seed, planner in jobs:
+            r = run_seed(mission, seed, planner, str(out))
+            results.append(r)
+            notify(r)
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futs = [pool.submit(run_seed, mission, s, p, str(out)) for s, p in jobs]
+            for fut in as_completed(futs):
+                r = fut.result()
+                results.append(r)
+                notify(r)
+    results.sort(key=lambda r: (PLANNERS.index(r["summary"]["planner"]), r["summary"]["seed"]))
+    rows = [row for r in results for row in r["rows"]]
+    with (out / "study.csv").open("w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=STUDY_COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+    summary = {
+        "mission": mission.name,
+        "seeds": seeds,
+        "planners": planners,
+        "wall_s": time.perf_counter() - t0,
+        "by_planner": aggregate(results),
+        "runs": [r["summary"] for r in results],
+    }
+    write_json(out / "summary.json", summary)
+    if figures:
+        from .figures import plot_study
+
+        maps = {r["summary"]["planner"]: r["run_dir"] for r in results
+                if r["summary"]["seed"] == seeds[0] and r["run_dir"]}
+        plot_study(rows, out / "figures", maps=maps)
+    return summary
+
+
+def _run_dask(mission: Mission, jobs: list[tuple[int, str]], out: str, scheduler: str,
+              notify: Callable[[dict[str, Any]], None]) -> list[dict[str, Any]]:
+    try:
+        from dask.distributed import Client
+        from dask.distributed import as_completed as dask_completed
+    except ImportError as exc:
+        raise EcondorError("--scheduler needs dask[distributed]: pip install 'econdor[dask]'") from exc
+    try:
+        client = Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise EcondorError(f"--scheduler: cannot reach Dask scheduler at {scheduler}: {exc}") from exc
+    try:
+        futs = [client.submit(run_seed, mission, s, p, out, pure=False) for s, p in jobs]
+        results = []
+        for fut in dask_completed(futs):
+            r = fut.result()
+            results.append(r)
+            notify(r)
+        return results
+    finally:
+        client.close()
+
+
+def default_workers() -> int:
+    return max(1, os.cpu_count() or 1)
