@@ -210,6 +210,7 @@ class MavlinkVehicle:
             "rx_unhandled": 0, "tx_packets": 0, "samples": 0, "ticks": 0, "commands": 0,
         }
         self._parsers: dict[object, mavlink.MAVLink] = {}
+        self._unhandled: dict[str, int] = {}
         self._rx_window: dict[object, list[float]] = {}
         self._intervals: dict[int, float] = {}  # msg id -> interval override (s), <0 = off
         self._last_sent_wall: dict[str, float] = {}
@@ -424,6 +425,7 @@ class MavlinkVehicle:
         handler = getattr(self, "_on_" + mtype.lower(), None)
         if handler is None:
             self.counters["rx_unhandled"] += 1
+            self._unhandled[mtype] = self._unhandled.get(mtype, 0) + 1
             return
         handler(msg)
 
@@ -789,6 +791,11 @@ class MavlinkVehicle:
 
     def _on_heartbeat(self, msg: Any) -> None:
         pass
+
+    def _on_ping(self, msg: Any) -> None:
+        if msg.target_system == 0:
+            self._send(mavlink.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
+                                                    msg.get_srcComponent()))
 
     def _on_timesync(self, msg: Any) -> None:
         if msg.tc1 == 0:
