@@ -203,6 +203,20 @@ def test_new_count_or_gcs_ack_cancels_transfer():
     assert s.upload is None and s.poll(5.0) == [] and s.mission == []
 
 
+def test_fast_enu_matches_pymap3d():
+    from econdor_gcs.geodesy import Origin
+    from sim_vehicle.mavlink_vehicle import FastEnu
+
+    for lat0, lon0 in ((47.397742, 8.545594), (-33.9, 151.2), (0.0, -70.0), (78.2, 15.6)):
+        o = Origin(lat0, lon0, 488.0)
+        f = FastEnu(lat0, lon0, 488.0)
+        for e, n, u in ((0, 0, 0), (100, 100, 30), (-4000, 2500, 10), (2500, -4900, 120)):
+            lat, lon, h = o.to_global(e, n, u)
+            flat, flon, fh = f.to_geodetic(e, n, u)
+            assert abs(lat - flat) < 1e-10 and abs(lon - flon) < 1e-10
+            assert abs(h - (fh - 488.0)) < 1e-4
+
+
 # ------------------------------------------------------------------ vehicle over sockets
 
 
