@@ -42,6 +42,8 @@ ID_GPI = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 ID_NVF = mavlink.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT
 ID_HB = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 CLK = os.sysconf("SC_CLK_TCK")
+WANTED = {ID_HB, mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mavlink.MAVLINK_MSG_ID_MISSION_ACK,
+          mavlink.MAVLINK_MSG_ID_COMMAND_ACK}
 
 
 def cpu_s(pid: int) -> float:
@@ -82,6 +84,11 @@ class Router:
                 data, addr = self.sock.recvfrom(65535)
             except TimeoutError:
                 continue
+            if len(data) >= 10 and data[0] == 0xFD:
+                # decode only what the set-up needs; telemetry is skipped unparsed
+                self.addr[data[5]] = addr
+                if (data[7] | (data[8] << 8) | (data[9] << 16)) not in WANTED:
+                    continue
             for m in self.parser.parse_buffer(data) or []:
                 if isinstance(m, mavlink.MAVLink_bad_data):
                     continue
@@ -122,7 +129,16 @@ def mission_items(origin, sysid: int, field) -> list:
     return items
 
 
-def upload(r: Router, sysid: int, items: list) -> None:
+def upload(r: Router, sysid: int, items: list, attempts: int = 3) -> None:
+    for attempt in range(attempts):
+        try:
+            return _upload(r, sysid, items)
+        except RuntimeError:
+            if attempt == attempts - 1:
+                raise
+
+
+def _upload(r: Router, sysid: int, items: list) -> None:
     r.send(sysid, mavlink.MAVLink_mission_count_message(sysid, 1, len(items), 0))
     end = time.monotonic() + 30
     while time.monotonic() < end:
@@ -221,7 +237,7 @@ def run_config(count: int, speedup: float, window: float) -> dict:
     sysids = list(range(1, count + 1))
     try:
         for s in sysids:
-            r.wait(s, "HEARTBEAT", timeout=30)
+            r.wait(s, "HEARTBEAT", timeout=120)  # 20 cold starts on a small machine: slow
         for s in sysids:
             upload(r, s, mission_items(mission.origin, s, field))
             command(r, s, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)

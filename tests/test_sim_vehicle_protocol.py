@@ -391,6 +391,24 @@ def test_garbage_corruption_and_wrong_target_do_not_stop_it(vehicle, gcs):
     assert gcs.recv_match("STATUSTEXT", lambda m: m.text.startswith("rx ")).text
 
 
+def test_flood_is_dropped_and_counted(vehicle, gcs):
+    hb = gcs.pack(mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))
+    t0 = time.monotonic()
+    while vehicle.counters["rx_flood"] == 0 and time.monotonic() - t0 < 10:
+        for _ in range(2000):
+            gcs.send_raw(hb)
+    assert vehicle.counters["rx_flood"] > 0
+
+    def answers():  # within the flood's budget window a command is dropped too; retry
+        gcs.flush()
+        try:
+            return gcs.command_long(1, 31999, timeout=0.3).result
+        except TimeoutError:
+            return None
+
+    assert wait_for(answers, 5, "an answer after the flood") == mavlink.MAV_RESULT_UNSUPPORTED
+
+
 def test_upload_survives_packet_loss(vehicle, gcs):
     items = [item_int(i, 16, *ll(10 + i, 20), 10, current=int(i == 0)) for i in range(12)]
     sent = {"n": 0}
