@@ -108,7 +108,7 @@ class Router:
 
 
 def mission_items(origin, sysid: int, field) -> list:
-    """A long mission: takeoff, 3 x lawnmower (10 m spacing), 2 trace items."""
+    """A long mission: takeoff, 5 x lawnmower (10 m spacing), 2 trace items (~6 km)."""
     def item(seq, cmd, x=0.0, y=0.0, alt=20.0, p1=0.0, p2=0.0, p3=0.0, p4=0.0):
         lat, lon, _ = origin.to_global(x, y) if (x or y) else (0.0, 0.0, 0.0)
         return mavlink.MAVLink_mission_item_int_message(
@@ -116,7 +116,7 @@ def mission_items(origin, sysid: int, field) -> list:
             p1, p2, p3, p4, int(round(lat * 1e7)), int(round(lon * 1e7)), alt, 0)
 
     pts = []
-    for _rep in range(3):
+    for _rep in range(5):
         for i, x in enumerate(range(5, 100, 10)):
             ys = (5, 95) if i % 2 == 0 else (95, 5)
             pts += [(float(x), float(ys[0])), (float(x), float(ys[1]))]
@@ -238,8 +238,9 @@ def run_config(count: int, speedup: float, window: float) -> dict:
     try:
         for s in sysids:
             r.wait(s, "HEARTBEAT", timeout=120)  # 20 cold starts on a small machine: slow
-        for s in sysids:
+        for s in sysids:  # all uploads first, then start them together
             upload(r, s, mission_items(mission.origin, s, field))
+        for s in sysids:
             command(r, s, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
             command(r, s, mavlink.MAV_CMD_MISSION_START)
         time.sleep(0.3)  # let the takeoffs start (not part of the window)
