@@ -82,6 +82,7 @@ class IterationRecord:
     dropped: list[float] = field(default_factory=list)
     pieces: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
+    forced: int = 0
 
     CSV_COLUMNS = (
         "iteration", "levels_planned", "levels_traced", "kappa", "delta", "learning_error",
@@ -278,6 +279,7 @@ class Dfc:
             dropped=[float(v) for v in batch.dropped] if batch else [],
             pieces=len(batch.jobs) if batch else 0,
             outcomes=outcomes,
+            forced=batch.forced if batch else 0,
         )
         self.records.append(rec)
         self.progress("iteration", asdict(rec))

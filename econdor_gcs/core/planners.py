@@ -5,6 +5,11 @@ differ only in what they ask the vehicles to fly:
 
 * ``econdor`` — the paper's dual SG: ``M_n = M_{n-1} + kappa_n`` Lloyd-Max levels of the
   current estimate, minus the levels within ``delta_n`` of an already traced level.
+  When *every* new level is redundant, the ``kappa_n`` least redundant ones (farthest
+  from any traced level) are flown instead (counted in ``Batch.forced``). An empty
+  iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
+  iteration's error then reads as a rise, which triples delta (eq. 7) and the method
+  stalls for good — measured on the paper's field, not hypothetical.
 * ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
@@ -21,7 +26,7 @@ import numpy as np
 from .contours import ContourPiece, contour_pieces
 from .geometry import FloatArray, Grid, Region
 from .levels import lloyd_max
-from .sg import drop_redundant, initial_delta, update_delta, update_kappa
+from .sg import drop_redundant, initial_delta, normalised_gradient, update_delta, update_kappa
 from .tasks import Task, TraceTask, Waypoint
 
 
@@ -62,6 +67,7 @@ class Batch:
     kappa: int = 0
     delta: float = 0.0
     survey_m: float = 0.0
+    forced: int = 0
 
 
 def diagonal_jobs(region: Region, n_vehicles: int) -> list[Job]:
@@ -148,6 +154,7 @@ class ContourPlanner:
         adds one level and re-traces all of them.
         """
         self.batches += 1
+        forced = 0
         if self.batches == 1:
             self.m = self.m0
             levels = self._levels(estimate)
@@ -155,6 +162,9 @@ class ContourPlanner:
         elif not self.sg or self.batches == 2:
             self.m += 1
             levels = self._levels(estimate)
+        if not self.sg or self.batches <= 2:
+            keep, dropped = levels, np.zeros(0)
+            pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
         else:
             e2 = self.errors[-2] if len(self.errors) >= 2 else None
             e1 = self.errors[-1] if self.errors else None
@@ -162,11 +172,17 @@ class ContourPlanner:
             self.delta = update_delta(self.delta, e2, e1)
             self.m += self.kappa
             levels = self._levels(estimate)
-        if self.sg and self.batches >= 3:
             keep, dropped = drop_redundant(levels, self.traced, self.delta)
-        else:
-            keep, dropped = levels, np.zeros(0)
-        pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+            pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+            if not pieces and len(dropped):
+                # Every new level is redundant: fly the kappa least redundant ones
+                # rather than an empty iteration (see the module docstring).
+                gap = np.min(np.abs(dropped[:, None] - np.asarray(self.traced)[None, :]), axis=1)
+                chosen = np.zeros(len(dropped), dtype=bool)
+                chosen[np.argsort(-gap, kind="stable")[: self.kappa]] = True
+                keep, dropped = dropped[chosen], dropped[~chosen]
+                pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+                forced = len(keep)
         jobs = []
         for p in pieces:
             max_len = self.max_trace_length_m or max(4.0 * p.length_m, 100.0)
@@ -175,7 +191,7 @@ class ContourPlanner:
             jobs.append(job)
         self.traced.extend(float(v) for v in keep)
         return Batch(jobs, levels_planned=len(levels), levels=keep, dropped=dropped,
-                     kappa=self.kappa, delta=self.delta)
+                     kappa=self.kappa, delta=self.delta, forced=forced)
 
 
 class LawnmowerPlanner:
