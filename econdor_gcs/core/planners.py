@@ -26,7 +26,7 @@ import numpy as np
 from .contours import ContourPiece, contour_pieces
 from .geometry import FloatArray, Grid, Region
 from .levels import lloyd_max
-from .sg import drop_redundant, initial_delta, normalised_gradient, update_delta, update_kappa
+from .sg import drop_redundant, initial_delta, update_delta, update_kappa
 from .tasks import Task, TraceTask, Waypoint
 
 
