@@ -1,0 +1,116 @@
+"""Planners, fleet assignment and the level schedule of E-CONDOR."""
+
+import math
+
+import numpy as np
+import pytest
+
+from econdor_gcs.core.assignment import assign_jobs
+from econdor_gcs.core.geometry import Grid, Region
+from econdor_gcs.core.planners import (
+    ContourPlanner,
+    LawnmowerPlanner,
+    diagonal_jobs,
+    lawnmower_lines_for_budget,
+)
+from econdor_gcs.core.sg import update_delta, update_kappa
+from econdor_gcs.core.tasks import TraceTask, Waypoint
+
+REGION = Region(0, 100, 0, 100)
+GRID = Grid(REGION, 101, 101)
+
+
+def ramp():
+    """A field whose values are spread evenly: g = x (0..100)."""
+    xx, _ = GRID.mesh
+    return xx.copy()
+
+
+def test_contour_planner_follows_the_authors_schedule():
+    p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
+    b1 = p.next_batch(ramp(), GRID)
+    assert b1.levels_planned == 3 and len(b1.levels) == 3
+    np.testing.assert_allclose(b1.levels, [16.67, 50.0, 83.33], atol=0.6)
+    assert p.delta == pytest.approx(np.min(np.diff(b1.levels)))
+    assert len(b1.jobs) == 3  # one straight contour line per level
+    p.observe(4.0)
+    b2 = p.next_batch(ramp(), GRID)  # kappa stays 1, nothing dropped
+    assert b2.levels_planned == 4 and len(b2.dropped) == 0 and b2.kappa == 1
+    p.observe(1.6)
+    delta_before = p.delta
+    b3 = p.next_batch(ramp(), GRID)
+    assert b3.kappa == update_kappa(1, 4.0, 1.6) == 3  # eq. (6)
+    assert b3.levels_planned == 4 + 3
+    assert b3.delta == pytest.approx(update_delta(delta_before, 4.0, 1.6))  # eq. (7)
+    assert b3.forced == 0 and len(b3.levels) > 0 and len(b3.dropped) > 0
+    traced = np.r_[b1.levels, b2.levels]
+    for lv in b3.levels:  # kept levels are >= delta away from every traced level
+        assert np.min(np.abs(traced - lv)) >= b3.delta
+    for lv in b3.dropped:
+        assert np.min(np.abs(traced - lv)) < b3.delta
+
+
+def test_all_levels_redundant_flies_the_kappa_least_redundant():
+    p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
+    p.next_batch(ramp(), GRID)
+    p.observe(1.0)
+    p.next_batch(ramp(), GRID)
+    p.observe(3.0)  # the learning error ROSE: eq. (7) grows delta a lot
+    b = p.next_batch(ramp(), GRID)
+    assert b.delta > 30  # every new level is within delta of a traced one
+    assert b.forced == b.kappa == len(b.levels) > 0
+    assert len(b.jobs) > 0
+
+
+def test_no_sg_adds_one_level_and_retraces_all():
+    p = ContourPlanner(m0=3, sg=False, lloyd_bins=None)
+    ms = []
+    for e in (5.0, 1.0, 0.5, 0.2):
+        b = p.next_batch(ramp(), GRID)
+        ms.append(b.levels_planned)
+        assert len(b.levels) == b.levels_planned and len(b.dropped) == 0 and b.kappa == 1
+        p.observe(e)
+    assert ms == [3, 4, 5, 6]
+
+
+def test_diagonal_jobs_split_evenly():
+    for n in (1, 2, 3, 5):
+        jobs = diagonal_jobs(REGION, n)
+        assert len(jobs) == n
+        on_diagonal = []
+        for j in jobs:
+            pts = [(t.x_m, t.y_m) for t in j.tasks]
+            on_diagonal.append(sum(math.dist(a, b) for a, b in zip(pts[:-1], pts[1:])
+                                   if abs(abs(b[0] - a[0]) - abs(b[1] - a[1])) < 1e-9))
+        assert sum(on_diagonal) == pytest.approx(2 * math.hypot(100, 100))
+        assert max(on_diagonal) == pytest.approx(min(on_diagonal))
+        assert all(isinstance(t, Waypoint) for j in jobs for t in j.tasks)
+
+
+def test_assignment_is_balanced_complete_and_transit_aware():
+    p = ContourPlanner(m0=9, sg=False, lloyd_bins=None)
+    batch = p.next_batch(ramp(), GRID)
+    plans = assign_jobs(batch.jobs, [(0.0, 0.0), (100.0, 0.0), (50.0, 100.0)])
+    tasks = [t for plan in plans for t in plan]
+    assert len(tasks) == len(batch.jobs) == 9
+    assert len({t.piece_id for t in tasks}) == 9  # unique piece ids
+    counts = [len(plan) for plan in plans]
+    assert max(counts) - min(counts) <= 1  # nine equal 100 m lines over three vehicles
+    # the vehicle starting at x=0 gets the western lines, the one at x=100 the eastern ones
+    assert np.mean([t.level for t in plans[0]]) < np.mean([t.level for t in plans[1]])
+    for plan in plans:
+        assert all(isinstance(t, TraceTask) for t in plan)
+
+
+def test_lawnmower_refines_and_fits_budget():
+    lm = LawnmowerPlanner(REGION, spacing_m=25.0)
+    first = lm.next_batch()
+    assert len(first.jobs) == 5 and first.survey_m == pytest.approx(500.0)
+    second = lm.next_batch()
+    xs = sorted(j.tasks[0].x_m for j in second.jobs)
+    np.testing.assert_allclose(xs, [12.5, 37.5, 62.5, 87.5])  # the lines in between
+    assert lawnmower_lines_for_budget(REGION, 1100.0) == 10
+    budget = LawnmowerPlanner(REGION, budget_m=1100.0)
+    b = budget.next_batch()
+    assert len(b.jobs) == 10
+    assert budget.next_batch().jobs == []
