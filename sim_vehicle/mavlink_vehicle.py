@@ -22,6 +22,23 @@ Flight modes use PX4's encoding: ``custom_mode = main_mode << 16 | sub_mode << 2
 (see :data:`MODES`): AUTO.LOITER (hold; the boot mode), AUTO.MISSION, AUTO.RTL, AUTO.LAND,
 AUTO.TAKEOFF. ``base_mode`` always has CUSTOM_MODE_ENABLED, plus SAFETY_ARMED when armed
 and AUTO|GUIDED|STABILIZE (all modes here are auto modes).
+
+Commands (COMMAND_LONG and COMMAND_INT, always answered by COMMAND_ACK): COMPONENT_ARM_DISARM
+(arm only on the ground; disarm in the air only with the 21196 force code), NAV_TAKEOFF
+(param7 AMSL; needs armed), MISSION_START (param1/2 first/last; needs armed + a mission),
+NAV_RETURN_TO_LAUNCH, NAV_LAND, DO_SET_MODE (PX4 main 4 = AUTO, sub 2/3/4/5/6), DO_CHANGE_SPEED
+(from the next item), DO_SET_MISSION_CURRENT, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE,
+REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION; anything else -> MAV_RESULT_UNSUPPORTED.
+Arming in AUTO.MISSION starts the mission (PX4 habit). Uploading or clearing the mission
+while it runs makes the vehicle hold.
+
+Parameters (REAL32): SPEED_MPS, SAMPLE_HZ, SEARCH_RAD_M, TEL_RATE_HZ, NOISE_STD, ALT_M,
+SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when idle).
+
+Robustness: garbage, bad-CRC and truncated packets, messages for other systems/components,
+and more than :data:`RX_BUDGET_PER_S` messages per second from one peer are dropped and
+counted in :attr:`MavlinkVehicle.counters`; REQUEST_MESSAGE(STATUSTEXT=253) answers with a
+one-line summary, and ``sim-vehicle`` prints it at exit.
 """
 
 from __future__ import annotations
