@@ -82,6 +82,7 @@ class IterationRecord:
     dropped: list[float] = field(default_factory=list)
     pieces: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
+    isoline_error_m: dict[str, float] = field(default_factory=dict)
     forced: int = 0
 
     CSV_COLUMNS = (
@@ -250,8 +251,9 @@ class Dfc:
             span_t = metrics.span(self.truth)
             rec_mae_rel = mae / span_t if span_t > 0 else math.nan
             sr = metrics.span_ratio(estimate, self.truth)
+            iso = self._isoline_errors(estimate)
         else:
-            mae, rec_mae_rel, sr = math.nan, math.nan, math.nan
+            mae, rec_mae_rel, sr, iso = math.nan, math.nan, math.nan, {}
         outcomes: dict[str, int] = {}
         for r in reports:
             for o in r.outcomes:
@@ -279,6 +281,7 @@ class Dfc:
             dropped=[float(v) for v in batch.dropped] if batch else [],
             pieces=len(batch.jobs) if batch else 0,
             outcomes=outcomes,
+            isoline_error_m=iso,
             forced=batch.forced if batch else 0,
         )
         self.records.append(rec)
@@ -367,12 +370,15 @@ class Dfc:
         span_ok = span_now > 0 and abs(span_now - span_prev) / span_now < 0.01
         return abs(gamma - 1.0) <= lam and span_ok
 
+    def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
+        """Iso-line error (m) at 25, 50 and 75 % of the true span."""
+        assert self.truth is not None
+        return {f"p{frac}": metrics.isoline_error(self.truth, estimate, self.grid, lv)
+                for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True)}
+
     def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float
                 ) -> RunResult:
-        iso: dict[str, float] = {}
-        if self.truth is not None:
-            for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True):
-                iso[f"p{frac}"] = metrics.isoline_error(self.truth, estimate, self.grid, lv)
+        iso = self.records[-1].isoline_error_m if self.records else {}
         return RunResult(
             planner=self.planner_name, seed=self.seed, records=self.records,
             samples=self._samples(), grid=self.grid, estimate=estimate, truth=self.truth,

@@ -26,7 +26,16 @@ from .mission import Mission
 from .rundir import RunDir, write_json
 
 PLANNERS = ("econdor", "no-sg", "lawnmower")
-STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS)
+EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels")
+STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS, *EXTRA_COLUMNS)
+
+
+def study_row(seed: int, planner: str, r: IterationRecord) -> dict[str, Any]:
+    """One study.csv row: the metrics.csv columns plus seed, planner and extras."""
+    iso = r.isoline_error_m
+    return {"seed": seed, "planner": planner, **r.csv_row(), "mae_rel": r.mae_rel,
+            "isoline_p25_m": iso.get("p25", math.nan), "isoline_p50_m": iso.get("p50", math.nan),
+            "isoline_p75_m": iso.get("p75", math.nan), "forced_levels": r.forced}
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -63,7 +72,7 @@ def run_seed(mission: Mission, seed: int, planner: str, out_dir: str | None,
     finally:
         if rd is not None:
             rd.close()
-    rows = [{"seed": seed, "planner": planner, **r.csv_row()} for r in result.records]
+    rows = [study_row(seed, planner, r) for r in result.records]
     return {"summary": result.summary(), "rows": rows, "run_dir": run_dir,
             "levels": [r.levels for r in result.records],
             "kappa": [r.kappa for r in result.records],

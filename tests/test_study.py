@@ -1,0 +1,85 @@
+"""A small end-to-end in-process study: the whole DFC loop with real tracing."""
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from econdor_gcs.cli import main
+from econdor_gcs.dfc import IterationRecord
+from econdor_gcs.mission import load_mission
+from econdor_gcs.study import parse_seeds, run_seed, run_study
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return load_mission(ROOT / "missions" / "demo.yaml").with_overrides(
+        max_iterations=3, min_iterations=3)
+
+
+def test_econdor_run_converges_with_real_tracing(demo, tmp_path):
+    r = run_seed(demo, 1, "econdor", str(tmp_path))
+    rows = r["rows"]
+    assert [row["iteration"] for row in rows] == [0, 1, 2, 3]
+    maes = [row["mae"] for row in rows]
+    assert maes[1] < maes[0] / 3  # tracing the first contours helps a lot
+    assert maes[-1] < maes[1]
+    assert rows[-1]["mae_db"] < -3.0
+    # cumulative distances and samples only grow; contour distance <= flown
+    for a, b in zip(rows, rows[1:]):
+        assert b["flight_distance_m"] >= a["flight_distance_m"]
+        assert b["samples"] >= a["samples"]
+    assert 0 < rows[-1]["contour_distance_m"] < rows[-1]["flight_distance_m"]
+    s = r["summary"]
+    assert s["samples"] == rows[-1]["samples"]
+    assert s["final_mae"] == pytest.approx(maes[-1])
+    run_dir = Path(r["run_dir"])
+    with (run_dir / "samples.csv").open() as f:
+        assert sum(1 for _ in f) - 1 == s["samples"]
+    with (run_dir / "metrics.csv").open() as f:
+        assert tuple(csv.DictReader(f).fieldnames) == IterationRecord.CSV_COLUMNS
+
+
+def test_parse_seeds():
+    assert parse_seeds("0:3") == [0, 1, 2]
+    assert parse_seeds("4,7") == [4, 7]
+    with pytest.raises(Exception, match="--seeds"):
+        parse_seeds("a:b")
+
+
+def test_study_outputs_all_planners(demo, tmp_path):
+    mission = demo.with_overrides(max_iterations=2, min_iterations=2)
+    summary = run_study(mission, [3], ["econdor", "no-sg", "lawnmower"], tmp_path, workers=1)
+    assert set(summary["by_planner"]) == {"econdor", "no-sg", "lawnmower"}
+    with (tmp_path / "study.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {r["planner"] for r in rows} == {"econdor", "no-sg", "lawnmower"}
+    assert len(rows) == 3 * 3
+    for planner in ("econdor", "no-sg", "lawnmower"):
+        maes = [float(r["mae"]) for r in rows if r["planner"] == planner]
+        assert maes[-1] < maes[0], planner
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    assert saved["seeds"] == [3]
+    figs = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))
+    assert "fig7_mae_vs_distance.png" in figs and "fig3_mae_db_vs_levels.png" in figs
+    assert any(n.startswith("fig9_maps_") for n in figs)
+    for r in summary["runs"]:
+        assert r["isoline_error_m"]["p50"] >= 0 or math.isnan(r["isoline_error_m"]["p50"])
+
+
+def test_cli_study_and_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("field: {model: paper}\nvehicles: {cont: 2}\n")
+    assert main(["study", str(bad), "--seeds", "0:1", "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == ["econdor: error: vehicles.cont: unknown key "
+                                        "(allowed: altitude_m, count, max_accel_mps2, "
+                                        "max_speed_mps, max_turn_rate_dps, noise_std, "
+                                        "sample_rate_hz, speed_mps, speedup)"]
+    with pytest.raises(SystemExit) as exc:
+        main(["study", str(bad), "--workers", "0", "--out", "x"])
+    assert exc.value.code == 2
