@@ -79,6 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="first system id with --count (default --sysid)")
     p.add_argument("--tel-rate", type=_positive, default=None,
                    help="position telemetry rate, Hz of sim time (default min(10, sample rate))")
+    p.add_argument("--reject-command", type=int, action="append", default=[],
+                   metavar="CMD", help="(testing) refuse mission items with this MAV_CMD")
     return p
 
 
@@ -101,6 +103,8 @@ def _run_one(args: argparse.Namespace) -> int:
                                               home=args.home, **overrides)
     except OSError as exc:
         raise EcondorError(f"cannot open {args.connect}: {exc.strerror or exc}") from exc
+
+    vehicle.server.reject_commands.update(args.reject_command)
 
     def on_signal(signum: int, frame: Any) -> None:
         vehicle.request_stop()
@@ -151,6 +155,8 @@ def _run_many(args: argparse.Namespace) -> int:
             cmd += ["--seed", str(args.seed)]
         if args.tel_rate is not None:
             cmd += ["--tel-rate", repr(args.tel_rate)]
+        for c in args.reject_command:
+            cmd += ["--reject-command", str(c)]
         children.append(subprocess.Popen(cmd))
     status = 0
     try:

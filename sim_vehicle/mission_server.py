@@ -157,6 +157,8 @@ class MissionServer:
         self.events: list[MissionEvent] = []
         self.upload: _Upload | None = None
         self.counters = {"uploads": 0, "uploads_failed": 0, "resends": 0, "downloads": 0}
+        self.reject_commands: set[int] = set()
+        """Test hook: items with these commands are refused (MAV_MISSION_UNSUPPORTED)."""
         # (mission_type, peer, count) of the last completed upload, to re-ACK a late
         # retransmission of its final item when our ACK was lost.
         self._last_done: tuple[int, tuple[int, int], int] | None = None
@@ -241,6 +243,8 @@ class MissionServer:
             return [self._request(up)]
         item = item_from_msg(msg)
         result = check_item(item)
+        if item.command in self.reject_commands:
+            result = mavlink.MAV_MISSION_UNSUPPORTED
         if result != mavlink.MAV_MISSION_ACCEPTED:
             self.upload = None
             self.counters["uploads_failed"] += 1

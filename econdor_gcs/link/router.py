@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import socket
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -52,6 +53,8 @@ __all__ = [
 ]
 
 DEFAULT_ENDPOINT = "udpin:127.0.0.1:14550"
+RCVBUF_BYTES = 4 << 20
+"""Requested UDP receive buffer (the kernel caps it at net.core.rmem_max)."""
 log = logging.getLogger(__name__)
 SAMPLE_NAME = "FIELD"
 Address = tuple[str, int]
@@ -329,6 +332,10 @@ class Router:
             host, port = self.bind_address
             raise LinkError(f"cannot listen on UDP {host}:{port}: {exc.strerror or exc}") from exc
         self._transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:  # bursts of samples from many vehicles: a roomy receive buffer
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
         self._housekeeping = asyncio.create_task(self._housekeeping_loop())
         return self
 
