@@ -1,0 +1,851 @@
+"""The ground station: the DFC loop flown by MAVLink vehicles (``econdor run``).
+
+Pieces, from the bottom up:
+
+:class:`Station`
+    An asyncio event loop on a background thread that owns the GCS :class:`~.link.Router`
+    (one UDP endpoint, vehicles routed by system id, every message to ``telemetry.tlog``).
+    The synchronous world (the :class:`~.dfc.Dfc` loop in the main thread) submits
+    coroutines with :meth:`Station.call`; Ctrl-C / SIGTERM interrupt that wait in the main
+    thread and the ``finally`` blocks close everything.
+:class:`MavlinkExecutor`
+    The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
+    :class:`~.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home, takeoff,
+    one item per task" is uploaded, the vehicle armed and started with
+    ``MAV_CMD_MISSION_START`` from item 1, and its samples collected until it reports
+    ``MISSION_ITEM_REACHED`` for its last task item.
+:func:`run_mission_cli`
+    The ``econdor run`` command: run directory, simulated fleet (or ``--connect``), live
+    display, results, figures, and one-line errors that still leave a usable run directory.
+
+Conventions and choices (see also DESIGN.md §4):
+
+* **No end item.** The missions end with the last task (``build_mission(end="none")``):
+  a vehicle that completes its mission holds where it is (AUTO.LOITER), exactly like the
+  in-process vehicles keep their position between iterations. A ``LOITER_UNLIM`` at the
+  last task's *point* would send a tracer back to the start of its contour piece (traces
+  end elsewhere), adding flight the in-process run does not have.
+* **Phase of a sample** (MAVLink carries none): ``TRANSIT`` outside trace items;
+  inside a trace item ``SEARCH`` until the vehicle says ``piece N: contour found`` (or
+  ``contour reacquired``), ``TRACE`` from then on, ``SEARCH`` again after
+  ``contour lost, searching``. The return leg after ``boundary reached`` stays ``TRACE``.
+* **Distances.** ``traced_m`` and trace outcomes come from the vehicle's
+  ``piece {id}: {status} traced {x} m flown {y} m`` STATUSTEXT. ``flown_m`` is the path
+  length of the reported sample positions, starting at the vehicle's position when the
+  flight began (the vehicle reports no odometer; samples come every sensor tick of
+  horizontal motion, so this misses only the braking drift while hovering).
+* **Positions.** Samples are ``GLOBAL_POSITION_INT`` + ``NAMED_VALUE_FLOAT("FIELD")``;
+  latitude/longitude go back to local ENU on the origin's ellipsoid height (the vehicle
+  converts its local position with up = 0), with the exact closed form of
+  :class:`LocalFrame` (the same result as ``Origin.to_local`` to well below the 1e-7 deg
+  resolution of the message, ~50x faster).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import json
+import math
+import re
+import signal
+import sys
+import threading
+import time
+from collections.abc import Coroutine, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from .core.tasks import FlightReport, Phase, SampleLog, Task, TaskOutcome, TraceTask
+from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
+from .geodesy import Origin
+from .link.codec import MAVLinkMessage, mavlink
+from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
+from .link.router import Router, Sample, VehicleLost
+from .link.tlog import TlogWriter
+from .mission import Mission
+
+__all__ = [
+    "LocalFrame",
+    "MavlinkExecutor",
+    "PieceStatus",
+    "Station",
+    "StatusAssembler",
+    "build_report",
+    "parse_piece_status",
+    "run_mission",
+    "run_mission_cli",
+]
+
+T = TypeVar("T")
+
+# --------------------------------------------------------------------------------------------
+# pure helpers (unit-tested in tests/test_gcs_unit.py)
+
+_PIECE_RE = re.compile(
+    r"^piece (-?\d+): ([A-Za-z_]+) traced (-?[\d.]+) m flown (-?[\d.]+) m\s*$")
+_EVENT_RE = re.compile(r"^piece (-?\d+): (.+)$")
+
+
+@dataclass(frozen=True)
+class PieceStatus:
+    """The vehicle's final word on one trace item."""
+
+    piece_id: int
+    status: str
+    traced_m: float
+    flown_m: float
+
+
+def parse_piece_status(text: str) -> PieceStatus | None:
+    """``"piece 1003: closed traced 120.4 m flown 150.0 m"`` -> :class:`PieceStatus`.
+
+    >>> parse_piece_status("piece 7: boundary traced 12.5 m flown 30.0 m")
+    PieceStatus(piece_id=7, status='boundary', traced_m=12.5, flown_m=30.0)
+    >>> parse_piece_status("piece 7: contour found") is None
+    True
+    """
+    m = _PIECE_RE.match(text.strip())
+    if m is None:
+        return None
+    return PieceStatus(int(m[1]), m[2], float(m[3]), float(m[4]))
+
+
+def phase_after_event(text: str, phase: int) -> int:
+    """The sample phase after a tracer event STATUSTEXT (``piece N: ...``)."""
+    m = _EVENT_RE.match(text.strip())
+    if m is None:
+        return phase
+    event = m[2]
+    if event.startswith(("contour found", "contour reacquired")):
+        return Phase.TRACE
+    if event.startswith(("contour lost", "contour not found")):
+        return Phase.SEARCH
+    return phase
+
+
+class StatusAssembler:
+    """Joins STATUSTEXT chunks (MAVLink 2 ``id`` / ``chunk_seq``) into whole texts.
+
+    A text with ``id == 0`` is complete on its own; a chunked one is complete with a chunk
+    shorter than 50 bytes (or an empty terminator). Pending chunks of one id are dropped
+    when a new chunk sequence for that id starts at 0.
+    """
+
+    def __init__(self) -> None:
+        self._parts: dict[tuple[int, int], list[str]] = {}
+
+    def add(self, sysid: int, text: str | bytes, text_id: int = 0, chunk_seq: int = 0,
+            raw_len: int | None = None) -> str | None:
+        if isinstance(text, bytes | bytearray):
+            raw = bytes(text)
+            text = raw.decode("utf-8", "replace")
+        else:
+            raw = text.encode("utf-8")
+        text = text.rstrip("\x00")
+        full = len(raw.rstrip(b"\x00")) >= 50 if raw_len is None else raw_len >= 50
+        if text_id == 0:
+            return text
+        key = (sysid, text_id)
+        if chunk_seq == 0:
+            self._parts[key] = []
+        parts = self._parts.setdefault(key, [])
+        parts.append(text)
+        if full:
+            return None
+        del self._parts[key]
+        return "".join(parts)
+
+
+class LocalFrame:
+    """WGS-84 geodetic -> local ENU around an origin, in plain ``math`` (exact closed form).
+
+    ``to_local(lat, lon)`` gives ENU metres of the point at the origin's ellipsoid height
+    (geodetic -> ECEF -> rotation), matching ``Origin.to_local(lat, lon, 0)``.
+    """
+
+    A = 6378137.0
+    F = 1.0 / 298.257223563
+    E2 = F * (2.0 - F)
+
+    def __init__(self, origin: Origin) -> None:
+        self.h_m = origin.alt_m
+        la, lo = math.radians(origin.lat_deg), math.radians(origin.lon_deg)
+        self.sla, self.cla, self.slo, self.clo = math.sin(la), math.cos(la), math.sin(lo), \
+            math.cos(lo)
+        self.x0, self.y0, self.z0 = self._ecef(la, lo)
+
+    def _ecef(self, la: float, lo: float) -> tuple[float, float, float]:
+        sla, cla = math.sin(la), math.cos(la)
+        n = self.A / math.sqrt(1.0 - self.E2 * sla * sla)
+        return ((n + self.h_m) * cla * math.cos(lo), (n + self.h_m) * cla * math.sin(lo),
+                (n * (1.0 - self.E2) + self.h_m) * sla)
+
+    def to_local(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        x, y, z = self._ecef(math.radians(lat_deg), math.radians(lon_deg))
+        dx, dy, dz = x - self.x0, y - self.y0, z - self.z0
+        east = -self.slo * dx + self.clo * dy
+        north = -self.sla * self.clo * dx - self.sla * self.slo * dy + self.cla * dz
+        return east, north
+
+
+@dataclass
+class Flight:
+    """What one vehicle did for one mission, as seen from the ground."""
+
+    index: int
+    sysid: int
+    tasks: list[Task]
+    first_seq: int = 2              # mission seq of the first task (0 home, 1 takeoff)
+    start_xy: tuple[float, float] = (0.0, 0.0)
+    start_ms: int | None = None
+    rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
+    pieces: dict[int, PieceStatus] = field(default_factory=dict)
+    item_flown_m: dict[int, float] = field(default_factory=dict)
+    last_ms: int | None = None
+    done: bool = False
+    landed: bool = False
+
+    @property
+    def last_seq(self) -> int:
+        return self.first_seq + len(self.tasks) - 1
+
+
+def build_report(flight: Flight) -> FlightReport:
+    """One :class:`FlightReport` from what was collected during ``flight``."""
+    rows = flight.rows
+    if rows:
+        a = np.asarray(rows, dtype=float)
+        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
+                        a[:, 4].astype(np.int8),
+                        np.full(len(rows), flight.index, dtype=np.int16))
+        xy = np.vstack([np.asarray(flight.start_xy)[None, :], a[:, 1:3]])
+        flown = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        end = (float(a[-1, 1]), float(a[-1, 2]))
+    else:
+        log = SampleLog()
+        flown = 0.0
+        end = flight.start_xy
+    outcomes: list[TaskOutcome] = []
+    for k, task in enumerate(flight.tasks):
+        item_m = flight.item_flown_m.get(flight.first_seq + k, 0.0)
+        if isinstance(task, TraceTask):
+            ps = flight.pieces.get(task.piece_id)
+            if ps is None:
+                outcomes.append(TaskOutcome(task, "unreported", item_m, 0.0))
+            else:
+                outcomes.append(TaskOutcome(task, ps.status, ps.flown_m, ps.traced_m))
+        else:
+            outcomes.append(TaskOutcome(task, "reached" if flight.done else "unreported",
+                                        item_m))
+    traced = float(sum(o.traced_m for o in outcomes))
+    sim_s = 0.0
+    if flight.start_ms is not None and flight.last_ms is not None:
+        sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
+    return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
+                        outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
+
+
+def mission_items_json(items: Sequence[MissionItemSpec]) -> str:
+    return json.dumps([dataclasses.asdict(it) for it in items], indent=1) + "\n"
+
+
+# --------------------------------------------------------------------------------------------
+# the asyncio loop on a thread
+
+
+class Station:
+    """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
+
+    def __init__(self, endpoint: str, tlog: TlogWriter | None = None,
+                 heartbeat_timeout_s: float = 20.0) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s)
+        self._thread = threading.Thread(target=self._run, name="econdor-gcs", daemon=True)
+        self._started = False
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        self.loop.run_forever()
+
+    def start(self) -> tuple[str, int]:
+        """Start the loop and bind the endpoint; return the bound ``(host, port)``."""
+        self._thread.start()
+        self._started = True
+        self.call(self.router.start())
+        return self.router.local_address
+
+    def call(self, coro: Coroutine[Any, Any, T], timeout_s: float | None = None) -> T:
+        """Run ``coro`` on the station's loop and wait for its result (from another thread).
+
+        The wait is interruptible (Ctrl-C); the coroutine is then cancelled.
+        """
+        fut = asyncio.run_coroutine_threadsafe(coro, self.loop)
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        try:
+            while True:
+                try:
+                    return fut.result(0.2)
+                except TimeoutError:
+                    if fut.done():
+                        raise
+                    if deadline is not None and time.monotonic() > deadline:
+                        raise VehicleTimeout(f"no answer within {timeout_s:g} s") from None
+        except BaseException:
+            fut.cancel()
+            raise
+
+    def close(self) -> None:
+        if not self._started:
+            self.loop.close()
+            return
+        with contextlib.suppress(Exception):
+            asyncio.run_coroutine_threadsafe(self.router.close(), self.loop).result(5.0)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(5.0)
+        if not self._thread.is_alive():
+            self.loop.close()
+        self._started = False
+
+
+# --------------------------------------------------------------------------------------------
+# the executor
+
+
+@dataclass
+class VehicleState:
+    """Ground-side bookkeeping of one vehicle across flights (for the live display too)."""
+
+    index: int
+    sysid: int
+    current_seq: int | None = None
+    items: list[MissionItemSpec] = field(default_factory=list)
+    phase: int = Phase.TRANSIT
+    last_xy: tuple[float, float] | None = None
+    flown_m: float = 0.0            # the whole run
+    samples: int = 0                # the whole run
+    flight: Flight | None = None
+    stray: list[tuple[float, float, float, float, int]] = field(default_factory=list)
+    status: str = "idle"
+
+
+class MavlinkExecutor:
+    """Flies the DFC's per-vehicle task lists on MAVLink vehicles (the :class:`Executor`
+    protocol; the drop-in twin of :class:`~.inprocess.InProcessExecutor`).
+
+    Parameters
+    ----------
+    station:
+        A started :class:`Station`; the vehicles ``sysids`` must have been heard from.
+    mission:
+        Origin (geodesy) and altitude of the missions.
+    sysids:
+        System ids, in vehicle-index order.
+    missions_dir:
+        Every uploaded mission is saved here as ``iter{NN}_v{sysid}.json`` (and
+        ``.waypoints`` when :mod:`econdor_gcs.export` is available).
+    timeout_s:
+        Per-message timeout of commands / transfers is the link layer's; this bounds a whole
+        mission transfer and the wait for the first position.
+    """
+
+    def __init__(self, station: Station, mission: Mission, sysids: Sequence[int],
+                 missions_dir: Path | None = None, timeout_s: float = 20.0) -> None:
+        self.station = station
+        self.router = station.router
+        self.mission = mission
+        self.sysids = list(sysids)
+        self.n_vehicles = len(self.sysids)
+        self.missions_dir = missions_dir
+        self.timeout_s = timeout_s
+        self.origin = mission.origin
+        self.frame = LocalFrame(mission.origin)
+        self.altitude_m = mission.vehicles.altitude_m
+        self.home = (0.0, 0.0)
+        self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(self.sysids)}
+        self.assembler = StatusAssembler()
+        self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
+        self.iteration = 0
+        self.sim_s = 0.0
+        self._lost: str | None = None
+        self.router.add_sample_handler(self._on_sample)
+        self.router.add_message_handler(self._on_message)
+        self.router.add_event_handler(self._on_event)
+
+    # -- callbacks (on the station's loop thread) -----------------------------------------------
+    def _on_sample(self, s: Sample) -> None:
+        v = self.vehicles.get(s.sysid)
+        if v is None:
+            return
+        x, y = self.frame.to_local(s.lat_deg, s.lon_deg)
+        f = v.flight
+        if v.last_xy is not None:
+            step = math.hypot(x - v.last_xy[0], y - v.last_xy[1])
+            v.flown_m += step
+            if f is not None and v.current_seq is not None:
+                f.item_flown_m[v.current_seq] = f.item_flown_m.get(v.current_seq, 0.0) + step
+        v.last_xy = (x, y)
+        v.samples += 1
+        row = (s.time_boot_ms / 1000.0, x, y, float(s.value), int(v.phase))
+        if f is None:
+            v.stray.append(row)
+            return
+        f.rows.append(row)
+        f.last_ms = s.time_boot_ms
+
+    def _on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return
+        kind = msg.get_type()
+        if kind == "MISSION_CURRENT":
+            f = v.flight
+            if (f is not None and f.tasks and v.status == "flying" and msg.seq == f.last_seq
+                    and getattr(msg, "mission_state", 0) == mavlink.MISSION_STATE_COMPLETE):
+                f.done = True  # in case the MISSION_ITEM_REACHED was lost
+                v.status = "holding"
+            if msg.seq != v.current_seq:
+                v.current_seq = msg.seq
+                is_trace = (0 <= msg.seq < len(v.items)
+                            and v.items[msg.seq].command == MAV_CMD_WAYPOINT_USER_1)
+                v.phase = Phase.SEARCH if is_trace else Phase.TRANSIT
+        elif kind == "MISSION_ITEM_REACHED":
+            f = v.flight
+            if f is not None and f.tasks and msg.seq == f.last_seq:
+                f.done = True
+                v.status = "holding"
+        elif kind == "STATUSTEXT":
+            raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
+                msg.text.encode("utf-8", "replace")
+            text = self.assembler.add(sysid, raw, getattr(msg, "id", 0),
+                                      getattr(msg, "chunk_seq", 0))
+            if text is not None:
+                self._on_text(v, text)
+
+    def _on_text(self, v: VehicleState, text: str) -> None:
+        f = v.flight
+        ps = parse_piece_status(text)
+        if ps is not None:
+            if f is not None:
+                f.pieces[ps.piece_id] = ps
+            return
+        if text.startswith("piece "):
+            v.phase = phase_after_event(text, v.phase)
+        elif text.startswith("landed") and f is not None and not f.tasks:
+            f.landed = True
+            v.status = "landed"
+
+    def _on_event(self, event: object) -> None:
+        if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
+            v = self.vehicles[event.sysid]
+            where = ""
+            if v.flight is not None and v.current_seq is not None:
+                where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
+            self._lost = (f"vehicle {event.sysid} lost: no heartbeat for "
+                          f"{event.silent_s:.0f} s{where}")
+
+    # -- Executor protocol ----------------------------------------------------------------------
+    def wait_ready(self) -> None:
+        """Wait until every vehicle has reported a position."""
+        self.station.call(self._wait_positions())
+
+    async def _wait_positions(self) -> None:
+        for sysid in self.sysids:
+            with contextlib.suppress(LinkError):
+                self.router.request_data_streams(sysid)
+        deadline = time.monotonic() + self.timeout_s
+        while any(self.router.vehicles[s].lat_deg is None for s in self.sysids):
+            if time.monotonic() > deadline:
+                missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
+                raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
+                                     f"{self.timeout_s:g} s")
+            await asyncio.sleep(0.02)
+
+    def _position(self, sysid: int) -> tuple[float, float]:
+        link = self.router.vehicles.get(sysid)
+        if link is None or link.lat_deg is None or link.lon_deg is None:
+            return self.home
+        return self.frame.to_local(link.lat_deg, link.lon_deg)
+
+    def positions(self) -> list[tuple[float, float]]:
+        return [self._position(s) for s in self.sysids]
+
+    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+        if len(plans) != self.n_vehicles:
+            raise ValueError(f"expected {self.n_vehicles} plans, got {len(plans)}")
+        self.iteration = iteration
+        return self.station.call(self._fly(plans, iteration))
+
+    def finish(self) -> list[FlightReport]:
+        """RTL every airborne vehicle; wait until each has landed and disarmed."""
+        return self.station.call(self._finish())
+
+    # -- the flights ----------------------------------------------------------------------------
+    def _begin(self, v: VehicleState, tasks: list[Task]) -> Flight:
+        link = self.router.vehicles[v.sysid]
+        start = v.last_xy if v.last_xy is not None else self._position(v.sysid)
+        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms)
+        f.rows.extend(v.stray)  # nothing is ever dropped
+        v.stray.clear()
+        v.flight = f
+        return f
+
+    def _end(self, v: VehicleState) -> FlightReport:
+        f = v.flight
+        v.flight = None
+        if f is None:
+            return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self._position(v.sysid),
+                                0.0)
+        return build_report(f)
+
+    def pending_samples(self) -> SampleLog:
+        """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
+        logs = []
+        for v in self.vehicles.values():
+            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+            if rows:
+                a = np.asarray(rows, dtype=float)
+                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
+                                      a[:, 4].astype(np.int8),
+                                      np.full(len(rows), v.index, dtype=np.int16)))
+            v.stray.clear()
+            if v.flight is not None:
+                v.flight.rows.clear()
+        return SampleLog.concat(logs)
+
+    def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec]) -> None:
+        if self.missions_dir is None:
+            return
+        self.missions_dir.mkdir(parents=True, exist_ok=True)
+        stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}"
+        stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
+        try:
+            from .export import write_wpl  # type: ignore[attr-defined]
+        except ImportError:
+            return
+        with contextlib.suppress(Exception):
+            write_wpl(stem.with_suffix(".waypoints"), items)
+
+    async def _launch(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
+        sysid = v.sysid
+        v.status = "uploading"
+        await asyncio.wait_for(self.router.upload_mission(sysid, items), self.timeout_s)
+        v.items = items
+        v.current_seq = None
+        v.status = "arming"
+        await self.router.arm(sysid)
+        v.status = "starting"
+        await self.router.start_mission(sysid, 1, 0)
+        v.status = "flying"
+
+    def _check_lost(self) -> None:
+        if self._lost is not None:
+            raise VehicleTimeout(self._lost)
+
+    async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+        self._check_lost()
+        flying: list[VehicleState] = []
+        t0 = time.monotonic()
+        jobs = []
+        for sysid, tasks in zip(self.sysids, plans, strict=True):
+            if not tasks:
+                continue
+            v = self.vehicles[sysid]
+            items = build_mission(self.origin, tasks, self.altitude_m, home=self.home,
+                                  end="none")
+            self._save_mission(iteration, sysid, items)
+            self._begin(v, tasks)
+            flying.append(v)
+            jobs.append(self._launch(v, items))
+        try:
+            await asyncio.gather(*jobs)
+        except TimeoutError:
+            raise VehicleTimeout(f"mission upload did not finish within {self.timeout_s:g} s"
+                                 ) from None
+        t1 = time.monotonic()
+        self.timings["protocol_s"] += t1 - t0
+        while not all(v.flight is not None and v.flight.done for v in flying):
+            self._check_lost()
+            await asyncio.sleep(0.02)
+        self.timings["flight_s"] += time.monotonic() - t1
+        reports = [self._end(v) if v in flying else self._end_idle(v)
+                   for v in self.vehicles.values()]
+        self.sim_s += max((r.sim_s for r in reports), default=0.0)
+        return reports
+
+    def _end_idle(self, v: VehicleState) -> FlightReport:
+        x, y = v.last_xy if v.last_xy is not None else self._position(v.sysid)
+        return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], x, y, 0.0)
+
+    async def _finish(self) -> list[FlightReport]:
+        self._check_lost()
+        t0 = time.monotonic()
+        going: list[VehicleState] = []
+        for v in self.vehicles.values():
+            link = self.router.vehicles[v.sysid]
+            airborne = (link.rel_alt_m or 0.0) > 0.5
+            if not airborne:
+                if link.armed:
+                    with contextlib.suppress(ProtocolError):
+                        await self.router.disarm(v.sysid)
+                continue
+            self._begin(v, [])
+            going.append(v)
+        for v in going:
+            v.status = "returning"
+            await self.router.return_to_launch(v.sysid)
+        self.timings["protocol_s"] += time.monotonic() - t0
+        t1 = time.monotonic()
+        while True:
+            self._check_lost()
+            for v in going:
+                link = self.router.vehicles[v.sysid]
+                f = v.flight
+                if f is not None and not f.landed and not link.armed and \
+                        (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
+                    f.landed = True  # the heartbeat says so (the STATUSTEXT may be lost)
+            if all(v.flight is None or v.flight.landed for v in going):
+                break
+            await asyncio.sleep(0.02)
+        for v in going:
+            v.status = "landed"
+        self.timings["return_s"] += time.monotonic() - t1
+        reports = [self._end(v) if v in going else self._end_idle(v)
+                   for v in self.vehicles.values()]
+        for r, v in zip(reports, self.vehicles.values(), strict=True):
+            if v in going:
+                r.end_x_m, r.end_y_m = self._position(v.sysid)
+        self.sim_s += max((r.sim_s for r in reports), default=0.0)
+        return reports
+
+    # -- for the live display ---------------------------------------------------------------
+    def status_rows(self) -> list[dict[str, Any]]:
+        rows = []
+        for v in self.vehicles.values():
+            link = self.router.vehicles.get(v.sysid)
+            n = len(v.items) - 1 if v.items else 0
+            rows.append({
+                "sysid": v.sysid,
+                "armed": bool(link.armed) if link else False,
+                "lost": bool(link.lost) if link else False,
+                "item": v.current_seq if v.current_seq is not None else 0,
+                "items": n,
+                "phase": Phase(v.phase).name.lower(),
+                "flown_m": v.flown_m,
+                "samples": v.samples,
+                "status": v.status,
+                "alt_m": (link.rel_alt_m or 0.0) if link else 0.0,
+            })
+        return rows
+
+
+# --------------------------------------------------------------------------------------------
+# econdor run
+
+
+def _default_out(mission: Mission) -> Path:
+    return Path("runs") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, delivered like Ctrl-C so every ``finally`` runs."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise _Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():  # type: ignore[no-untyped-def]
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def run_mission(
+    mission: Mission,
+    out: Path,
+    *,
+    planner: str | None = None,
+    vehicles: int | None = None,
+    speedup: float | None = None,
+    seed: int | None = None,
+    connect: str | None = None,
+    timeout_s: float = 20.0,
+    quiet: bool = True,
+    mission_path: Path | None = None,
+    figures: bool = True,
+) -> dict[str, Any]:
+    """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
+
+    Raises :class:`EcondorError` on failure, after writing a partial run directory
+    (samples so far, tlog, ``summary.json`` with ``"error"``).
+    """
+    from .dfc import Dfc
+    from .fleet import Fleet
+    from .rundir import RunDir
+
+    wall0 = time.perf_counter()
+    n = vehicles or mission.vehicles.count
+    speed = speedup or mission.vehicles.speedup
+    seed = mission.seed if seed is None else seed
+    planner = planner or mission.algorithm.planner
+    mission = mission.with_vehicles(count=n, speedup=speed)
+    out = Path(out)
+    rd = RunDir(out)
+    tlog = TlogWriter(out / "telemetry.tlog")
+    station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
+    fleet: Fleet | None = None
+    executor: MavlinkExecutor | None = None
+    dfc: Dfc | None = None
+    live = None
+    base: dict[str, Any] = {"transport": "mavlink", "truth_known": True,
+                            "mission": mission.name, "planner": planner, "seed": seed,
+                            "vehicles": n, "speedup": speed,
+                            "connect": connect or None}
+    timings: dict[str, float] = {}
+
+    def fill_timings() -> None:
+        timings["total_wall_s"] = time.perf_counter() - wall0
+        if executor is not None:
+            timings.update(executor.timings)
+            timings["sim_s"] = executor.sim_s
+            fw = executor.timings["flight_s"] + executor.timings["return_s"]
+            timings["achieved_speedup"] = executor.sim_s / fw if fw > 0 else math.nan
+        if dfc is not None:
+            timings["reconstruction_s"] = dfc.recon_s
+        timings["requested_speedup"] = speed
+
+    try:
+        with _sigterm_as_interrupt():
+            host, port = station.start()
+            if connect is None:
+                if mission_path is None:
+                    raise RunError("run_mission: mission_path is needed to start vehicles")
+                fleet = Fleet(mission_path, out / "vehicles")
+                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed)
+                sysids = list(range(1, n + 1))
+                try:
+                    station.call(station.router.wait_for_vehicles(sysids, timeout_s))
+                except VehicleTimeout as exc:
+                    raise VehicleTimeout(fleet.explain(str(exc))) from None
+            else:
+                sysids = station.call(_wait_count(station.router, n, timeout_s))
+            t_setup = time.perf_counter() - wall0
+            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s)
+            executor.wait_ready()
+            truth = mission.build_field(seed)
+            if not quiet:
+                from .live import LiveDisplay
+
+                live = LiveDisplay(executor, planner=planner, mission=mission.name)
+                live.start()
+            dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
+                      progress=live.progress if live else None, on_samples=rd.append_samples)
+            result = dfc.run()
+            if live is not None:
+                live.stop()
+                live = None
+            fill_timings()
+            timings["setup_s"] = t_setup
+            result.wall_s = time.perf_counter() - wall0
+            result.sim_s = executor.sim_s
+            extra = {**base, "sysids": sysids, "timings": timings,
+                     "samples_dropped_unpaired": station.router.pairer.dropped}
+            rd.write_result(result, extra=extra)
+            summary = {**result.summary(), **extra}
+    except (EcondorError, KeyboardInterrupt) as exc:
+        if live is not None:
+            live.stop()
+            live = None
+        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)
+        _write_partial(rd, dfc, executor, base, timings, fill_timings, msg)
+        raise
+    finally:
+        if live is not None:
+            live.stop()
+        station.close()
+        if fleet is not None:
+            fleet.stop()
+        tlog.close()
+        rd.close()
+    if figures:
+        from .figures import plot_run
+
+        plot_run(out)
+    return summary
+
+
+def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
+                   base: dict[str, Any], timings: dict[str, float], fill: Any,
+                   error: str) -> None:
+    with contextlib.suppress(Exception):
+        if executor is not None:
+            pending = executor.pending_samples()
+            if len(pending):
+                rd.append_samples(pending)
+    fill()
+    records = list(dfc.records) if dfc is not None else []
+    last = records[-1] if records else None
+    summary = {
+        **base,
+        "error": error,
+        "iterations": len(records),
+        "final_mae": last.mae if last else None,
+        "final_mae_db": last.mae_db if last else None,
+        "span_ratio": last.span_ratio if last else None,
+        "flight_distance_m": dfc.flight_m if dfc is not None else 0.0,
+        "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
+        "samples": rd.n_samples,
+        "converged": False,
+        "wall_s": timings.get("total_wall_s"),
+        "sim_s": timings.get("sim_s", 0.0),
+        "timings": timings,
+    }
+    with contextlib.suppress(Exception):
+        rd.write_partial(records, summary)
+
+
+async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
+    try:
+        return await router.wait_for_vehicles(n, timeout_s)
+    except VehicleTimeout:
+        seen = sorted(router.vehicles)
+        expected = list(range(1, n + 1))
+        missing = [s for s in expected if s not in seen]
+        if missing and all(s in expected for s in seen):
+            word = "vehicle" if len(missing) == 1 else "vehicles"
+            raise VehicleTimeout(
+                f"{word} {', '.join(map(str, missing))} never appeared within {timeout_s:g} s "
+                f"(heard from: {', '.join(map(str, seen)) or 'none'})") from None
+        raise
+
+
+def run_mission_cli(args: Any) -> int:
+    """``econdor run`` (arguments parsed by :mod:`econdor_gcs.cli`)."""
+    from .mission import load_mission
+
+    mission = load_mission(args.mission)
+    out = args.out or _default_out(mission)
+    summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
+                          speedup=args.speedup, seed=args.seed, connect=args.connect,
+                          timeout_s=args.timeout, quiet=args.quiet, mission_path=args.mission)
+    t = summary.get("timings", {})
+    mae_db = summary.get("final_mae_db")
+    print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "
+          f"{mae_db:.1f} dB ({summary['stop_reason']}), flown "
+          f"{summary['flight_distance_m']:.0f} m (contour {summary['contour_distance_m']:.0f} m), "
+          f"{summary['samples']} samples, {t.get('total_wall_s', 0):.1f} s wall "
+          f"({t.get('achieved_speedup', math.nan):.0f}x sim)")
+    print(f"run directory: {out}")
+    sys.stdout.flush()
+    return 0
