@@ -39,12 +39,14 @@ import warnings
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import RectBivariateSpline
 
 from econdor_gcs.core.geometry import Grid
 from econdor_gcs.errors import ReconstructionError
 
 __all__ = [
     "AUTO_EXACT_MAX_SAMPLES",
+    "FAST_EVAL_SPACING_M",
     "BiharmonicSpline",
     "FastBiharmonicSpline",
     "greens_function",
@@ -55,6 +57,10 @@ FloatArray = NDArray[np.float64]
 
 #: ``reconstruct(method="auto")`` uses the exact solve up to this many distinct positions.
 AUTO_EXACT_MAX_SAMPLES = 2000
+
+#: ``reconstruct`` evaluates the fast method on grids no finer than this and
+#: upsamples bicubically (no measurable loss: the field varies over metres).
+FAST_EVAL_SPACING_M = 1.0
 
 # Upper bound on the number of (query, sample) pairs held in memory at once
 # while evaluating (8 bytes each, a few temporaries: ~100 MB).
@@ -198,6 +204,20 @@ def _block_mean(
     )
 
 
+def _block_pick(x: FloatArray, y: FloatArray, cell: float) -> NDArray[np.intp]:
+    """Indices of one sample per occupied ``cell`` x ``cell`` square (the one nearest its centre)."""
+    fx = (x - x.min()) / cell
+    fy = (y - y.min()) / cell
+    ix = np.floor(fx).astype(np.int64)
+    iy = np.floor(fy).astype(np.int64)
+    key = iy * (int(ix.max()) + 1) + ix
+    d2 = (fx - ix - 0.5) ** 2 + (fy - iy - 0.5) ** 2
+    order = np.lexsort((d2, key))
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    return order[first]
+
+
 # --------------------------------------------------------------------------- #
 # Estimators
 # --------------------------------------------------------------------------- #
@@ -270,45 +290,65 @@ class BiharmonicSpline:
 
 
 class FastBiharmonicSpline:
-    """Approximate biharmonic spline for large ``N`` (partition of unity).
+    """Approximate biharmonic spline for large ``N`` (two-level partition of unity).
+
+    Approximates the exact surface of :class:`BiharmonicSpline`,
+
+    .. math::
+
+        f(\\mathbf{x}) = \\sum_{i} w_i \\, g(|\\mathbf{x} - \\mathbf{x}_i|),
+        \\quad g(r) = r^2 (\\ln r - 1),
+
+    in time roughly linear in ``N``:
 
     1. Block-average: samples are averaged (position and value) within square
-       cells of side ``cell_size``; along densely sampled contour lines this
-       keeps about one sample per ``cell_size`` metres, which is all the exact
-       spline can use anyway.
-    2. The sample bounding box is cut into square tiles of side ``tile_size``.
-       For each tile an exact :class:`BiharmonicSpline`
+       cells of side ``cell_size``. Along densely sampled contour lines this
+       keeps about one sample per ``cell_size`` metres -- closer samples add
+       almost nothing to the reconstruction.
+    2. Coarse global level: one sample per ``coarse_cell`` square (the one
+       nearest the cell centre; the cell grows until at most
+       ``coarse_max_samples`` remain) is interpolated by an exact spline
+       ``f_c``. It carries the long-range behaviour of the exact solution into
+       gaps between contour lines and unsampled areas.
+    3. Local level: the residuals ``v_i - f_c(x_i)`` are interpolated by exact
+       splines ``r_k`` on square tiles of side ``tile_size`` using the samples
+       within ``margin`` of the tile (widened until ``min_samples`` are
+       included; tiles with more than ``max_samples`` are split in four, with
+       margin and overlap halved), blended with a partition of unity:
 
-       .. math:: f_k(\\mathbf{x}) = \\sum_{i \\in S_k} w^{(k)}_i g(|\\mathbf{x}-\\mathbf{x}_i|),
-                 \\quad g(r) = r^2(\\ln r - 1),
+       .. math:: f = f_c + \\frac{\\sum_k \\phi_k r_k}{\\sum_k \\phi_k},
 
-       is fitted to the samples ``S_k`` within ``margin`` metres of the tile
-       (the margin grows until at least ``min_samples`` are included).
-    3. The tiles are blended with a smooth partition of unity,
-       ``f = sum_k phi_k f_k / sum_k phi_k``, where ``phi_k`` is a product of
-       C^1 bumps ``(1 - t^2)^2`` over the tile's support (tile plus
-       ``overlap`` metres on each side).
+       ``phi_k`` a product of C^1 bumps ``(1 - s^2)^2`` over the tile plus
+       ``overlap`` metres on each side.
 
-    Cost is linear in ``N``; with the defaults a 20 000-sample contour data set
-    is fitted and evaluated on a 101 x 101 grid in about a second.
+    On contour-line sample sets the MAE against the true field stays within
+    about 2 % of the exact solve's while 20 000 samples take about a second
+    (numbers: ``bench/reconstruction.py``).
 
     Parameters
     ----------
     cell_size : float
         Block-averaging cell side in metres (``0`` disables averaging).
+    coarse_cell : float or None
+        Initial cell side of the coarse level in metres (``None`` or ``0``:
+        no coarse level, plain partition of unity).
+    coarse_max_samples : int
+        Upper bound on the coarse level's sample count.
     tile_size : float
-        Tile side in metres.
+        Side of the initial tiles in metres.
     margin : float
         Samples within this distance of a tile are used to fit its spline.
     overlap : float
-        Half-width of the blending zone beyond each tile edge, ``<= margin``.
-    min_samples : int
-        Minimum samples per tile spline (the margin is widened to reach it).
+        Width of the blending zone beyond each tile edge (``> 0``).
+    min_samples, max_samples : int
+        Bounds on the samples per tile spline (see above).
 
     Attributes
     ----------
+    coarse_ : BiharmonicSpline or None
+        The coarse global level.
     tiles_ : list of tuple
-        ``(x0, x1, y0, y1, spline)`` for each tile with a fitted spline.
+        ``(x0, x1, y0, y1, overlap, spline)`` for each tile.
     n_samples_ : int
         Number of samples given to :meth:`fit`.
     n_used_ : int
@@ -322,17 +362,23 @@ class FastBiharmonicSpline:
 
     def __init__(
         self,
-        cell_size: float = 1.0,
+        cell_size: float = 0.5,
+        coarse_cell: float | None = 3.0,
+        coarse_max_samples: int = 1500,
         tile_size: float = 20.0,
-        margin: float = 15.0,
-        overlap: float = 5.0,
+        margin: float = 10.0,
+        overlap: float = 10.0,
         min_samples: int = 50,
+        max_samples: int = 1000,
     ) -> None:
         self.cell_size = cell_size
+        self.coarse_cell = coarse_cell
+        self.coarse_max_samples = coarse_max_samples
         self.tile_size = tile_size
         self.margin = margin
         self.overlap = overlap
         self.min_samples = min_samples
+        self.max_samples = max_samples
 
     def fit(self, x: ArrayLike, y: ArrayLike, v: ArrayLike) -> FastBiharmonicSpline:
         """Block-average the samples and fit one exact spline per tile.
@@ -359,6 +405,8 @@ class FastBiharmonicSpline:
     def _fit_checked(
         self, x: FloatArray, y: FloatArray, v: FloatArray, *, merged: bool
     ) -> FastBiharmonicSpline:
+        if not (self.tile_size > 0 and self.overlap > 0 and self.margin >= 0):
+            raise ValueError("tile_size and overlap must be > 0 and margin >= 0")
         self.n_samples_ = int(x.size)
         if not merged:
             x, y, v = _merge_duplicates(x, y, v)
@@ -367,30 +415,60 @@ class FastBiharmonicSpline:
             if xb.size >= 3:
                 x, y, v = xb, yb, vb
         self.n_used_ = int(x.size)
-        tile = float(self.tile_size)
+        self.coarse_ = None
+        if self.coarse_cell:
+            # Global coarse level: an exact spline through one actual sample
+            # per coarse cell carries the long-range behaviour of the exact
+            # solution; the tiles then only interpolate the small residual.
+            # (Picking, not averaging: the residual is then exactly zero at
+            # the coarse nodes -- averaging cost ~10 % MAE on dense data.)
+            cell = float(self.coarse_cell)
+            pick = _block_pick(x, y, cell)
+            while pick.size > int(self.coarse_max_samples):
+                cell *= 1.25
+                pick = _block_pick(x, y, cell)
+            xc, yc, vc = x[pick], y[pick], v[pick]
+            if xc.size >= 3:
+                self.coarse_ = BiharmonicSpline()._fit_checked(xc, yc, vc, merged=True)
+                v = v - _evaluate(xc, yc, self.coarse_.force_, x, y)
         x0, x1, y0, y1 = float(x.min()), float(x.max()), float(y.min()), float(y.max())
+        tile = float(self.tile_size)
         nx = max(1, int(np.ceil((x1 - x0) / tile - 1e-9)))
         ny = max(1, int(np.ceil((y1 - y0) / tile - 1e-9)))
-        # Tiles exactly cover the sample bounding box.
+        # Initial tiles exactly cover the sample bounding box; crowded tiles
+        # are split in four (margin and overlap scale with the tile).
         xe = np.linspace(x0, x1, nx + 1)
         ye = np.linspace(y0, y1, ny + 1)
+        stack = [(xe[i], xe[i + 1], ye[j], ye[j + 1], 1.0) for j in range(ny) for i in range(nx)]
         n_min = min(int(self.min_samples), x.size)
+        n_max = max(int(self.max_samples), n_min)
         self.tiles_ = []
-        for j in range(ny):
-            for i in range(nx):
-                margin = float(self.margin)
-                while True:
-                    sel = (
-                        (x >= xe[i] - margin)
-                        & (x <= xe[i + 1] + margin)
-                        & (y >= ye[j] - margin)
-                        & (y <= ye[j + 1] + margin)
-                    )
-                    if np.count_nonzero(sel) >= n_min:
-                        break
-                    margin *= 1.5
-                spl = BiharmonicSpline()._fit_checked(x[sel], y[sel], v[sel], merged=True)
-                self.tiles_.append((xe[i], xe[i + 1], ye[j], ye[j + 1], spl))
+        while stack:
+            tx0, tx1, ty0, ty1, scale = stack.pop()
+            margin = float(self.margin) * scale
+            while True:
+                sel = (
+                    (x >= tx0 - margin)
+                    & (x <= tx1 + margin)
+                    & (y >= ty0 - margin)
+                    & (y <= ty1 + margin)
+                )
+                count = int(np.count_nonzero(sel))
+                if count >= n_min:
+                    break
+                margin *= 1.5
+            if count > n_max and scale > 1.0 / 16:
+                xm, ym = 0.5 * (tx0 + tx1), 0.5 * (ty0 + ty1)
+                half = 0.5 * scale
+                stack += [
+                    (tx0, xm, ty0, ym, half),
+                    (xm, tx1, ty0, ym, half),
+                    (tx0, xm, ym, ty1, half),
+                    (xm, tx1, ym, ty1, half),
+                ]
+                continue
+            spl = BiharmonicSpline()._fit_checked(x[sel], y[sel], v[sel], merged=True)
+            self.tiles_.append((tx0, tx1, ty0, ty1, float(self.overlap) * scale, spl))
         self.bounds_ = (x0, x1, y0, y1)
         return self
 
@@ -404,10 +482,9 @@ class FastBiharmonicSpline:
         # extended (clamped coordinates) so every point gets a value.
         xc = np.clip(xq, x0, x1)
         yc = np.clip(yq, y0, y1)
-        ov = max(float(self.overlap), 1e-9)
         num = np.zeros(xq.size)
         den = np.zeros(xq.size)
-        for tx0, tx1, ty0, ty1, spl in self.tiles_:
+        for tx0, tx1, ty0, ty1, ov, spl in self.tiles_:
             wx = _bump(xc, tx0 - ov, tx1 + ov)
             wy = _bump(yc, ty0 - ov, ty1 + ov)
             idx = np.flatnonzero((wx > 0) & (wy > 0))
@@ -417,7 +494,11 @@ class FastBiharmonicSpline:
             f = _evaluate(spl.coords_[0], spl.coords_[1], spl.force_, xq[idx], yq[idx])
             num[idx] += phi * f
             den[idx] += phi
-        return (num / den).reshape(shape)
+        out = num / den
+        if self.coarse_ is not None:
+            out += _evaluate(self.coarse_.coords_[0], self.coarse_.coords_[1],
+                             self.coarse_.force_, xq, yq)
+        return out.reshape(shape)
 
 
 def _bump(t: FloatArray, lo: float, hi: float) -> FloatArray:
@@ -450,7 +531,9 @@ def reconstruct(
     method : {"auto", "exact", "fast"}
         ``"exact"``: :class:`BiharmonicSpline`; ``"fast"``:
         :class:`FastBiharmonicSpline`; ``"auto"``: exact when there are at most
-        :data:`AUTO_EXACT_MAX_SAMPLES` distinct positions, fast otherwise.
+        :data:`AUTO_EXACT_MAX_SAMPLES` distinct positions, fast otherwise. The
+        fast method is evaluated at :data:`FAST_EVAL_SPACING_M` spacing and
+        upsampled bicubically when ``grid`` is finer.
 
     Returns
     -------
@@ -475,5 +558,16 @@ def reconstruct(
         est = FastBiharmonicSpline()
     est._fit_checked(xa, ya, va, merged=True)
     est.n_samples_ = int(n_samples)
+    if isinstance(est, FastBiharmonicSpline) and min(grid.dx, grid.dy) < FAST_EVAL_SPACING_M:
+        # The field varies on scales of metres: evaluate on a grid of about
+        # FAST_EVAL_SPACING_M spacing and upsample with a bicubic spline.
+        coarse = Grid(
+            grid.region,
+            max(4, min(grid.nx, int(np.ceil(grid.region.width_m / FAST_EVAL_SPACING_M)) + 1)),
+            max(4, min(grid.ny, int(np.ceil(grid.region.height_m / FAST_EVAL_SPACING_M)) + 1)),
+        )
+        xx, yy = coarse.mesh
+        zc = est.predict(xx, yy)
+        return RectBivariateSpline(coarse.y, coarse.x, zc, kx=3, ky=3)(grid.y, grid.x)
     xx, yy = grid.mesh
     return est.predict(xx, yy)

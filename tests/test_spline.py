@@ -1,0 +1,185 @@
+"""Tests of the biharmonic spline reconstruction (econdor_gcs.core.spline)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from skimage.measure import find_contours
+
+from econdor_gcs.core.geometry import Grid, Region
+from econdor_gcs.core.spline import (
+    BiharmonicSpline,
+    FastBiharmonicSpline,
+    greens_function,
+    reconstruct,
+)
+from econdor_gcs.errors import ReconstructionError
+
+REGION = Region(0.0, 100.0, 0.0, 100.0)
+
+
+def gaussian_field(seed: int):
+    """Sum of 30 signed Gaussians (sigma 10 or 15 m) over 100 m x 100 m."""
+    rng = np.random.default_rng(seed)
+    cx, cy = rng.uniform(0, 100, 30), rng.uniform(0, 100, 30)
+    sig = rng.choice([10.0, 15.0], 30)
+    amp = rng.uniform(0.5, 1.0, 30) * rng.choice([-1.0, 1.0], 30)
+
+    def f(x, y):
+        x = np.asarray(x, dtype=float)
+        out = np.zeros(x.shape)
+        for a, b, s, w in zip(cx, cy, sig, amp, strict=True):
+            out += w * np.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s))
+        return out
+
+    return f
+
+
+def contour_samples(f, n_target: int):
+    """Points along contour lines of ``f`` (6 levels) plus both diagonals."""
+    fine = Grid.with_spacing(REGION, 0.5)
+    z = f(*fine.mesh)
+    lines = []
+    for lev in np.quantile(z, np.linspace(0.15, 0.85, 6)):
+        for c in find_contours(z, lev):
+            lines.append(fine.index_to_xy(c[:, 0], c[:, 1]))
+    diag = np.array([0.0, 100.0])
+    lines += [(diag, diag), (diag, diag[::-1])]
+    total = sum(np.sum(np.hypot(np.diff(px), np.diff(py))) for px, py in lines)
+    spacing = total / n_target
+    xs, ys = [], []
+    for px, py in lines:
+        s = np.concatenate(([0.0], np.cumsum(np.hypot(np.diff(px), np.diff(py)))))
+        t = np.arange(0.0, s[-1], spacing)
+        xs.append(np.interp(t, s, px))
+        ys.append(np.interp(t, s, py))
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    return x, y, f(x, y)
+
+
+# --------------------------------------------------------------------------- #
+def test_greens_function_hand_values():
+    r = np.array([0.0, 1.0, math.e, 2.0, 10.0])
+    expected = np.array([0.0, -1.0, 0.0, 4.0 * (math.log(2.0) - 1.0), 100.0 * (math.log(10) - 1)])
+    np.testing.assert_allclose(greens_function(r), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_exact_reproduces_data_points():
+    rng = np.random.default_rng(0)
+    f = gaussian_field(0)
+    x, y = rng.uniform(0, 100, 300), rng.uniform(0, 100, 300)
+    v = f(x, y)
+    pred = BiharmonicSpline().fit(x, y, v).predict(x, y)
+    assert np.max(np.abs(pred - v)) <= 1e-6 * np.max(np.abs(v))
+
+
+def test_exact_nearly_reproduces_a_plane_in_the_interior():
+    # Without a polynomial term the v4 spline is not exact for a plane, but with
+    # well-spread samples it is very close inside the hull. 400 samples on a
+    # jittered 5 m lattice over [0, 100]^2 (plane range 5 units). Measured max
+    # error: 5.2e-6 over [20, 80]^2, 2.2e-3 over the whole square (edges).
+    # 1e-4 keeps ~20x headroom in the interior yet fails for anything that only
+    # interpolates the data (nearest-neighbour: 0.14).
+    rng = np.random.default_rng(1)
+    gx, gy = np.meshgrid(np.linspace(0, 100, 20), np.linspace(0, 100, 20))
+    x = gx.ravel() + rng.uniform(-1, 1, gx.size)
+    y = gy.ravel() + rng.uniform(-1, 1, gy.size)
+
+    def plane(a, b):
+        return 2.0 + 0.03 * a - 0.02 * b
+
+    spl = BiharmonicSpline().fit(x, y, plane(x, y))
+    qx, qy = np.meshgrid(np.linspace(20, 80, 41), np.linspace(20, 80, 41))
+    err = np.abs(spl.predict(qx, qy) - plane(qx, qy))
+    assert err.shape == qx.shape
+    assert err.max() < 1e-4
+
+
+def test_fast_within_5_percent_of_exact_on_contour_samples():
+    f = gaussian_field(3)
+    x, y, v = contour_samples(f, 2000)
+    assert 1500 <= x.size <= 3000
+    grid = Grid(REGION, 101, 101)
+    truth = f(*grid.mesh)
+    mae_exact = np.mean(np.abs(reconstruct(x, y, v, grid, method="exact") - truth))
+    fast = reconstruct(x, y, v, grid, method="fast")
+    mae_fast = np.mean(np.abs(fast - truth))
+    assert fast.shape == grid.shape
+    assert mae_fast <= 1.05 * mae_exact, (mae_fast, mae_exact)
+
+
+def test_fast_upsampled_grid_matches_direct_evaluation():
+    f = gaussian_field(4)
+    x, y, v = contour_samples(f, 3000)
+    grid = Grid(REGION, 201, 201)  # 0.5 m: reconstruct() evaluates at 1 m and upsamples
+    up = reconstruct(x, y, v, grid, method="fast")
+    direct = FastBiharmonicSpline().fit(x, y, v).predict(*grid.mesh)
+    truth = f(*grid.mesh)
+    assert np.mean(np.abs(up - direct)) < 0.05 * np.mean(np.abs(direct - truth))
+
+
+def test_duplicate_positions_are_merged_to_their_mean():
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(0, 50, 40), rng.uniform(0, 50, 40)
+    v = np.sin(x / 10) + np.cos(y / 10)
+    xd = np.concatenate([x, x[:5]])
+    yd = np.concatenate([y, y[:5]])
+    vd = np.concatenate([v, v[:5] + 2.0])  # duplicates disagree by 2
+    spl = BiharmonicSpline().fit(xd, yd, vd)
+    assert spl.force_.size == 40
+    assert spl.n_samples_ == 45
+    np.testing.assert_allclose(spl.predict(x[:5], y[:5]), v[:5] + 1.0, atol=1e-8)
+    np.testing.assert_allclose(spl.predict(x[5:], y[5:]), v[5:], atol=1e-8)
+    out = reconstruct(xd, yd, vd, Grid(Region(0, 50, 0, 50), 11, 11))
+    assert np.all(np.isfinite(out))
+
+
+def test_auto_uses_exact_for_small_sets():
+    f = gaussian_field(6)
+    rng = np.random.default_rng(6)
+    x, y = rng.uniform(0, 100, 200), rng.uniform(0, 100, 200)
+    grid = Grid(REGION, 21, 31)
+    a = reconstruct(x, y, f(x, y), grid)
+    e = reconstruct(x, y, f(x, y), grid, method="exact")
+    assert a.shape == (31, 21)
+    np.testing.assert_array_equal(a, e)
+    # [row=y, col=x]: node (row 3, col 2) is (x=10, y=10)
+    direct = BiharmonicSpline().fit(x, y, f(x, y)).predict(np.array([10.0]), np.array([10.0]))
+    assert a[3, 2] == pytest.approx(direct[0], abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("x", "y", "v", "match"),
+    [
+        ([0.0, 1.0], [0.0, 1.0], [1.0, 2.0], "at least 3 samples"),
+        ([0.0, 1.0, 2.0], [0.0, 1.0], [1.0, 2.0, 3.0], "mismatched lengths"),
+        ([0.0, 1.0, 2.0], [0.0, 1.0, 5.0], [1.0, np.nan, 3.0], "non-finite"),
+        ([0.0, np.inf, 2.0], [0.0, 1.0, 5.0], [1.0, 2.0, 3.0], "non-finite"),
+        ([1.0, 1.0, 1.0, 1.0], [2.0, 2.0, 2.0, 2.0], [1.0, 2.0, 3.0, 4.0], "distinct"),
+    ],
+)
+@pytest.mark.parametrize("method", ["exact", "fast", "auto"])
+def test_bad_input_raises_reconstruction_error(x, y, v, match, method):
+    grid = Grid(REGION, 5, 5)
+    with pytest.raises(ReconstructionError, match=match):
+        reconstruct(x, y, v, grid, method=method)
+    est = BiharmonicSpline() if method == "exact" else FastBiharmonicSpline()
+    with pytest.raises(ReconstructionError, match=match):
+        est.fit(x, y, v)
+
+
+def test_unknown_method_and_unfitted_predict():
+    with pytest.raises(ValueError, match="method"):
+        reconstruct([0, 1, 2], [0, 1, 0], [1, 2, 3], Grid(REGION, 3, 3), method="cubic")
+    with pytest.raises(ReconstructionError, match="not fitted"):
+        BiharmonicSpline().predict([0.0], [0.0])
+    with pytest.raises(ReconstructionError, match="not fitted"):
+        FastBiharmonicSpline().predict([0.0], [0.0])
+
+
+def test_constructor_args_stored_as_given():
+    est = FastBiharmonicSpline(cell_size=0.25, coarse_cell=None, tile_size=30)
+    assert est.cell_size == 0.25 and est.coarse_cell is None and est.tile_size == 30
+    assert not any(k.endswith("_") for k in vars(est))
