@@ -113,6 +113,7 @@ class RunResult:
     flight_distance_m: float
     contour_distance_m: float
     isoline_error_m: dict[str, float] = field(default_factory=dict)
+    mission: dict[str, Any] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         last = self.records[-1] if self.records else None
@@ -134,6 +135,7 @@ class RunResult:
             "reconstruction_s": self.reconstruction_s,
             "vehicles": self.vehicles,
             "isoline_error_m": self.isoline_error_m,
+            **self.mission,
         }
 
 
@@ -388,4 +390,11 @@ class Dfc:
             contour_distance_m=(self.contour_m_survey
                                 if isinstance(self.planner, LawnmowerPlanner) else self.contour_m),
             isoline_error_m=iso,
+            mission={
+                "mission": self.mission.name,
+                "origin": asdict(self.mission.origin),
+                "region": asdict(self.grid.region),
+                "area": {"width_m": self.grid.region.width_m,
+                         "height_m": self.grid.region.height_m},
+            },
         )
