@@ -487,7 +487,8 @@ class MavlinkExecutor:
     # -- the flights ----------------------------------------------------------------------------
     def _begin(self, v: VehicleState, tasks: list[Task]) -> Flight:
         link = self.router.vehicles[v.sysid]
-        start = v.last_xy if v.last_xy is not None else self._position(v.sysid)
+        # where it hovers now (the in-process vehicles also start from rest after braking)
+        start = self._position(v.sysid)
         f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms)
         f.rows.extend(v.stray)  # nothing is ever dropped
         v.stray.clear()
@@ -609,6 +610,12 @@ class MavlinkExecutor:
                         (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
                     f.landed = True  # the heartbeat says so (the STATUSTEXT may be lost)
             if all(v.flight is None or v.flight.landed for v in going):
+                break
+            await asyncio.sleep(0.02)
+        # the heartbeat (1 Hz) confirms the disarm; a vehicle that never says so is left be
+        deadline = time.monotonic() + 2.5
+        while any(self.router.vehicles[v.sysid].armed for v in going):
+            if time.monotonic() > deadline:
                 break
             await asyncio.sleep(0.02)
         for v in going:
