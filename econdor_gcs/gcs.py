@@ -395,6 +395,8 @@ class MavlinkExecutor:
             v.stray.append(row)
             return
         f.rows.append(row)
+        if f.start_ms is None:
+            f.start_ms = s.time_boot_ms
         f.last_ms = s.time_boot_ms
 
     def _on_message(self, sysid: int, msg: MAVLinkMessage) -> None:

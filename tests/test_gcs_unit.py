@@ -1,0 +1,219 @@
+"""Unit tests of the ground station's pure parts (no sockets, no processes)."""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
+from econdor_gcs.gcs import (
+    Flight,
+    LocalFrame,
+    MavlinkExecutor,
+    PieceStatus,
+    StatusAssembler,
+    build_report,
+    mission_items_json,
+    parse_piece_status,
+    phase_after_event,
+)
+from econdor_gcs.geodesy import Origin
+from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.mission import build_mission
+from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost
+from econdor_gcs.mission import parse_mission
+
+ORIGIN = Origin(47.397742, 8.545594, 488.0)
+
+
+# -- STATUSTEXT ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("piece 1003: closed traced 120.4 m flown 150.0 m", PieceStatus(1003, "closed", 120.4, 150.0)),
+    ("piece 7: length_limit traced 300.0 m flown 321.5 m",
+     PieceStatus(7, "length_limit", 300.0, 321.5)),
+    ("piece 2: not_found traced 0.0 m flown 41.2 m ", PieceStatus(2, "not_found", 0.0, 41.2)),
+    ("piece 7: contour found", None),
+    ("armed", None),
+    ("piece x: closed traced 1 m flown 2 m", None),
+])
+def test_parse_piece_status(text: str, expected: PieceStatus | None) -> None:
+    assert parse_piece_status(text) == expected
+
+
+def test_phase_follows_the_tracer_events() -> None:
+    p = Phase.SEARCH
+    p = phase_after_event("piece 3: contour found", p)
+    assert p == Phase.TRACE
+    p = phase_after_event("piece 3: contour lost, searching", p)
+    assert p == Phase.SEARCH
+    p = phase_after_event("piece 3: contour reacquired", p)
+    assert p == Phase.TRACE
+    assert phase_after_event("piece 3: boundary reached, tracing other direction", p) == p
+    assert phase_after_event("landed, disarmed", Phase.TRANSIT) == Phase.TRANSIT
+
+
+def test_status_assembler_joins_chunks() -> None:
+    a = StatusAssembler()
+    assert a.add(1, b"armed\x00\x00") == "armed"
+    text = "piece 1003: length_limit traced 300.0 m flown 1234.5 m"  # > 50 bytes
+    raw = text.encode()
+    assert a.add(2, raw[:50], text_id=9, chunk_seq=0) is None
+    assert a.add(1, b"short one") == "short one"  # other vehicles interleave freely
+    assert a.add(2, raw[50:], text_id=9, chunk_seq=1) == text
+    # exactly 50 bytes: completed by an empty terminator
+    fifty = b"x" * 50
+    assert a.add(3, fifty, text_id=4, chunk_seq=0) is None
+    assert a.add(3, b"", text_id=4, chunk_seq=1) == "x" * 50
+
+
+# -- geodesy --------------------------------------------------------------------------------
+
+
+def test_local_frame_matches_pymap3d() -> None:
+    frame = LocalFrame(ORIGIN)
+    rng = np.random.default_rng(0)
+    for x, y in rng.uniform(-200, 1200, size=(50, 2)):
+        lat, lon, _ = ORIGIN.to_global(float(x), float(y))
+        e, n = frame.to_local(lat, lon)
+        e2, n2, _ = ORIGIN.to_local(lat, lon)
+        assert e == pytest.approx(e2, abs=1e-6) and n == pytest.approx(n2, abs=1e-6)
+        # back to the tangent plane: the vehicle's point (up = 0) lies a few cm above the
+        # origin's ellipsoid height at 1 km; the horizontal effect of that is micrometres
+        assert e == pytest.approx(x, abs=1e-4) and n == pytest.approx(y, abs=1e-4)
+
+
+def test_integer_coordinates_cost_about_a_centimetre() -> None:
+    frame = LocalFrame(ORIGIN)
+    lat, lon, _ = ORIGIN.to_global(37.123456, 81.987654)
+    e, n = frame.to_local(round(lat * 1e7) / 1e7, round(lon * 1e7) / 1e7)
+    assert math.hypot(e - 37.123456, n - 81.987654) < 0.012
+
+
+# -- reports --------------------------------------------------------------------------------
+
+
+def test_build_report_from_a_flight() -> None:
+    wp = Waypoint(10.0, 0.0)
+    tr = TraceTask(level=50.0, x_m=10.0, y_m=10.0, search_radius_m=10.0, max_length_m=0.0,
+                   piece_id=1001)
+    f = Flight(index=2, sysid=3, tasks=[wp, tr], start_xy=(0.0, 0.0), start_ms=1000)
+    f.rows = [(1.1, 3.0, 4.0, 1.0, Phase.TRANSIT), (1.2, 6.0, 8.0, 2.0, Phase.TRANSIT),
+              (1.3, 6.0, 9.0, 3.0, Phase.TRACE)]
+    f.last_ms = 3500
+    f.item_flown_m = {2: 10.0, 3: 1.0}
+    f.pieces[1001] = PieceStatus(1001, "closed", 42.0, 50.0)
+    f.done = True
+    r = build_report(f)
+    assert r.vehicle == 2 and len(r.samples) == 3
+    assert set(r.samples.vehicle) == {2}
+    assert list(r.samples.phase) == [Phase.TRANSIT, Phase.TRANSIT, Phase.TRACE]
+    assert r.flown_m == pytest.approx(5.0 + 5.0 + 1.0)
+    assert r.traced_m == 42.0
+    assert [o.status for o in r.outcomes] == ["reached", "closed"]
+    assert r.outcomes[0].flown_m == 10.0 and r.outcomes[1].flown_m == 50.0
+    assert (r.end_x_m, r.end_y_m) == (6.0, 9.0)
+    assert r.sim_s == pytest.approx(2.5)
+
+
+def test_build_report_of_an_unfinished_flight() -> None:
+    tr = TraceTask(50.0, 1.0, 1.0, 10.0, 0.0, 5)
+    f = Flight(index=0, sysid=1, tasks=[Waypoint(1.0, 1.0), tr], start_xy=(2.0, 3.0))
+    r = build_report(f)
+    assert len(r.samples) == 0 and r.flown_m == 0.0 and r.sim_s == 0.0
+    assert [o.status for o in r.outcomes] == ["unreported", "unreported"]
+    assert (r.end_x_m, r.end_y_m) == (2.0, 3.0)
+
+
+def test_mission_json_round_trip() -> None:
+    items = build_mission(ORIGIN, [Waypoint(5.0, 5.0), TraceTask(20.0, 10, 10, 8, 0, 9)], 30.0,
+                          end="none")
+    data = json.loads(mission_items_json(items))
+    assert [d["command"] for d in data] == [16, 22, 16, 31000]
+    assert data[3]["param1"] == 20.0 and data[3]["param4"] == 9.0
+
+
+# -- the executor's message handling, with a stand-in router ----------------------------------
+
+
+class FakeRouter:
+    def __init__(self) -> None:
+        self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1)) for s in (1, 2)}
+        self.handlers: dict[str, Any] = {}
+
+    def add_sample_handler(self, h: Any) -> None:
+        self.handlers["sample"] = h
+
+    def add_message_handler(self, h: Any) -> None:
+        self.handlers["message"] = h
+
+    def add_event_handler(self, h: Any) -> None:
+        self.handlers["event"] = h
+
+
+def _mission() -> Any:
+    return parse_mission({"field": {"model": "paper"}})
+
+
+def _sample(frame_origin: Origin, sysid: int, ms: int, x: float, y: float, value: float
+            ) -> Sample:
+    lat, lon, _ = frame_origin.to_global(x, y)
+    return Sample(sysid, ms, round(lat * 1e7) / 1e7, round(lon * 1e7) / 1e7, 30.0, value)
+
+
+def test_executor_collects_samples_phases_and_outcomes() -> None:
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
+    tr = TraceTask(50.0, 10.0, 10.0, 10.0, 0.0, 1000)
+    items = build_mission(m.origin, [tr], 30.0, end="none")
+    v = ex.vehicles[2]
+    v.items = items
+    f = ex._begin(v, [tr])
+    v.status = "flying"
+    on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
+    on_msg(2, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
+    on_sample(_sample(m.origin, 2, 1000, 1.0, 0.0, 10.0))
+    on_msg(2, mavlink.MAVLink_statustext_message(6, b"piece 1000: contour found", 0, 0))
+    on_sample(_sample(m.origin, 2, 1100, 2.0, 0.0, 11.0))
+    on_sample(_sample(m.origin, 1, 1100, 50.0, 50.0, 99.0))  # another vehicle, not flying
+    text = b"piece 1000: boundary traced 123.4 m flown 150.5 m"
+    on_msg(2, mavlink.MAVLink_statustext_message(6, text, 0, 0))
+    assert not f.done
+    on_msg(2, mavlink.MAVLink_mission_item_reached_message(2))
+    assert f.done
+    r = ex._end(v)
+    assert r.vehicle == 1
+    assert list(r.samples.phase) == [Phase.SEARCH, Phase.TRACE]
+    np.testing.assert_allclose(r.samples.x_m, [1.0, 2.0], atol=0.02)
+    assert r.traced_m == pytest.approx(123.4)
+    assert r.outcomes[0].status == "boundary"
+    assert r.sim_s == pytest.approx(0.1)
+    # vehicle 1 was not flying: its sample is kept for later, not lost
+    assert len(ex.pending_samples()) == 1
+    # losing a vehicle is remembered and raised at the next step
+    router.handlers["event"](VehicleLost(2, 21.0))
+    with pytest.raises(Exception, match="vehicle 2 lost: no heartbeat for 21 s"):
+        ex._check_lost()
+
+
+def test_mission_complete_state_ends_a_flight_without_item_reached() -> None:
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
+    v = ex.vehicles[1]
+    v.items = build_mission(m.origin, [Waypoint(1, 1), Waypoint(2, 2)], 30.0, end="none")
+    f = ex._begin(v, [Waypoint(1, 1), Waypoint(2, 2)])
+    on_msg = router.handlers["message"]
+    # a stale "complete" before our MISSION_START was accepted does not count
+    on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, mavlink.MISSION_STATE_COMPLETE, 0))
+    assert not f.done
+    v.status = "flying"
+    on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, mavlink.MISSION_STATE_COMPLETE, 0))
+    assert f.done
