@@ -174,7 +174,9 @@ def candidates(quick: bool) -> dict[str, Method]:
     c: dict[str, Method] = {
         "exact": m_exact,
         "(a) thin1m+exact": m_thin_exact(1.0),
-        "(b) PU 1-level": m_est(cell_size=1.0, coarse_cell=None, margin=20.0),
+        "(b) PU 1-level": m_est(
+            cell_size=1.0, coarse_cell=None, tile_size=20.0, margin=20.0, overlap=10.0
+        ),
         "(d) FAST 2-level": m_est(),
         "(d) FAST reconstruct()": m_fast_reconstruct,
     }
