@@ -533,17 +533,31 @@ class MavlinkExecutor:
         with contextlib.suppress(Exception):
             write_wpl(stem.with_suffix(".waypoints"), items)
 
-    async def _launch(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
-        sysid = v.sysid
+    async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
         v.status = "uploading"
-        await asyncio.wait_for(self.router.upload_mission(sysid, items), self.timeout_s)
+        await asyncio.wait_for(self.router.upload_mission(v.sysid, items), self.timeout_s)
         v.items = items
         v.current_seq = None
+        v.status = "uploaded"
+
+    async def _start(self, v: VehicleState) -> None:
         v.status = "arming"
-        await self.router.arm(sysid)
+        await self.router.arm(v.sysid)
         v.status = "starting"
-        await self.router.start_mission(sysid, 1, 0)
+        await self.router.start_mission(v.sysid, 1, 0)
         v.status = "flying"
+
+    @staticmethod
+    async def _all(coros: list[Coroutine[Any, Any, None]]) -> None:
+        """Run concurrently; on the first failure cancel the rest and raise it."""
+        tasks = [asyncio.ensure_future(c) for c in coros]
+        try:
+            await asyncio.gather(*tasks)
+        except BaseException:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            raise
 
     def _check_lost(self) -> None:
         if self._lost is not None:
@@ -553,7 +567,7 @@ class MavlinkExecutor:
         self._check_lost()
         flying: list[VehicleState] = []
         t0 = time.monotonic()
-        jobs = []
+        jobs: list[Coroutine[Any, Any, None]] = []
         for sysid, tasks in zip(self.sysids, plans, strict=True):
             if not tasks:
                 continue
@@ -563,12 +577,15 @@ class MavlinkExecutor:
             self._save_mission(iteration, sysid, items)
             self._begin(v, tasks)
             flying.append(v)
-            jobs.append(self._launch(v, items))
+            jobs.append(self._upload(v, items))
+        # every upload first, then start everyone: streaming vehicles would slow the others'
+        # transfers down (their samples share this endpoint)
         try:
-            await asyncio.gather(*jobs)
+            await self._all(jobs)
         except TimeoutError:
             raise VehicleTimeout(f"mission upload did not finish within {self.timeout_s:g} s"
                                  ) from None
+        await self._all([self._start(v) for v in flying])
         t1 = time.monotonic()
         self.timings["protocol_s"] += t1 - t0
         while not all(v.flight is not None and v.flight.done for v in flying):
