@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import multiprocessing
+import os
 import statistics
 import sys
 import time
@@ -117,7 +119,10 @@ def main() -> int:
     planners = a.planners.split(",")
     jobs = [(f, s, pl, a.budget, a.iterations) for f in fields for s in seeds for pl in planners]
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=a.workers) as pool:
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
         results = list(pool.map(one, jobs))
     wall = time.perf_counter() - t0
     budgets = [b for b in (2_000.0, 5_000.0, 10_000.0, 20_000.0, 30_000.0) if b <= a.budget]

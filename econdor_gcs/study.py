@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
+import multiprocessing
 import os
 import statistics
 import time
@@ -26,6 +27,7 @@ from .mission import Mission
 from .rundir import RunDir, write_json
 
 PLANNERS = ("econdor", "no-sg", "lawnmower")
+_BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels")
 STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS, *EXTRA_COLUMNS)
 
@@ -131,12 +133,24 @@ def run_study(
             results.append(r)
             notify(r)
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = [pool.submit(run_seed, mission, s, p, str(out)) for s, p in jobs]
-            for fut in as_completed(futs):
-                r = fut.result()
-                results.append(r)
-                notify(r)
+        # One BLAS thread per worker: several processes each spinning up a thread per core
+        # slow the dense solves down many times. Spawned workers read the variables at import.
+        saved = {k: os.environ.get(k) for k in _BLAS_THREAD_VARS}
+        os.environ.update({k: "1" for k in _BLAS_THREAD_VARS})
+        try:
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+                futs = [pool.submit(run_seed, mission, s, p, str(out)) for s, p in jobs]
+                for fut in as_completed(futs):
+                    r = fut.result()
+                    results.append(r)
+                    notify(r)
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
     results.sort(key=lambda r: (PLANNERS.index(r["summary"]["planner"]), r["summary"]["seed"]))
     rows = [row for r in results for row in r["rows"]]
     with (out / "study.csv").open("w", newline="", encoding="utf-8") as f:
