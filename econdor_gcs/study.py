@@ -117,6 +117,7 @@ def run_study(
     scheduler: str | None = None,
     progress: Callable[[dict[str, Any]], None] | None = None,
     figures: bool = True,
+    connect_timeout_s: float = 10.0,
 ) -> dict[str, Any]:
     """Run every (seed, planner) and write the study outputs. Returns the summary."""
     out = Path(out_dir)
@@ -126,7 +127,7 @@ def run_study(
     results: list[dict[str, Any]] = []
     notify = progress or (lambda r: None)
     if scheduler:
-        results = _run_dask(mission, jobs, str(out), scheduler, notify)
+        results = _run_dask(mission, jobs, str(out), scheduler, notify, connect_timeout_s)
     elif (workers or 1) <= 1 or len(jobs) == 1:
         for seed, planner in jobs:
             r = run_seed(mission, seed, planner, str(out))
@@ -176,14 +177,14 @@ def run_study(
 
 
 def _run_dask(mission: Mission, jobs: list[tuple[int, str]], out: str, scheduler: str,
-              notify: Callable[[dict[str, Any]], None]) -> list[dict[str, Any]]:
+              notify: Callable[[dict[str, Any]], None], timeout_s: float) -> list[dict[str, Any]]:
     try:
         from dask.distributed import Client
         from dask.distributed import as_completed as dask_completed
     except ImportError as exc:
         raise EcondorError("--scheduler needs dask[distributed]: pip install 'econdor[dask]'") from exc
     try:
-        client = Client(scheduler, timeout="10s")
+        client = Client(scheduler, timeout=f"{timeout_s}s")
     except (OSError, TimeoutError) as exc:
         raise EcondorError(f"--scheduler: cannot reach Dask scheduler at {scheduler}: {exc}") from exc
     try:

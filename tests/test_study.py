@@ -83,3 +83,25 @@ def test_cli_study_and_errors(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["study", str(bad), "--workers", "0", "--out", "x"])
     assert exc.value.code == 2
+
+
+def test_study_on_a_dask_cluster(demo, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    mission = demo.with_overrides(max_iterations=1, min_iterations=1)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        summary = run_study(mission, [5, 6], ["econdor"], tmp_path,
+                            scheduler=cluster.scheduler_address, figures=False)
+    assert [r["seed"] for r in summary["runs"]] == [5, 6]
+    assert all(r["iterations"] == 2 for r in summary["runs"])
+    with (tmp_path / "study.csv").open() as f:
+        assert len(list(csv.DictReader(f))) == 4
+
+
+def test_unreachable_scheduler_is_one_clear_error(demo, tmp_path):
+    pytest.importorskip("dask.distributed")
+    from econdor_gcs.errors import EcondorError
+
+    with pytest.raises(EcondorError, match="cannot reach Dask scheduler"):
+        run_study(demo, [1], ["econdor"], tmp_path, scheduler="tcp://127.0.0.1:1", figures=False,
+                  connect_timeout_s=1.0)
