@@ -80,7 +80,7 @@ def test_diagonal_jobs_split_evenly():
         on_diagonal = []
         for j in jobs:
             pts = [(t.x_m, t.y_m) for t in j.tasks]
-            on_diagonal.append(sum(math.dist(a, b) for a, b in zip(pts[:-1], pts[1:])
+            on_diagonal.append(sum(math.dist(a, b) for a, b in zip(pts[:-1], pts[1:], strict=True)
                                    if abs(abs(b[0] - a[0]) - abs(b[1] - a[1])) < 1e-9))
         assert sum(on_diagonal) == pytest.approx(2 * math.hypot(100, 100))
         assert max(on_diagonal) == pytest.approx(min(on_diagonal))

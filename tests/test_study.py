@@ -30,7 +30,7 @@ def test_econdor_run_converges_with_real_tracing(demo, tmp_path):
     assert maes[-1] < maes[1]
     assert rows[-1]["mae_db"] < -3.0
     # cumulative distances and samples only grow; contour distance <= flown
-    for a, b in zip(rows, rows[1:]):
+    for a, b in zip(rows, rows[1:], strict=False):
         assert b["flight_distance_m"] >= a["flight_distance_m"]
         assert b["samples"] >= a["samples"]
     assert 0 < rows[-1]["contour_distance_m"] < rows[-1]["flight_distance_m"]
