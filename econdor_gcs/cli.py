@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("export", help="export the missions of a run for real autopilots")
     ex.add_argument("run_dir", type=Path)
     ex.add_argument("--format", choices=("wpl", "plan", "geojson"), required=True)
-    ex.add_argument("--out", required=True, help="file, or directory (existing or ending in /) for one file per mission")
+    ex.add_argument("--out", required=True,
+                    help="a file, or a directory (existing or ending in /) for one file per mission")
     ex.add_argument("--iteration", type=int, default=None)
     ex.add_argument("--vehicle", type=int, default=None)
     return p
