@@ -179,6 +179,7 @@ class Dfc:
         self.contour_m = 0.0
         self.sim_s = 0.0
         self.recon_s = 0.0
+        self.contour_m_survey = 0.0
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -222,7 +223,9 @@ class Dfc:
         m = self.mission
         n = self.executor.n_vehicles
         if isinstance(self.planner, LawnmowerPlanner):
-            jobs = self.planner.next_batch().jobs
+            batch = self.planner.next_batch()
+            self.contour_m_survey = batch.survey_m
+            jobs = batch.jobs
         elif m.initiation.pattern == "lawnmower":
             xs = np.arange(m.region.xmin, m.region.xmax + 1e-9, m.initiation.spacing_m)
             jobs = survey_jobs(m.region, xs)
@@ -294,7 +297,6 @@ class Dfc:
     def run(self) -> RunResult:
         wall0 = time.perf_counter()
         a = self.mission.algorithm
-        self.contour_m_survey = 0.0
         self.progress("start", {"planner": self.planner_name, "seed": self.seed,
                                 "vehicles": self.executor.n_vehicles})
         plans = self._initiation_plans()
@@ -302,8 +304,6 @@ class Dfc:
         if not isinstance(self.planner, LawnmowerPlanner):
             self._subsample_initiation(reports)
         self._account(reports, initiation=not isinstance(self.planner, LawnmowerPlanner))
-        if isinstance(self.planner, LawnmowerPlanner):
-            self.contour_m_survey = self._survey_m(plans)
         estimate = self._reconstruct()
         self._record(0, None, estimate, None, reports)
         converged, reason = False, "max_iterations"
@@ -351,15 +351,6 @@ class Dfc:
         result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
         self.progress("done", result.summary())
         return result
-
-    @staticmethod
-    def _survey_m(plans: list[list[Task]]) -> float:
-        total = 0.0
-        for tasks in plans:
-            for p, q in zip(tasks[:-1], tasks[1:], strict=False):
-                if getattr(p, "x_m", None) == getattr(q, "x_m", None):
-                    total += abs(q.y_m - p.y_m)  # type: ignore[union-attr]
-        return total
 
     def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
         lam = self.mission.algorithm.stop_lambda

@@ -227,7 +227,7 @@ def _draw_paths(ax: Axes, samples: SampleLog) -> None:
     present = sorted({int(p) for p in np.unique(samples.phase)})
     if len(segs):
         colors = [_phase_color(int(p)) for p in phases]
-        ax.add_collection(LineCollection(segs, colors=colors, linewidths=1.2, zorder=3))
+        ax.add_collection(LineCollection(list(segs), colors=colors, linewidths=1.2, zorder=3))
     else:
         for p in present:
             m = samples.phase == p

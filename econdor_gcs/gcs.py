@@ -53,7 +53,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Coroutine, Sequence
+from collections.abc import Coroutine, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -527,7 +527,7 @@ class MavlinkExecutor:
         stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}"
         stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
         try:
-            from .export import write_wpl  # type: ignore[attr-defined]
+            from .export import write_wpl
         except ImportError:
             return
         with contextlib.suppress(Exception):
@@ -686,7 +686,7 @@ def _on_sigterm(signum: int, frame: Any) -> None:
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt():  # type: ignore[no-untyped-def]
+def _sigterm_as_interrupt() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return

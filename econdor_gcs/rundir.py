@@ -86,7 +86,8 @@ class RunDir:
         if extra:
             summary.update(extra)
         write_json(self.path / "summary.json", summary)
-        arrays = {"grid_x": result.grid.x, "grid_y": result.grid.y, "estimate": result.estimate}
+        arrays: dict[str, Any] = {"grid_x": result.grid.x, "grid_y": result.grid.y,
+                                  "estimate": result.estimate}
         if result.truth is not None:
             arrays["truth"] = result.truth
         np.savez_compressed(self.path / "fields.npz", **arrays)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -57,7 +57,7 @@ class SimBody:
 
     def __init__(
         self,
-        field: Callable[[float, float], float],
+        field: Callable[[Any, Any], Any],
         region: Region,
         x_m: float,
         y_m: float,
