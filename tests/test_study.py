@@ -5,6 +5,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from econdor_gcs.cli import main
@@ -105,3 +106,46 @@ def test_unreachable_scheduler_is_one_clear_error(demo, tmp_path):
     with pytest.raises(EcondorError, match="cannot reach Dask scheduler"):
         run_study(demo, [1], ["econdor"], tmp_path, scheduler="tcp://127.0.0.1:1", figures=False,
                   connect_timeout_s=1.0)
+
+
+def test_flight_budget_stops_the_run(demo):
+    mission = demo.with_overrides(max_iterations=8, min_iterations=1, flight_budget_m=1500.0)
+    r = run_seed(mission, 2, "no-sg", None)
+    s = r["summary"]
+    assert s["stop_reason"] == "flight_budget"
+    # the budget is checked before each iteration: the last one started below it
+    assert r["rows"][-2]["flight_distance_m"] < 1500.0 <= r["rows"][-1]["flight_distance_m"]
+
+
+def test_gamma_rule_stops_when_learning_error_levels_off():
+    """gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2}) within 1 +- lambda (and a stable span)."""
+    from econdor_gcs.dfc import Dfc
+
+    class Stub:
+        mission = load_mission(ROOT / "missions" / "demo.yaml").with_overrides(stop_lambda=0.05)
+        records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, 0, 0)
+                   for i, e in enumerate([math.nan, 1.0, 1.02, 0.99])]
+
+    assert Dfc._gamma_converged(Stub, 50.0, 50.1)  # gamma = 0.99, span moved 0.2 %
+    assert not Dfc._gamma_converged(Stub, 50.0, 55.0)  # span still moving
+    Stub.records[-1].learning_error = 0.5  # still falling: gamma = 0.6
+    assert not Dfc._gamma_converged(Stub, 50.0, 50.1)
+
+
+def test_lawnmower_initiation_pattern(tmp_path):
+    from dataclasses import replace
+
+    from econdor_gcs.mission import InitiationConfig
+    from econdor_gcs.rundir import read_samples
+
+    mission = load_mission(ROOT / "missions" / "demo.yaml")
+    mission = replace(mission.with_overrides(max_iterations=1, min_iterations=1),
+                      initiation=InitiationConfig("lawnmower", 20.0, 0))
+    r = run_seed(mission, 1, "econdor", str(tmp_path))
+    n0 = r["rows"][0]["samples"]
+    s = read_samples(tmp_path / "runs" / "econdor-1" / "samples.csv")
+    x, y = s.x_m[:n0], s.y_m[:n0]
+    for line_x in (0, 20, 40, 60, 80, 100):  # every survey line flown end to end
+        on = np.abs(x - line_x) < 0.5
+        assert y[on].min() < 5 and y[on].max() > 95, line_x
+    assert 600 <= r["rows"][0]["flight_distance_m"] <= 1200  # 600 m of lines + transit
