@@ -303,10 +303,15 @@ class FastBiharmonicSpline:
 
     in time roughly linear in ``N``:
 
-    1. Block-average: samples are averaged (position and value) within square
-       cells of side ``cell_size``. Along densely sampled contour lines this
-       keeps about one sample per ``cell_size`` metres -- closer samples add
-       almost nothing to the reconstruction.
+    1. Thin: one sample per square cell of side ``cell_size`` is kept (the one
+       nearest the cell centre; ``thinning="mean"`` averages position and
+       value instead). Along densely sampled contour lines this keeps about one
+       sample per ``cell_size`` metres -- closer samples add almost nothing to
+       the reconstruction. Picking keeps real samples, so the surface still
+       interpolates data as the exact spline does; averaging biases curved
+       fields by about ``g'' cell^2 / 24`` (measured on the paper's field with
+       75k-200k samples: -58 dB MAE with averaging, -62 to -71 dB picking) but
+       smooths sensor noise.
     2. Coarse global level: one sample per ``coarse_cell`` square (the one
        nearest the cell centre; the cell grows until at most
        ``coarse_max_samples`` remain) is interpolated by an exact spline
@@ -331,7 +336,9 @@ class FastBiharmonicSpline:
     Parameters
     ----------
     cell_size : float
-        Block-averaging cell side in metres (``0`` disables averaging).
+        Thinning cell side in metres (``0`` disables thinning).
+    thinning : {"pick", "mean"}
+        Keep the sample nearest each cell centre, or the cell average.
     coarse_cell : float or None
         Initial cell side of the coarse level in metres (``None`` or ``0``:
         no coarse level, plain partition of unity).
@@ -366,6 +373,7 @@ class FastBiharmonicSpline:
     def __init__(
         self,
         cell_size: float = 0.5,
+        thinning: str = "pick",
         coarse_cell: float | None = 3.0,
         coarse_max_samples: int = 1500,
         tile_size: float = 10.0,
@@ -375,6 +383,7 @@ class FastBiharmonicSpline:
         max_samples: int = 1000,
     ) -> None:
         self.cell_size = cell_size
+        self.thinning = thinning
         self.coarse_cell = coarse_cell
         self.coarse_max_samples = coarse_max_samples
         self.tile_size = tile_size
@@ -413,8 +422,14 @@ class FastBiharmonicSpline:
         self.n_samples_ = int(x.size)
         if not merged:
             x, y, v = _merge_duplicates(x, y, v)
+        if self.thinning not in ("pick", "mean"):
+            raise ValueError(f"thinning must be 'pick' or 'mean', got {self.thinning!r}")
         if self.cell_size > 0:
-            xb, yb, vb = _block_mean(x, y, v, float(self.cell_size))
+            if self.thinning == "pick":
+                keep = _block_pick(x, y, float(self.cell_size))
+                xb, yb, vb = x[keep], y[keep], v[keep]
+            else:
+                xb, yb, vb = _block_mean(x, y, v, float(self.cell_size))
             if xb.size >= 3:
                 x, y, v = xb, yb, vb
         self.n_used_ = int(x.size)
