@@ -36,9 +36,10 @@ Conventions and choices (see also DESIGN.md §4):
   horizontal motion, so this misses only the braking drift while hovering).
 * **Positions.** Samples are ``GLOBAL_POSITION_INT`` + ``NAMED_VALUE_FLOAT("FIELD")``;
   latitude/longitude go back to local ENU on the origin's ellipsoid height (the vehicle
-  converts its local position with up = 0), with the exact closed form of
-  :class:`LocalFrame` (the same result as ``Origin.to_local`` to well below the 1e-7 deg
-  resolution of the message, ~50x faster).
+  converts its local position with up = 0) with pymap3d. Received samples are buffered raw
+  per vehicle and converted in batches (one vectorised ``Origin.to_local_many`` call) when a
+  report, the pending samples, a position or the live display needs them, or when the
+  buffer reaches :data:`SAMPLE_BATCH`.
 """
 
 from __future__ import annotations
@@ -62,7 +63,6 @@ import numpy as np
 
 from .core.tasks import FlightReport, Phase, SampleLog, Task, TaskOutcome, TraceTask
 from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
-from .geodesy import Origin
 from .link.codec import MAVLinkMessage, mavlink
 from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
 from .link.router import Router, Sample, VehicleLost
@@ -70,7 +70,6 @@ from .link.tlog import TlogWriter
 from .mission import Mission
 
 __all__ = [
-    "LocalFrame",
     "MavlinkExecutor",
     "PieceStatus",
     "Station",
@@ -82,6 +81,9 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+
+SAMPLE_BATCH = 512
+"""Raw samples buffered per vehicle before they are converted to local metres anyway."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
@@ -159,38 +161,6 @@ class StatusAssembler:
             return None
         del self._parts[key]
         return "".join(parts)
-
-
-class LocalFrame:
-    """WGS-84 geodetic -> local ENU around an origin, in plain ``math`` (exact closed form).
-
-    ``to_local(lat, lon)`` gives ENU metres of the point at the origin's ellipsoid height
-    (geodetic -> ECEF -> rotation), matching ``Origin.to_local(lat, lon, 0)``.
-    """
-
-    A = 6378137.0
-    F = 1.0 / 298.257223563
-    E2 = F * (2.0 - F)
-
-    def __init__(self, origin: Origin) -> None:
-        self.h_m = origin.alt_m
-        la, lo = math.radians(origin.lat_deg), math.radians(origin.lon_deg)
-        self.sla, self.cla, self.slo, self.clo = math.sin(la), math.cos(la), math.sin(lo), \
-            math.cos(lo)
-        self.x0, self.y0, self.z0 = self._ecef(la, lo)
-
-    def _ecef(self, la: float, lo: float) -> tuple[float, float, float]:
-        sla, cla = math.sin(la), math.cos(la)
-        n = self.A / math.sqrt(1.0 - self.E2 * sla * sla)
-        return ((n + self.h_m) * cla * math.cos(lo), (n + self.h_m) * cla * math.sin(lo),
-                (n * (1.0 - self.E2) + self.h_m) * sla)
-
-    def to_local(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
-        x, y, z = self._ecef(math.radians(lat_deg), math.radians(lon_deg))
-        dx, dy, dz = x - self.x0, y - self.y0, z - self.z0
-        east = -self.slo * dx + self.clo * dy
-        north = -self.sla * self.clo * dx - self.sla * self.slo * dy + self.cla * dz
-        return east, north
 
 
 @dataclass
@@ -331,6 +301,8 @@ class VehicleState:
     flight: Flight | None = None
     stray: list[tuple[float, float, float, float, int]] = field(default_factory=list)
     status: str = "idle"
+    raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
+    """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
 
 
 class MavlinkExecutor:
@@ -363,7 +335,7 @@ class MavlinkExecutor:
         self.missions_dir = missions_dir
         self.timeout_s = timeout_s
         self.origin = mission.origin
-        self.frame = LocalFrame(mission.origin)
+        self._raw_lock = threading.RLock()
         self.altitude_m = mission.vehicles.altitude_m
         self.home = (0.0, 0.0)
         self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(self.sysids)}
@@ -381,23 +353,50 @@ class MavlinkExecutor:
         v = self.vehicles.get(s.sysid)
         if v is None:
             return
-        x, y = self.frame.to_local(s.lat_deg, s.lon_deg)
-        f = v.flight
-        if v.last_xy is not None:
-            step = math.hypot(x - v.last_xy[0], y - v.last_xy[1])
-            v.flown_m += step
-            if f is not None and v.current_seq is not None:
-                f.item_flown_m[v.current_seq] = f.item_flown_m.get(v.current_seq, 0.0) + step
-        v.last_xy = (x, y)
-        v.samples += 1
-        row = (s.time_boot_ms / 1000.0, x, y, float(s.value), int(v.phase))
-        if f is None:
-            v.stray.append(row)
-            return
-        f.rows.append(row)
-        if f.start_ms is None:
-            f.start_ms = s.time_boot_ms
-        f.last_ms = s.time_boot_ms
+        seq = v.current_seq if v.current_seq is not None else -1
+        with self._raw_lock:
+            v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(v.phase),
+                          seq))
+            v.samples += 1
+            f = v.flight
+            if f is not None:
+                if f.start_ms is None:
+                    f.start_ms = s.time_boot_ms
+                f.last_ms = s.time_boot_ms
+            if len(v.raw) >= SAMPLE_BATCH:
+                self._convert(v)
+
+    def _convert(self, v: VehicleState) -> None:
+        """Convert ``v``'s raw samples to local rows in one vectorised pymap3d call.
+
+        Everything that changes ``v.flight`` calls this first, so one batch always belongs
+        to one flight (or to none: stray samples)."""
+        with self._raw_lock:
+            raw, v.raw = v.raw, []
+            if not raw:
+                return
+            a = np.asarray(raw, dtype=float)
+            x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
+            f = v.flight
+            if v.last_xy is not None:
+                steps = np.hypot(np.diff(x, prepend=v.last_xy[0]),
+                                 np.diff(y, prepend=v.last_xy[1]))
+            else:
+                steps = np.concatenate(([0.0], np.hypot(np.diff(x), np.diff(y))))
+            v.flown_m += float(steps.sum())
+            if f is not None:
+                seqs = a[:, 5].astype(np.int64)
+                for seq in np.unique(seqs[seqs >= 0]).tolist():
+                    f.item_flown_m[seq] = f.item_flown_m.get(seq, 0.0) + \
+                        float(steps[seqs == seq].sum())
+            v.last_xy = (float(x[-1]), float(y[-1]))
+            rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
+                            a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+            (f.rows if f is not None else v.stray).extend(rows)
+
+    def _convert_all(self) -> None:
+        for v in self.vehicles.values():
+            self._convert(v)
 
     def _on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
         v = self.vehicles.get(sysid)
@@ -471,7 +470,8 @@ class MavlinkExecutor:
         link = self.router.vehicles.get(sysid)
         if link is None or link.lat_deg is None or link.lon_deg is None:
             return self.home
-        return self.frame.to_local(link.lat_deg, link.lon_deg)
+        x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
+        return x, y
 
     def positions(self) -> list[tuple[float, float]]:
         return [self._position(s) for s in self.sysids]
@@ -488,6 +488,7 @@ class MavlinkExecutor:
 
     # -- the flights ----------------------------------------------------------------------------
     def _begin(self, v: VehicleState, tasks: list[Task]) -> Flight:
+        self._convert(v)  # samples so far belong to the previous state
         link = self.router.vehicles[v.sysid]
         # where it hovers now (the in-process vehicles also start from rest after braking)
         start = self._position(v.sysid)
@@ -498,6 +499,7 @@ class MavlinkExecutor:
         return f
 
     def _end(self, v: VehicleState) -> FlightReport:
+        self._convert(v)
         f = v.flight
         v.flight = None
         if f is None:
@@ -508,16 +510,18 @@ class MavlinkExecutor:
     def pending_samples(self) -> SampleLog:
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
         logs = []
-        for v in self.vehicles.values():
-            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
-            if rows:
-                a = np.asarray(rows, dtype=float)
-                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
-                                      a[:, 4].astype(np.int8),
-                                      np.full(len(rows), v.index, dtype=np.int16)))
-            v.stray.clear()
-            if v.flight is not None:
-                v.flight.rows.clear()
+        with self._raw_lock:
+            self._convert_all()
+            for v in self.vehicles.values():
+                rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+                v.stray.clear()
+                if v.flight is not None:
+                    v.flight.rows.clear()
+                if rows:
+                    a = np.asarray(rows, dtype=float)
+                    logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
+                                          a[:, 4].astype(np.int8),
+                                          np.full(len(rows), v.index, dtype=np.int16)))
         return SampleLog.concat(logs)
 
     def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec]) -> None:
@@ -598,6 +602,7 @@ class MavlinkExecutor:
         return reports
 
     def _end_idle(self, v: VehicleState) -> FlightReport:
+        self._convert(v)
         x, y = v.last_xy if v.last_xy is not None else self._position(v.sysid)
         return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], x, y, 0.0)
 
@@ -651,6 +656,7 @@ class MavlinkExecutor:
     # -- for the live display ---------------------------------------------------------------
     def status_rows(self) -> list[dict[str, Any]]:
         rows = []
+        self._convert_all()
         for v in self.vehicles.values():
             link = self.router.vehicles.get(v.sysid)
             n = len(v.items) - 1 if v.items else 0

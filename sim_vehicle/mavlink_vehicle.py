@@ -79,6 +79,9 @@ MAX_STREAM_WALL_HZ = 50.0
 CLIMB_RATE_MPS = 3.0
 DESCENT_RATE_MPS = 1.5
 RX_BUDGET_PER_S = 5000
+MISSION_RETRY_S = 0.25
+MISSION_RETRIES = 20
+"""Mission upload: resend a request after MISSION_RETRY_S, fail after this many in a row."""
 """Messages per wall second accepted from one peer; the rest is dropped as a flood."""
 
 # PX4 main modes and AUTO sub modes
@@ -120,56 +123,6 @@ FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # "1.14.0 release",
 # Parameters: name -> (default from the mission, lower bound, upper bound)
 PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD",
                "ALT_M", "SPEEDUP")
-
-
-class FastEnu:
-    """ENU metres -> WGS-84 geodetic, in plain ``math`` (no numpy per call).
-
-    Same result as ``pymap3d.enu2geodetic`` (the exact ECEF route, Heikkinen's closed-form
-    ECEF -> geodetic) to far below the 1e-7 degree resolution of MAVLink integers, at a
-    fraction of the cost; it runs for every sample.
-    """
-
-    A = 6378137.0
-    F = 1.0 / 298.257223563
-    B = A * (1.0 - F)
-    E2 = F * (2.0 - F)
-    EP2 = (A * A - B * B) / (B * B)
-
-    def __init__(self, lat0_deg: float, lon0_deg: float, h0_m: float) -> None:
-        la, lo = math.radians(lat0_deg), math.radians(lon0_deg)
-        self.sla, self.cla, self.slo, self.clo = math.sin(la), math.cos(la), math.sin(lo), \
-            math.cos(lo)
-        n = self.A / math.sqrt(1.0 - self.E2 * self.sla ** 2)
-        self.x0 = (n + h0_m) * self.cla * self.clo
-        self.y0 = (n + h0_m) * self.cla * self.slo
-        self.z0 = (n * (1.0 - self.E2) + h0_m) * self.sla
-
-    def to_geodetic(self, e: float, n: float, u: float) -> tuple[float, float, float]:
-        sla, cla, slo, clo = self.sla, self.cla, self.slo, self.clo
-        t = cla * u - sla * n
-        x = self.x0 + clo * t - slo * e
-        y = self.y0 + slo * t + clo * e
-        z = self.z0 + sla * u + cla * n
-        a, b, e2 = self.A, self.B, self.E2
-        p = math.hypot(x, y)
-        f_ = 54.0 * b * b * z * z
-        g = p * p + (1.0 - e2) * z * z - e2 * (a * a - b * b)
-        c = e2 * e2 * f_ * p * p / (g ** 3)
-        s_ = (1.0 + c + math.sqrt(c * c + 2.0 * c)) ** (1.0 / 3.0)
-        k = s_ + 1.0 + 1.0 / s_
-        pp = f_ / (3.0 * k * k * g * g)
-        q = math.sqrt(1.0 + 2.0 * e2 * e2 * pp)
-        r0 = -(pp * e2 * p) / (1.0 + q) + math.sqrt(
-            0.5 * a * a * (1.0 + 1.0 / q) - pp * (1.0 - e2) * z * z / (q * (1.0 + q))
-            - 0.5 * pp * p * p)
-        uu = math.hypot(p - e2 * r0, z)
-        v = math.sqrt((p - e2 * r0) ** 2 + (1.0 - e2) * z * z)
-        zz = b * b * z / (a * v)
-        h = uu * (1.0 - b * b / (a * v))
-        lat = math.degrees(math.atan2(z + self.EP2 * zz, p))
-        lon = math.degrees(math.atan2(y, x))
-        return lat, lon, h
 
 
 def _reset_parser(parser: mavlink.MAVLink) -> None:
@@ -241,7 +194,6 @@ class MavlinkVehicle:
         self.region = region
         self.origin = origin
         self.home = home or (origin.lat_deg, origin.lon_deg, origin.alt_m)
-        self._enu = FastEnu(origin.lat_deg, origin.lon_deg, origin.alt_m)
         hx, hy, hz = origin.to_local(self.home[0], self.home[1], self.home[2] - origin.alt_m)
         self.home_local = (hx, hy, hz)
         self.endpoint = parse_endpoint(connect) if isinstance(connect, str) else connect
@@ -258,7 +210,9 @@ class MavlinkVehicle:
         self.body = self._make_body(hx, hy, 0.0)
         self._odo_base = 0.0
         self._body_dirty = False
-        self.server = MissionServer()
+        # PX4's mission protocol timing: re-request every 0.25 s, give up after 5 s without
+        # progress (a GCS under load can answer a request seconds late)
+        self.server = MissionServer(timeout_s=MISSION_RETRY_S, max_retries=MISSION_RETRIES)
         # flight state
         self.armed = False
         self.alt_m = 0.0  # above home
@@ -284,6 +238,9 @@ class MavlinkVehicle:
         self._last_sent_wall: dict[str, float] = {}
         self._last_sent_sim: dict[str, float] = {}
         self._last_sample_wall = -1.0
+        # samples of the current loop iteration, converted to lat/lon in one vectorised
+        # pymap3d call and sent before anything else goes out (see _flush_samples)
+        self._pending: list[tuple[int, float, float, float, float, float, float, float]] = []
         self._status_id = 0
         self._stop = threading.Event()
         self._wake_r, self._wake_w = socket.socketpair()
@@ -389,6 +346,11 @@ class MavlinkVehicle:
                         next_hb = now + 1.0
                 self._advance(now)
                 self._periodic_streams(time.monotonic())
+                dl = self.server.next_deadline()
+                if dl is not None and time.monotonic() >= dl:
+                    # a transfer deadline passed while we were busy: the awaited item may
+                    # be sitting in the socket, so read before declaring a timeout
+                    self._receive()
                 for m in self.server.poll(time.monotonic()):
                     self._send(m)
                 self.transport.flush()
@@ -500,6 +462,11 @@ class MavlinkVehicle:
     # ------------------------------------------------------------------ sending
 
     def _send(self, msg: Any) -> None:
+        if self._pending:
+            self._flush_samples()  # keep the send order of the ticks
+        self._send_now(msg)
+
+    def _send_now(self, msg: Any) -> None:
         if self.tx_filter is not None and not self.tx_filter(msg):
             return
         sink: _Sink = self.mav.file
@@ -554,13 +521,17 @@ class MavlinkVehicle:
             hy, hx, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.body.t_s * 1e6))
 
     def _gpi(self) -> Any:
-        lat, lon, _ = self._enu.to_geodetic(self.body.x_m, self.body.y_m, 0.0)
+        lat, lon, _ = self.origin.to_global(self.body.x_m, self.body.y_m, 0.0)
         ve, vn, vu = self._vel
+        return self._gpi_msg(self.time_boot_ms, lat, lon, self.alt_m, ve, vn, vu)
+
+    def _gpi_msg(self, ms: int, lat: float, lon: float, alt: float, ve: float, vn: float,
+                 vu: float) -> Any:
         hdg = int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)) \
             if ve * ve + vn * vn > 0.01 else 65535
         return mavlink.MAVLink_global_position_int_message(
-            self.time_boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)),
-            int(round((self.home[2] + self.alt_m) * 1000)), int(round(self.alt_m * 1000)),
+            ms, int(round(lat * 1e7)), int(round(lon * 1e7)),
+            int(round((self.home[2] + alt) * 1000)), int(round(alt * 1000)),
             int(round(vn * 100)), int(round(ve * 100)), int(round(-vu * 100)), hdg)
 
     def _local_ned(self) -> Any:
@@ -609,12 +580,26 @@ class MavlinkVehicle:
             self._last_sent_wall[name] = wall
 
     def _send_sample(self, sample: Sample) -> None:
+        """Queue one sample; :meth:`_flush_samples` sends it (before any other message)."""
         ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
-        gpi = self._gpi()
-        gpi.time_boot_ms = ms
-        self._send(gpi)
-        self._send(mavlink.MAVLink_named_value_float_message(ms, b"FIELD", float(sample.value)))
-        self.counters["samples"] += 1
+        ve, vn, vu = self._vel
+        self._pending.append((ms, self.body.x_m, self.body.y_m, self.alt_m, ve, vn, vu,
+                              float(sample.value)))
+
+    def _flush_samples(self) -> None:
+        """Send the queued samples, in order, as GLOBAL_POSITION_INT + NAMED_VALUE_FLOAT
+        pairs; their positions go to lat/lon in one vectorised pymap3d call."""
+        pending = self._pending
+        if not pending:
+            return
+        self._pending = []
+        a = np.asarray([p[1:3] for p in pending], dtype=float)
+        lat, lon, _ = self.origin.to_global_many(a[:, 0], a[:, 1], 0.0)
+        for (ms, _x, _y, alt, ve, vn, vu, value), la, lo in zip(
+                pending, lat.tolist(), lon.tolist(), strict=True):
+            self._send_now(self._gpi_msg(ms, la, lo, alt, ve, vn, vu))
+            self._send_now(mavlink.MAVLink_named_value_float_message(ms, b"FIELD", value))
+            self.counters["samples"] += 1
         self._last_sample_wall = time.monotonic()
 
     # ------------------------------------------------------------------ simulation
@@ -639,6 +624,7 @@ class MavlinkVehicle:
             self._tick()
             if time.monotonic() > budget_end:
                 break
+        self._flush_samples()
         # fallen behind by more than half a second of wall time: stop trying to catch up
         if target - self.body.t_s > 0.5 * speedup:
             self.behind_events += 1

@@ -13,7 +13,6 @@ import pytest
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
 from econdor_gcs.gcs import (
     Flight,
-    LocalFrame,
     MavlinkExecutor,
     PieceStatus,
     StatusAssembler,
@@ -76,24 +75,60 @@ def test_status_assembler_joins_chunks() -> None:
 # -- geodesy --------------------------------------------------------------------------------
 
 
-def test_local_frame_matches_pymap3d() -> None:
-    frame = LocalFrame(ORIGIN)
+def _batch_executor() -> tuple[Any, Any]:
+    m = parse_mission({"field": {"model": "paper"}})
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
+    return ex, router.handlers["sample"]
+
+
+def test_sample_batches_match_origin_to_local() -> None:
+    ex, on_sample = _batch_executor()
+    origin = ex.origin
     rng = np.random.default_rng(0)
-    for x, y in rng.uniform(-200, 1200, size=(50, 2)):
-        lat, lon, _ = ORIGIN.to_global(float(x), float(y))
-        e, n = frame.to_local(lat, lon)
-        e2, n2, _ = ORIGIN.to_local(lat, lon)
-        assert e == pytest.approx(e2, abs=1e-6) and n == pytest.approx(n2, abs=1e-6)
-        # back to the tangent plane: the vehicle's point (up = 0) lies a few cm above the
-        # origin's ellipsoid height at 1 km; the horizontal effect of that is micrometres
-        assert e == pytest.approx(x, abs=1e-4) and n == pytest.approx(y, abs=1e-4)
+    pts = rng.uniform(-200, 1200, size=(50, 2))
+    for k, (x, y) in enumerate(pts):
+        lat, lon, _ = origin.to_global(float(x), float(y))
+        on_sample(Sample(1, 1000 + 100 * k, lat, lon, 30.0, float(k)))
+    v = ex.vehicles[1]
+    assert len(v.raw) == 50 and not v.stray  # buffered raw until needed
+    log = ex.pending_samples()  # converts the batch
+    assert not v.raw
+    for k, (x, y) in enumerate(pts):
+        lat, lon, _ = origin.to_global(float(x), float(y))
+        e2, n2, _ = origin.to_local(lat, lon)
+        assert log.x_m[k] == pytest.approx(e2, abs=1e-6)
+        assert log.y_m[k] == pytest.approx(n2, abs=1e-6)
+        # the vehicle's point (up = 0) lies a few cm above the origin's ellipsoid height at
+        # 1 km; the horizontal effect of that is micrometres
+        assert log.x_m[k] == pytest.approx(x, abs=1e-4)
+        assert log.y_m[k] == pytest.approx(y, abs=1e-4)
+    np.testing.assert_allclose(log.value, np.arange(50.0))
+    np.testing.assert_allclose(log.t_s, 1.0 + 0.1 * np.arange(50))
+    flown = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
+    assert v.flown_m == pytest.approx(flown, abs=1e-3)
+    assert v.last_xy == pytest.approx(tuple(pts[-1]), abs=1e-4)
+
+
+def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
+    from econdor_gcs.gcs import SAMPLE_BATCH
+
+    ex, on_sample = _batch_executor()
+    n = SAMPLE_BATCH + 10
+    for k in range(n):
+        lat, lon, _ = ex.origin.to_global(float(k), 0.0)
+        on_sample(Sample(1, k, lat, lon, 30.0, 0.0))
+    v = ex.vehicles[1]
+    assert len(v.raw) == 10 and len(v.stray) == SAMPLE_BATCH
+    # the path length runs across batch boundaries without a gap or a double count
+    assert ex.status_rows()[0]["flown_m"] == pytest.approx(n - 1, abs=1e-3)
+    assert len(ex.pending_samples()) == n
 
 
 def test_integer_coordinates_cost_about_a_centimetre() -> None:
-    frame = LocalFrame(ORIGIN)
     lat, lon, _ = ORIGIN.to_global(37.123456, 81.987654)
-    e, n = frame.to_local(round(lat * 1e7) / 1e7, round(lon * 1e7) / 1e7)
-    assert math.hypot(e - 37.123456, n - 81.987654) < 0.012
+    e, n, _ = ORIGIN.to_local_many([round(lat * 1e7) / 1e7], [round(lon * 1e7) / 1e7])
+    assert math.hypot(e[0] - 37.123456, n[0] - 81.987654) < 0.012
 
 
 # -- reports --------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import (
@@ -203,18 +204,19 @@ def test_new_count_or_gcs_ack_cancels_transfer():
     assert s.upload is None and s.poll(5.0) == [] and s.mission == []
 
 
-def test_fast_enu_matches_pymap3d():
+def test_origin_to_global_many_matches_scalar():
     from econdor_gcs.geodesy import Origin
-    from sim_vehicle.mavlink_vehicle import FastEnu
 
+    pts = np.array([(0, 0, 0), (100, 100, 30), (-4000, 2500, 10), (2500, -4900, 120)], float)
     for lat0, lon0 in ((47.397742, 8.545594), (-33.9, 151.2), (0.0, -70.0), (78.2, 15.6)):
         o = Origin(lat0, lon0, 488.0)
-        f = FastEnu(lat0, lon0, 488.0)
-        for e, n, u in ((0, 0, 0), (100, 100, 30), (-4000, 2500, 10), (2500, -4900, 120)):
-            lat, lon, h = o.to_global(e, n, u)
-            flat, flon, fh = f.to_geodetic(e, n, u)
-            assert abs(lat - flat) < 1e-10 and abs(lon - flon) < 1e-10
-            assert abs(h - (fh - 488.0)) < 1e-4
+        lat, lon, h = o.to_global_many(pts[:, 0], pts[:, 1], pts[:, 2])
+        for k, (e, n, u) in enumerate(pts):
+            slat, slon, sh = o.to_global(e, n, u)
+            assert abs(lat[k] - slat) < 1e-10 and abs(lon[k] - slon) < 1e-10
+            assert abs(h[k] - sh) < 1e-4
+        x, y, _ = o.to_local_many(lat, lon, h)
+        assert np.allclose(x, pts[:, 0], atol=1e-6) and np.allclose(y, pts[:, 1], atol=1e-6)
 
 
 # ------------------------------------------------------------------ vehicle over sockets
