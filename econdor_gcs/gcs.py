@@ -305,6 +305,14 @@ class VehicleState:
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
 
 
+#: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
+STREAM_WALL_HZ = {
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 4.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 1.0,
+}
+
+
 class MavlinkExecutor:
     """Flies the DFC's per-vehicle task lists on MAVLink vehicles (the :class:`Executor`
     protocol; the drop-in twin of :class:`~.inprocess.InProcessExecutor`).
@@ -465,6 +473,21 @@ class MavlinkExecutor:
                 raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
                                      f"{self.timeout_s:g} s")
             await asyncio.sleep(0.02)
+        await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
+
+    async def _slow_streams(self, sysid: int) -> None:
+        """Ask for the display-only streams at a few Hz of *wall* time.
+
+        The samples (GLOBAL_POSITION_INT + FIELD pairs) are all the DFC needs; at high
+        speed-ups the periodic streams would otherwise arrive at up to 50 Hz per message
+        and vehicle, and ten vehicles then flood the endpoint while the DFC reconstructs.
+        Intervals are in vehicle (sim) time, hence the speed-up factor. A vehicle that
+        does not support the command keeps its default rates.
+        """
+        speedup = self.mission.vehicles.speedup
+        for message_id, wall_hz in STREAM_WALL_HZ.items():
+            with contextlib.suppress(LinkError):
+                await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
 
     def _position(self, sysid: int) -> tuple[float, float]:
         link = self.router.vehicles.get(sysid)
