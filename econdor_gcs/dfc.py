@@ -120,7 +120,7 @@ class RunResult:
         return {
             "planner": self.planner,
             "seed": self.seed,
-            "iterations": len(self.records),
+            "iterations": max(0, len(self.records) - 1),  # after the initiation (row 0)
             "final_mae": last.mae if last else math.nan,
             "final_mae_db": last.mae_db if last else math.nan,
             "final_mae_rel": last.mae_rel if last else math.nan,

@@ -854,7 +854,7 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
     summary = {
         **base,
         "error": error,
-        "iterations": len(records),
+        "iterations": max(0, len(records) - 1),
         "final_mae": last.mae if last else None,
         "final_mae_db": last.mae_db if last else None,
         "span_ratio": last.span_ratio if last else None,

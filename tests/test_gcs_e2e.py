@@ -71,7 +71,7 @@ def test_run_three_vehicles_end_to_end(full_run: tuple[Path, Path, int, str]) ->
     # the DESIGN.md columns, one row per iteration, and the error falls
     rows = csv_rows(out / "metrics.csv")
     assert tuple(rows[0].keys()) == IterationRecord.CSV_COLUMNS
-    assert len(rows) == summary["iterations"] == 3
+    assert len(rows) == summary["iterations"] + 1 == 3  # row 0 is the initiation
     mae = [float(r["mae"]) for r in rows]
     assert mae[-1] < mae[0]
     # every sample the DFC used is in samples.csv
@@ -166,7 +166,7 @@ def test_connect_serves_vehicles_started_elsewhere(tmp_path: Path,
                                     "--timeout", "10")
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["sysids"] == [1, 2] and summary["iterations"] == 2
+    assert summary["sysids"] == [1, 2] and summary["iterations"] == 1
     assert summary["samples"] == len(csv_rows(out / "samples.csv"))
     assert "run directory" in stdout
     assert not (out / "vehicles").exists() or not any((out / "vehicles").iterdir())

@@ -94,7 +94,7 @@ def test_study_on_a_dask_cluster(demo, tmp_path):
         summary = run_study(mission, [5, 6], ["econdor"], tmp_path,
                             scheduler=cluster.scheduler_address, figures=False)
     assert [r["seed"] for r in summary["runs"]] == [5, 6]
-    assert all(r["iterations"] == 2 for r in summary["runs"])
+    assert all(r["iterations"] == 1 for r in summary["runs"])
     with (tmp_path / "study.csv").open() as f:
         assert len(list(csv.DictReader(f))) == 4
 
