@@ -562,7 +562,12 @@ class MavlinkExecutor:
 
     async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
         v.status = "uploading"
-        await asyncio.wait_for(self.router.upload_mission(v.sysid, items), self.timeout_s)
+        try:
+            await asyncio.wait_for(self.router.upload_mission(v.sysid, items), self.timeout_s)
+        except TimeoutError:
+            self._check_lost()  # a vehicle that went silent says so
+            raise VehicleTimeout(f"vehicle {v.sysid}: mission upload did not finish within "
+                                 f"{self.timeout_s:g} s") from None
         v.items = items
         v.current_seq = None
         v.status = "uploaded"
@@ -607,11 +612,7 @@ class MavlinkExecutor:
             jobs.append(self._upload(v, items))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
-        try:
-            await self._all(jobs)
-        except TimeoutError:
-            raise VehicleTimeout(f"mission upload did not finish within {self.timeout_s:g} s"
-                                 ) from None
+        await self._all(jobs)
         await self._all([self._start(v) for v in flying])
         t1 = time.monotonic()
         self.timings["protocol_s"] += t1 - t0

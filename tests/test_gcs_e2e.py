@@ -213,3 +213,47 @@ def test_vehicle_rejecting_the_mission(tmp_path: Path,
     samples = csv_rows(out / "samples.csv")
     assert len(samples) > 100 and summary["samples"] == len(samples)
     assert len(csv_rows(out / "metrics.csv")) == 1
+
+
+def test_vehicle_lost_mid_flight(tmp_path: Path) -> None:
+    """A vehicle that stops answering: one line, exit 1, nothing received is lost."""
+    import subprocess
+    import sys
+    import time
+
+    mission = write_mission(tmp_path, iterations=3)
+    port = free_port()
+    out = tmp_path / "run"
+    with VehicleProcess("--speedup", "20", mission=mission, sysid=1,
+                        connect=f"udpout:127.0.0.1:{port}"), \
+            VehicleProcess("--speedup", "20", mission=mission, sysid=2,
+                           connect=f"udpout:127.0.0.1:{port}") as doomed:
+        gcs = subprocess.Popen(
+            [sys.executable, "-m", "econdor_gcs.cli", "run", str(mission), "--out", str(out),
+             "--vehicles", "2", "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
+             "--timeout", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            deadline = time.monotonic() + 60
+            samples = out / "samples.csv"
+            while not (samples.exists() and samples.stat().st_size > 20_000):
+                assert gcs.poll() is None, gcs.communicate()
+                assert time.monotonic() < deadline, "no samples arrived"
+                time.sleep(0.1)
+            assert doomed.proc is not None
+            doomed.proc.kill()  # mid-flight, without a word
+            _, err_b = gcs.communicate(timeout=60)
+        finally:
+            if gcs.poll() is None:
+                gcs.kill()
+    err = err_b.decode()
+    assert gcs.returncode == 1, err
+    lines = err.strip().splitlines()
+    assert lines == [lines[0]] and "Traceback" not in err
+    # lost by heartbeat, or silent in the middle of the next upload: either way, named
+    assert lines[0].startswith(("econdor: error: vehicle 2 lost: no heartbeat for",
+                                "econdor: error: vehicle 2: mission upload did not finish")), lines
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["error"].startswith("vehicle 2")
+    rows = csv_rows(out / "samples.csv")
+    assert len(rows) == summary["samples"] > 100
+    assert {int(r["vehicle"]) for r in rows} == {0, 1}

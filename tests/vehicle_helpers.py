@@ -199,8 +199,8 @@ class VehicleProcess:
     def __init__(self, *args: str, mission: Path | str = DEMO, sysid: int = 1,
                  connect: str = "udpout:127.0.0.1:14550", extra: list[str] | None = None,
                  timeout: float = 15.0) -> None:
-        self.log = tempfile.NamedTemporaryFile(  # noqa: SIM115 - closed in __exit__"w+b", prefix="sim-vehicle-", suffix=".log",
-                                               delete=False)
+        self.log = tempfile.NamedTemporaryFile(  # noqa: SIM115 - closed in __exit__
+            "w+b", prefix="sim-vehicle-", suffix=".log", delete=False)
         self.cmd = [*sim_vehicle_cmd(), "--sysid", str(sysid), "--mission", str(mission),
                     "--connect", connect, *args, *(extra or [])]
         self.timeout = timeout
