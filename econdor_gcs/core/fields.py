@@ -76,6 +76,14 @@ class GaussianSumField:
         return self.offset + self.scale * self.raw(x_m, y_m)
 
 
+def _uniform_points(rng: np.random.Generator, region: Region, n: int,
+                    margin: float = 0.0) -> FloatArray:
+    """``n`` points uniform in the region shrunk by ``margin`` (a fraction of its size)."""
+    mx, my = margin * region.width_m, margin * region.height_m
+    return np.column_stack([rng.uniform(region.xmin + mx, region.xmax - mx, n),
+                            rng.uniform(region.ymin + my, region.ymax - my, n)])
+
+
 def _norm_grid(region: Region) -> Grid:
     """The grid the generators normalise on: 101 x 101 nodes, as in the authors' code."""
     return Grid(region, 101, 101)
@@ -97,9 +105,7 @@ def paper_field(
     """
     rng = np.random.default_rng(seed)
     n = n1 + n2
-    centres = np.column_stack(
-        [rng.uniform(region.xmin, region.xmax, n), rng.uniform(region.ymin, region.ymax, n)]
-    )
+    centres = _uniform_points(rng, region, n)
     sigmas = np.r_[np.full(n1, sigma1_m), np.full(n2, sigma2_m)]
     weights = rng.uniform(0.0, 1.0, n)
     f = GaussianSumField(region, centres, sigmas, weights)
@@ -119,13 +125,9 @@ def authors_field(
 ) -> GaussianSumField:
     """The field generator of the authors' MATLAB code (see module docstring)."""
     rng = np.random.default_rng(seed)
-    c1 = np.column_stack(
-        [rng.uniform(region.xmin, region.xmax, n1), rng.uniform(region.ymin, region.ymax, n1)]
-    )
+    c1 = _uniform_points(rng, region, n1)
     w1 = 2 * peak * (rng.uniform(size=n1) - 0.5) / np.sqrt(2 * np.pi) / sigma1_m
-    c2 = np.column_stack(
-        [rng.uniform(region.xmin, region.xmax, n2), rng.uniform(region.ymin, region.ymax, n2)]
-    )
+    c2 = _uniform_points(rng, region, n2)
     w2 = 5 * (rng.uniform(size=n2) - 0.5) / np.sqrt(2 * np.pi) / sigma2_m
     f = GaussianSumField(
         region,
@@ -154,15 +156,7 @@ def plume_field(
 ) -> GaussianSumField:
     """A few narrow Gaussian sources on a flat background, peak value ``peak``."""
     rng = np.random.default_rng(seed)
-    margin = 0.1
-    centres = np.column_stack(
-        [
-            rng.uniform(region.xmin + margin * region.width_m, region.xmax - margin * region.width_m,
-                        sources),
-            rng.uniform(region.ymin + margin * region.height_m,
-                        region.ymax - margin * region.height_m, sources),
-        ]
-    )
+    centres = _uniform_points(rng, region, sources, margin=0.1)
     sigmas = rng.uniform(sigma_min_m, sigma_max_m, sources)
     weights = rng.uniform(0.4, 1.0, sources)
     f = GaussianSumField(region, centres, sigmas, weights, offset=background)

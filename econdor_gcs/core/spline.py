@@ -36,6 +36,7 @@ https://doi.org/10.1029/GL014i002p00139
 from __future__ import annotations
 
 import warnings
+from typing import Self
 
 import numpy as np
 import scipy.linalg
@@ -223,7 +224,37 @@ def _block_pick(x: FloatArray, y: FloatArray, cell: float) -> NDArray[np.intp]:
 # --------------------------------------------------------------------------- #
 # Estimators
 # --------------------------------------------------------------------------- #
-class BiharmonicSpline:
+class _Spline:
+    """Shared public entry: validate once, then the private fit that trusts its input."""
+
+    def fit(self, x: ArrayLike, y: ArrayLike, v: ArrayLike) -> Self:
+        """Fit the spline to samples ``v`` at ``(x, y)``.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Sample positions in metres (any shape, flattened).
+        v : array_like
+            Sample values, same size as ``x``.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ReconstructionError
+            Fewer than 3 (distinct) samples, mismatched lengths or non-finite input.
+        """
+        xa, ya, va = _check_samples(x, y, v)
+        return self._fit_checked(xa, ya, va, merged=False)
+
+    def _fit_checked(self, x: FloatArray, y: FloatArray, v: FloatArray, *,
+                     merged: bool) -> Self:
+        raise NotImplementedError
+
+
+class BiharmonicSpline(_Spline):
     """Exact biharmonic spline (Sandwell 1987; MATLAB ``griddata`` ``'v4'``).
 
     .. math::
@@ -251,28 +282,6 @@ class BiharmonicSpline:
     SEASAT altimeter data. *Geophys. Res. Lett.*, 14(2), 139-142.
     """
 
-    def fit(self, x: ArrayLike, y: ArrayLike, v: ArrayLike) -> BiharmonicSpline:
-        """Solve for the weights.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Sample positions in metres (any shape, flattened).
-        v : array_like
-            Sample values, same size as ``x``.
-
-        Returns
-        -------
-        self
-
-        Raises
-        ------
-        ReconstructionError
-            Fewer than 3 (distinct) samples, mismatched lengths or non-finite input.
-        """
-        xa, ya, va = _check_samples(x, y, v)
-        return self._fit_checked(xa, ya, va, merged=False)
-
     def _fit_checked(
         self, x: FloatArray, y: FloatArray, v: FloatArray, *, merged: bool
     ) -> BiharmonicSpline:
@@ -291,7 +300,7 @@ class BiharmonicSpline:
         return _evaluate(self.coords_[0], self.coords_[1], self.force_, xq, yq).reshape(shape)
 
 
-class FastBiharmonicSpline:
+class FastBiharmonicSpline(_Spline):
     """Approximate biharmonic spline for large ``N`` (two-level partition of unity).
 
     Approximates the exact surface of :class:`BiharmonicSpline`,
@@ -391,28 +400,6 @@ class FastBiharmonicSpline:
         self.overlap = overlap
         self.min_samples = min_samples
         self.max_samples = max_samples
-
-    def fit(self, x: ArrayLike, y: ArrayLike, v: ArrayLike) -> FastBiharmonicSpline:
-        """Block-average the samples and fit one exact spline per tile.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Sample positions in metres (any shape, flattened).
-        v : array_like
-            Sample values, same size as ``x``.
-
-        Returns
-        -------
-        self
-
-        Raises
-        ------
-        ReconstructionError
-            Fewer than 3 (distinct) samples, mismatched lengths or non-finite input.
-        """
-        xa, ya, va = _check_samples(x, y, v)
-        return self._fit_checked(xa, ya, va, merged=False)
 
     def _fit_checked(
         self, x: FloatArray, y: FloatArray, v: FloatArray, *, merged: bool
