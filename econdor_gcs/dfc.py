@@ -180,6 +180,7 @@ class Dfc:
         self.sim_s = 0.0
         self.recon_s = 0.0
         self.contour_m_survey = 0.0
+        self._last_recon_s = 0.0
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -194,19 +195,12 @@ class Dfc:
         t0 = time.perf_counter()
         est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
                           method=self.mission.algorithm.reconstruction)
-        self.recon_s += time.perf_counter() - t0
         self._last_recon_s = time.perf_counter() - t0
+        self.recon_s += self._last_recon_s
         return est
 
-    def _fly(self, jobs_or_plans: list[list[Task]], iteration: int, initiation: bool = False
-             ) -> tuple[list[FlightReport], float, float]:
-        reports = self.executor.fly(jobs_or_plans, iteration)
-        return self._account(reports, initiation)
-
-    def _account(self, reports: list[FlightReport], initiation: bool = False
-                 ) -> tuple[list[FlightReport], float, float]:
-        flown = sum(r.flown_m for r in reports)
-        traced = sum(r.traced_m for r in reports)
+    def _account(self, reports: list[FlightReport], initiation: bool = False) -> None:
+        """Add a flight's samples and distances to the run's totals."""
         for r in reports:
             log = r.samples
             if initiation:
@@ -214,10 +208,9 @@ class Dfc:
             self.logs.append(log)
             if self.on_samples is not None:
                 self.on_samples(log)
-        self.flight_m += flown
-        self.contour_m += traced
+        self.flight_m += sum(r.flown_m for r in reports)
+        self.contour_m += sum(r.traced_m for r in reports)
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
-        return reports, flown, traced
 
     def _initiation_plans(self) -> list[list[Task]]:
         m = self.mission
@@ -326,7 +319,8 @@ class Dfc:
                                    "delta": batch.delta})
             previous = estimate
             if batch.jobs:
-                reports, _, _ = self._fly(plans, it)
+                reports = self.executor.fly(plans, it)
+                self._account(reports)
                 if isinstance(self.planner, LawnmowerPlanner):
                     self.contour_m_survey += batch.survey_m
                 estimate = self._reconstruct()
