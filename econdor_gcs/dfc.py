@@ -334,8 +334,6 @@ class Dfc:
                 converged, reason = True, "learning_error_converged"
                 break
             span_prev = span_now
-        else:
-            reason = "max_iterations"
         home = self.executor.finish()
         if home:
             self._account(home)
