@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from econdor_gcs.mission import load_mission, parse_mission  # noqa: E402
-from econdor_gcs.study import PLANNERS, parse_seeds, run_seed  # noqa: E402
+from econdor_lab.study import PLANNERS, parse_seeds, run_seed  # noqa: E402
 
 TARGETS_DB = (-10.0, -20.0, -30.0)
 FIELDS = {

@@ -3,7 +3,7 @@
 The DFC flies the initiation pattern, reconstructs the field, asks the planner for a
 batch of jobs, assigns them to the fleet, has an :class:`Executor` fly them, collects the
 samples, re-estimates, updates the planner (kappa, delta) and repeats until the stop rule.
-The in-process executor (:mod:`econdor_gcs.inprocess`) calls the tracer directly; the
+The in-process executor (:mod:`econdor_lab.inprocess`) calls the tracer directly; the
 MAVLink executor uploads missions to vehicles. Only the transport differs.
 
 Stop rule (all configurable in the mission's ``algorithm`` section):

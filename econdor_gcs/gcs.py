@@ -10,7 +10,7 @@ Pieces, from the bottom up:
     thread and the ``finally`` blocks close everything.
 :class:`MavlinkExecutor`
     The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
-    :class:`~.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home, takeoff,
+    :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home, takeoff,
     one item per task" is uploaded, the vehicle armed and started with
     ``MAV_CMD_MISSION_START`` from item 1, and its samples collected until it reports
     ``MISSION_ITEM_REACHED`` for its last task item.
@@ -315,7 +315,7 @@ STREAM_WALL_HZ = {
 
 class MavlinkExecutor:
     """Flies the DFC's per-vehicle task lists on MAVLink vehicles (the :class:`Executor`
-    protocol; the drop-in twin of :class:`~.inprocess.InProcessExecutor`).
+    protocol; the drop-in twin of :class:`econdor_lab.inprocess.InProcessExecutor`).
 
     Parameters
     ----------
@@ -887,7 +887,7 @@ async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
 
 
 def run_mission_cli(args: Any) -> int:
-    """``econdor run`` (arguments parsed by :mod:`econdor_gcs.cli`)."""
+    """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
     from .mission import load_mission
 
     mission = load_mission(args.mission)

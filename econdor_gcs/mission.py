@@ -30,9 +30,9 @@ from typing import Any
 
 import yaml
 
+from .core.geodesy import Origin
 from .core.geometry import Grid, Region
 from .errors import MissionError
-from .geodesy import Origin
 
 _REQUIRED = object()
 

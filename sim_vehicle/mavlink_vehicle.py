@@ -57,8 +57,8 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
-from econdor_gcs.geodesy import Origin
 
 from .body import Sample, SimBody
 from .executor import run_task

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.export import (
@@ -24,7 +25,6 @@ from econdor_gcs.export import (
     write_plan,
     write_wpl,
 )
-from econdor_gcs.geodesy import Origin
 from econdor_gcs.link.mission import MissionItemSpec, build_mission
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
@@ -333,7 +333,7 @@ def test_export_cli_errors(tmp_path: Path) -> None:
 
 
 def test_cli_main_prints_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from econdor_gcs.cli import main
+    from econdor.cli import main
 
     run = make_run(tmp_path)
     assert main(["export", str(run), "--format", "wpl", "--out",

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from vehicle_helpers import VehicleProcess, free_port
 
-from econdor_gcs import cli
+from econdor import cli
 from econdor_gcs.dfc import IterationRecord
 from econdor_gcs.link.tlog import read_tlog
 from econdor_gcs.mission import load_mission
-from econdor_gcs.study import run_seed
+from econdor_lab.study import run_seed
 
 MISSION = """\
 name: e2e
@@ -229,7 +229,7 @@ def test_vehicle_lost_mid_flight(tmp_path: Path) -> None:
             VehicleProcess("--speedup", "20", mission=mission, sysid=2,
                            connect=f"udpout:127.0.0.1:{port}") as doomed:
         gcs = subprocess.Popen(
-            [sys.executable, "-m", "econdor_gcs.cli", "run", str(mission), "--out", str(out),
+            [sys.executable, "-m", "econdor", "run", str(mission), "--out", str(out),
              "--vehicles", "2", "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
              "--timeout", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         try:

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
 from econdor_gcs.gcs import (
     Flight,
@@ -21,7 +22,6 @@ from econdor_gcs.gcs import (
     parse_piece_status,
     phase_after_event,
 )
-from econdor_gcs.geodesy import Origin
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.mission import build_mission
 from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost

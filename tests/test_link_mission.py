@@ -10,9 +10,9 @@ from collections.abc import Callable
 
 import pytest
 
+from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import ProtocolError, VehicleTimeout
-from econdor_gcs.geodesy import Origin
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.mission import (
     CommandSender,

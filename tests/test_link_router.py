@@ -7,9 +7,9 @@ import socket
 
 import pytest
 
+from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask
 from econdor_gcs.errors import LinkError, ProtocolError, VehicleTimeout
-from econdor_gcs.geodesy import Origin
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.mission import CommandSender, MissionItemSpec, build_mission
 from econdor_gcs.link.router import (

@@ -205,7 +205,7 @@ def test_new_count_or_gcs_ack_cancels_transfer():
 
 
 def test_origin_to_global_many_matches_scalar():
-    from econdor_gcs.geodesy import Origin
+    from econdor_gcs.core.geodesy import Origin
 
     pts = np.array([(0, 0, 0), (100, 100, 30), (-4000, 2500, 10), (2500, -4900, 120)], float)
     for lat0, lon0 in ((47.397742, 8.545594), (-33.9, 151.2), (0.0, -70.0), (78.2, 15.6)):

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from econdor_gcs.cli import main
+from econdor.cli import main
 from econdor_gcs.dfc import IterationRecord
 from econdor_gcs.mission import load_mission
-from econdor_gcs.study import parse_seeds, run_seed, run_study
+from econdor_lab.study import parse_seeds, run_seed, run_study
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -28,9 +28,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+from ..core.geodesy import Origin
 from ..core.tasks import TraceTask, Waypoint
 from ..errors import ProtocolError, VehicleTimeout
-from ..geodesy import Origin
 from .codec import MAVLinkMessage, mavlink
 
 __all__ = [

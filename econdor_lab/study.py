@@ -20,11 +20,12 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-from .dfc import Dfc, IterationRecord
-from .errors import EcondorError
+from econdor_gcs.dfc import Dfc, IterationRecord
+from econdor_gcs.errors import EcondorError
+from econdor_gcs.mission import Mission
+from econdor_gcs.rundir import RunDir, write_json
+
 from .inprocess import InProcessExecutor
-from .mission import Mission
-from .rundir import RunDir, write_json
 
 PLANNERS = ("econdor", "no-sg", "lawnmower")
 _BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -168,7 +169,7 @@ def run_study(
     }
     write_json(out / "summary.json", summary)
     if figures:
-        from .figures import plot_study
+        from econdor_gcs.figures import plot_study
 
         maps = {r["summary"]["planner"]: r["run_dir"] for r in results
                 if r["summary"]["seed"] == seeds[0] and r["run_dir"]}

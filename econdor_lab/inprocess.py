@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from econdor_gcs.core.fields import Field
+from econdor_gcs.core.tasks import FlightReport, Phase, Task, Waypoint
+from econdor_gcs.mission import Mission
 from sim_vehicle.body import SimBody
 from sim_vehicle.executor import run_plan
 from sim_vehicle.kinematics import VehicleLimits
 from sim_vehicle.tracer import TracerParams
-
-from .core.fields import Field
-from .core.tasks import FlightReport, Phase, Task, Waypoint
-from .mission import Mission
 
 
 def _brake(body: SimBody, max_ticks: int = 10_000) -> None:

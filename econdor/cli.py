@@ -11,8 +11,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .errors import EcondorError
-from .mission import load_mission
+from econdor_gcs.errors import EcondorError
+from econdor_gcs.mission import load_mission
 
 
 def _positive_float(text: str) -> float:
@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from .study import PLANNERS, default_workers, parse_seeds, run_study
+    from econdor_lab.study import PLANNERS, default_workers, parse_seeds, run_study
 
     mission = load_mission(args.mission)
     if args.vehicles:
@@ -119,7 +119,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from .figures import plot_run
+    from econdor_gcs.figures import plot_run
 
     if not (args.run_dir / "metrics.csv").exists():
         raise EcondorError(f"{args.run_dir}: not a run directory (no metrics.csv)")
@@ -129,13 +129,13 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .gcs import run_mission_cli
+    from econdor_gcs.gcs import run_mission_cli
 
     return run_mission_cli(args)
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from .export import export_cli
+    from econdor_gcs.export import export_cli
 
     return export_cli(args)
 
