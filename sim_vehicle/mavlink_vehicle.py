@@ -8,7 +8,7 @@ Everything else is I/O-free and lives beside it:
 
 :mod:`sim_vehicle.autopilot`
     modes, arming, commands, parameters, mission protocol; one class per personality
-    (:class:`~sim_vehicle.autopilot.Px4Autopilot`).
+    (:class:`~sim_vehicle.px4.Px4Autopilot`).
 :mod:`sim_vehicle.navigator`
     mission items -> flight activities (the onboard tracer for contour items).
 :mod:`sim_vehicle.telemetry`
@@ -44,9 +44,10 @@ from pymavlink.dialects.v20 import common as mavlink
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
 
-from .autopilot import Autopilot, Px4Autopilot
+from .autopilot import Autopilot
 from .body import SimBody
 from .mission_server import MissionServer
+from .px4 import Px4Autopilot
 from .state import VehicleSettings, VehicleState
 from .tracer import TracerParams
 from .transport import Endpoint, Transport, open_transport, parse_endpoint
