@@ -10,8 +10,9 @@ hovers. Only ticks of horizontal tasks are reported as samples (``state.sampling
 Mission items (see :func:`sim_vehicle.mission_server.check_item` for what is accepted):
 NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_UNLIM / LOITER_TIME, DO_CHANGE_SPEED (from the next
 item), NAV_RETURN_TO_LAUNCH, NAV_LAND and the contour item ``MAV_CMD_WAYPOINT_USER_1``.
-Progress goes out as MISSION_CURRENT and MISSION_ITEM_REACHED; a trace item's events and
-outcome as STATUSTEXT.
+Progress goes out as MISSION_CURRENT and MISSION_ITEM_REACHED; the outcome of a trace item as
+a ``DEBUG_FLOAT_ARRAY("TRACE")`` report just before its MISSION_ITEM_REACHED (its events and
+outcome also as STATUSTEXT, for people).
 """
 
 from __future__ import annotations
@@ -23,13 +24,13 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
+from econdor_gcs.core.tasks import OutcomeStatus, Phase, TraceReport, TraceTask, Waypoint
 
 from .body import Sample
 from .executor import run_task
 from .mission_server import MAV_CMD_WAYPOINT_USER_1, MissionServer, StoredItem
 from .state import FlightMode, VehicleState
-from .telemetry import Outbox
+from .telemetry import Outbox, trace_report_message
 from .tracer import TracerParams, fly_to
 
 CLIMB_RATE_MPS = 3.0
@@ -185,6 +186,9 @@ class Navigator:
         if st.alt_rel_m > 0.0:
             yield from self.hold_forever()
 
+    def report_trace(self, report: TraceReport) -> None:
+        self.outbox.put(trace_report_message(report, int(self.state.body.t_s * 1e6)))
+
     def run_item(self, it: StoredItem) -> Generator[Sample | None, None, str]:
         """One mission item; returns ``"end"`` when it ended the flight (RTL, land)."""
         st = self.state
@@ -222,6 +226,8 @@ class Navigator:
             if xy is None:
                 self.outbox.statustext(f"piece {int(it.param4)}: no start point",
                                        mavlink.MAV_SEVERITY_WARNING)
+                self.report_trace(TraceReport(it.seq, int(it.param4), OutcomeStatus.NOT_FOUND,
+                                              0.0, 0.0, float(it.param1)))
                 return "ok"
             yield from self.ensure_airborne(alt)
             rad = it.param2 if it.param2 > 0 else st.params["SEARCH_RAD_M"]
@@ -233,9 +239,10 @@ class Navigator:
                 run_task(st.body, task, self.tracer_params(),
                          on_event=lambda text: self.outbox.statustext(f"piece {pid}: {text}")),
                 alt if alt > 1.0 else None)
-            if outcome is not None:
-                self.outbox.statustext(f"piece {pid}: {outcome.status} traced "
-                                       f"{outcome.traced_m:.1f} m flown {outcome.flown_m:.1f} m")
+            self.outbox.statustext(f"piece {pid}: {outcome.status} traced "
+                                   f"{outcome.traced_m:.1f} m flown {outcome.flown_m:.1f} m")
+            self.report_trace(TraceReport(it.seq, pid, outcome.status, outcome.traced_m,
+                                          outcome.flown_m, task.level))
             return "ok"
         if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             yield from self.rtl()

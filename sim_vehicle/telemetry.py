@@ -12,7 +12,11 @@ Samples: every sensor reading taken while the vehicle executes a horizontal moti
 out as ``GLOBAL_POSITION_INT`` immediately followed by ``NAMED_VALUE_FLOAT("FIELD")`` with the
 same ``time_boot_ms``, regardless of the stream rates. Samples wait in the outbox as local
 positions; :meth:`Outbox.drain` converts all of them to latitude/longitude in one vectorised
-pymap3d call and keeps the order of everything queued.
+pymap3d call and keeps the order of everything queued. Whenever the phase of the sampled ticks
+changes (transit, search, trace), ``NAMED_VALUE_INT("PHASE")`` goes out just before the first
+sample of the new phase, with that sample's ``time_boot_ms``; the end of a trace item is a
+``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
+:mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.geodesy import Origin
+from econdor_gcs.core.tasks import PHASE_NAME, TRACE_REPORT_NAME, TraceReport
 
 from .body import Sample
 from .mission_server import MissionServer
@@ -72,6 +77,23 @@ def gpi_message(home_alt_amsl_m: float, ms: int, lat_deg: float, lon_deg: float,
         ms, int(round(lat_deg * 1e7)), int(round(lon_deg * 1e7)),
         int(round((home_alt_amsl_m + alt_rel_m) * 1000)), int(round(alt_rel_m * 1000)),
         int(round(vn * 100)), int(round(ve * 100)), int(round(-vu * 100)), hdg)
+
+
+DEBUG_FLOAT_ARRAY_LEN = 58
+
+
+def trace_report_message(report: TraceReport, time_usec: int) -> Any:
+    """The ``DEBUG_FLOAT_ARRAY("TRACE")`` that carries ``report`` (array_id = item seq)."""
+    data = report.to_array()
+    data += [0.0] * (DEBUG_FLOAT_ARRAY_LEN - len(data))
+    return mavlink.MAVLink_debug_float_array_message(
+        time_usec, TRACE_REPORT_NAME.encode(), report.seq, data)
+
+
+def phase_message(time_boot_ms: int, phase: int) -> Any:
+    """``NAMED_VALUE_INT("PHASE")``: samples from ``time_boot_ms`` on are in ``phase``."""
+    return mavlink.MAVLink_named_value_int_message(time_boot_ms, PHASE_NAME.encode(),
+                                                   int(phase))
 
 
 class Outbox:
@@ -200,6 +222,8 @@ class Telemetry:
         """Message id -> interval override in seconds of sim time; < 0 = stream off."""
         self._last_sent_wall: dict[str, float] = {}
         self._last_sent_sim: dict[str, float] = {}
+        self.phase: int | None = None
+        """Phase of the last sample sent (None before the first)."""
         self._builders: dict[str, Callable[[], Any]] = {
             "GLOBAL_POSITION_INT": self.global_position_int,
             "LOCAL_POSITION_NED": self.local_position_ned,
@@ -318,6 +342,11 @@ class Telemetry:
             self._last_sent_wall[name] = wall
 
     def sample(self, sample: Sample) -> None:
-        """Queue one sample at the vehicle's current position and velocity."""
+        """Queue one sample at the vehicle's current position and velocity (after a PHASE
+        message when its phase differs from the previous sample's)."""
         st = self.state
+        if sample.phase != self.phase:
+            self.phase = sample.phase
+            self.outbox.put(phase_message(int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF,
+                                          sample.phase))
         self.outbox.put_sample(sample, st.body.x_m, st.body.y_m, st.alt_rel_m, st.vel_enu_mps)
