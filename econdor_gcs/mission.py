@@ -21,7 +21,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
     lawnmower: {spacing_m, budget_m}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
                line_orientation, start, model, length_m, fit_length, weighting, floor, gradient_gain_m, power,
-               plan_spacing_m, search_radius_m, resolve_m, explore_m}
+               plan_spacing_m, search_radius_m, resolve_m, explore_m, band_m, level_tol}
 """
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "line_spacing_m": (float, 2.0, _non_negative),
         "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
         "start": (str, "diagonals", _one_of("diagonals", "perimeter", "plan")),
-        "model": (str, "proxy", _one_of("gp", "proxy")),
+        "model": (str, "auto", _one_of("auto", "gp", "proxy")),
         "length_m": (float, 5.0, _positive),
         "fit_length": (bool, True, None),
         "weighting": (str, "gradient", _one_of("gradient", "innovation")),
@@ -141,6 +141,8 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "search_radius_m": (float, 3.0, _positive),
         "resolve_m": (float, 1.5, _positive),
         "explore_m": (float, 10.0, _positive),
+        "band_m": (float, 3.0, _non_negative),
+        "level_tol": (float, 0.01, _range(0.0, 0.5)),
     },
 }
 
@@ -307,6 +309,8 @@ class AdaptiveConfig:
     search_radius_m: float
     resolve_m: float
     explore_m: float
+    band_m: float
+    level_tol: float
 
 
 @dataclass(frozen=True)

@@ -74,7 +74,7 @@ class CandidateKind(StrEnum):
     """A straight leg between two waypoints."""
 
 
-@dataclass
+@dataclass(eq=False)
 class Candidate:
     """A path the planner may ask for, in flying order (``points_m[0]`` first)."""
 
@@ -120,8 +120,11 @@ class AdaptiveParams:
     start : {"diagonals", "perimeter", "plan"}
         The first flight: the mission's initiation pattern, the area's boundary, or the
         planner's own plan from its prior (uniform uncertainty: spread-out lines).
-    model : {"gp", "proxy"}
-        Variance model (:mod:`econdor_gcs.core.uncertainty`).
+    model : {"auto", "proxy", "gp"}
+        Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
+        proxy when mapping the whole field (it measured best there), the GP posterior
+        with length ``length_m`` in threshold mode (its variance shrinks where samples
+        surround a place, so the planner knows when nothing is left to find).
     length_m : float
         Length of the ``proxy`` model, and of the ``gp`` model unless ``fit_length``.
     fit_length : bool
@@ -147,6 +150,12 @@ class AdaptiveParams:
     explore_m : float
         Threshold mode: a place farther than this from every sample may hide an iso-line
         whatever the model says (the smallest feature worth looking for, in metres).
+    band_m : float
+        Threshold mode: cells within this distance of a sample that reads a target level
+        (within ``level_tol`` of the sampled value range) are resolved: the iso-line was
+        flown on there.
+    level_tol : float
+        See ``band_m``.
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -161,7 +170,7 @@ class AdaptiveParams:
     line_spacing_m: float = 2.0
     line_orientation: str = "ns"
     start: str = "diagonals"
-    model: str = "proxy"
+    model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
     weighting: str = "gradient"
@@ -173,6 +182,8 @@ class AdaptiveParams:
     trace_overhead_m: float = 5.0
     resolve_m: float = 1.5
     explore_m: float = 10.0
+    band_m: float = 3.0
+    level_tol: float = 0.01
     target_levels: tuple[float, ...] = ()
 
 
@@ -464,8 +475,12 @@ class AdaptivePlanner:
 
     def __init__(self, params: AdaptiveParams = AdaptiveParams(), seed: int = 0  # noqa: B008
                  ) -> None:
-        if params.model not in ("gp", "proxy"):
-            raise ValueError(f"model: must be 'gp' or 'proxy', got {params.model!r}")
+        if params.model not in ("auto", "gp", "proxy"):
+            raise ValueError(f"model: must be auto, gp or proxy, got {params.model!r}")
+        if params.model == "auto":
+            params = dataclasses.replace(
+                params, model="gp" if params.target_levels else "proxy",
+                fit_length=params.fit_length and not params.target_levels)
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
         if params.weighting not in ("gradient", "innovation"):
@@ -496,15 +511,8 @@ class AdaptivePlanner:
 
     def uncertainty(self, context: PlanContext) -> tuple[UncertaintyMap, Grid]:
         """The uncertainty of the current estimate on the planning grid (the prior —
-        uniform — before there is an estimate).
-
-        Threshold mode always uses the fitted GP (its variance is calibrated to how smooth
-        the field is, so the band around a traced iso-line closes) without steepness
-        weighting (a steep iso-line is no less certain once traced)."""
+        uniform — before there is an estimate)."""
         p = self.params
-        if p.target_levels:
-            p = dataclasses.replace(p, model="gp", fit_length=True, gradient_gain_m=0.0,
-                                    weighting="gradient")
         s = context.samples
         plan_grid = Grid.with_spacing(context.region, p.plan_spacing_m)
         if context.estimate is None or context.grid is None or len(s) < 3:
@@ -537,23 +545,30 @@ class AdaptivePlanner:
         if p.target_levels:
             levels = np.asarray(p.target_levels, dtype=float)
             gap = np.min(np.abs(umap.mean[:, None] - levels[None, :]), axis=1)
+            cells_xy = np.column_stack([umap.x_m, umap.y_m])
+            dist = np.full(umap.x_m.size, np.inf)
+            band = np.full(umap.x_m.size, np.inf)
+            span = float(np.ptp(s.value)) if len(s) else 1.0
             if len(s):
-                dist, _ = cKDTree(np.column_stack([s.x_m, s.y_m])).query(
-                    np.column_stack([umap.x_m, umap.y_m]))
-            else:
-                dist = np.full(umap.x_m.size, np.inf)
-            open_cells = dist > p.resolve_m
+                dist, _ = cKDTree(np.column_stack([s.x_m, s.y_m])).query(cells_xy)
+                on_level = np.min(np.abs(s.value[:, None] - levels[None, :]), axis=1) <= (
+                    p.level_tol * span)
+                if on_level.any():
+                    band, _ = cKDTree(np.column_stack([s.x_m[on_level], s.y_m[on_level]])).query(
+                        cells_xy)
+            # Closed: observed cells, and the band along an iso-line already flown on (its
+            # samples read the level: the iso-line is there, to within the tracking error).
+            open_cells = (dist > p.resolve_m) & (band > p.band_m)
             # Coverage floor: farther than explore_m from every sample the iso-line could
             # be anywhere (features narrower than the data can show), whatever the model
-            # says: such places score like a straddle of their excess standard deviation.
-            span = float(np.ptp(s.value)) if len(s) else 1.0
+            # says: such places score in proportion to how much farther they are.
             eps = 1e-3 * max(span, 1e-9)
             amp = umap.amplitude
-            sd_explore = math.sqrt(float(umap.line_variance(np.array([p.explore_m]))[0]))
 
             def cell_value(var: FloatArray, cells: NDArray[np.intp]) -> FloatArray:
                 model = straddle(amp[cells], var, gap[cells], open_cells[cells])
-                cover = STRADDLE_Z * amp[cells] * np.maximum(np.sqrt(var) - sd_explore, 0.0)
+                far = umap.equivalent_distance_m(var) / p.explore_m - 1.0
+                cover = np.where(open_cells[cells], amp[cells] * np.maximum(far, 0.0), 0.0)
                 return np.maximum(model, cover)
 
             now = cell_value(umap.variance, np.arange(umap.x_m.size))

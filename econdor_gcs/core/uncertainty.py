@@ -137,6 +137,14 @@ class UncertaintyMap:
     def line_variance(self, d_m: FloatArray) -> FloatArray:
         return line_variance(d_m, self.model, self.length_m, self.hyper)
 
+    def equivalent_distance_m(self, variance: FloatArray) -> FloatArray:
+        """The distance from a sampled line at which ``line_variance`` equals ``variance``
+        (its inverse, from a table; a measure of coverage in metres)."""
+        d = np.linspace(0.0, 60.0, 1201)
+        v = np.maximum.accumulate(self.line_variance(d))
+        keep = np.r_[True, np.diff(v) > 1e-12]
+        return np.interp(variance, v[keep], d[keep])
+
     def footprint_radius_m(self) -> float:
         """Beyond this distance a new line changes the variance by less than 3 %."""
         d = np.linspace(0.0, 6.0 * self.length_m, 600)
@@ -330,8 +338,9 @@ def straddle(amplitude: FloatArray, variance: FloatArray, gap: FloatArray,
     Examples
     --------
     >>> import numpy as np
-    >>> straddle(np.array([10.0, 10.0]), np.array([1.0, 1.0]), np.array([5.0, 30.0]),
-    ...          np.array([True, True])).tolist()
+    >>> s = straddle(np.array([10.0, 10.0]), np.array([1.0, 1.0]), np.array([5.0, 30.0]),
+    ...              np.array([True, True]))
+    >>> np.round(s, 6).tolist()
     [14.6, 0.0]
     """
     return np.where(open_cells, np.maximum(STRADDLE_Z * amplitude * np.sqrt(variance) - gap, 0.0),
