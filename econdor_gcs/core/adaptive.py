@@ -54,7 +54,6 @@ from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext
 from .tasks import FlightReport, Task, TraceTask, Waypoint
 from .uncertainty import (
-    STRADDLE_Z,
     Footprints,
     InnovationAmplitude,
     UncertaintyMap,
