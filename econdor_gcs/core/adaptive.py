@@ -367,6 +367,43 @@ def _entry(c: Candidate, pos: FloatArray) -> tuple[FloatArray, float]:
     return pts, float(np.hypot(*(pts[0] - pos)))
 
 
+def _walk(order: Sequence[Candidate], start: FloatArray) -> tuple[list[Pick], float]:
+    """Fly ``order`` from ``start``: the picks (entries chosen on the way) and the transit."""
+    pos, total, out = start, 0.0, []
+    for c in order:
+        path, t_m = _entry(c, pos)
+        out.append(Pick(c, 0, path, t_m))
+        total += t_m
+        pos = path[0] if c.closed else path[-1]
+    return out, total
+
+
+def shorten_route(picks: list[Pick], start: FloatArray, rounds: int = 3) -> list[Pick]:
+    """The same picks in an order with less transit (2-opt and single moves, from the
+    greedy's order; legs may be flown either way, loops entered anywhere)."""
+    if len(picks) < 2:
+        return picks
+    vehicle = picks[0].vehicle
+    best = [p.candidate for p in picks]
+    _, best_cost = _walk(best, start)
+    for _ in range(rounds):
+        improved = False
+        n = len(best)
+        for i in range(n - 1):
+            for j in range(i + 1, n):
+                for trial in (best[:i] + best[i:j + 1][::-1] + best[j + 1:],
+                              best[:i] + best[i + 1:j + 1] + [best[i]] + best[j + 1:]):
+                    _, cost = _walk(trial, start)
+                    if cost < best_cost - 1e-6:
+                        best, best_cost, improved = trial, cost, True
+        if not improved:
+            break
+    route, _ = _walk(best, start)
+    for p in route:
+        p.vehicle = vehicle
+    return route
+
+
 def greedy_plan(
     candidates: Sequence[Candidate],
     footprints: Footprints,
@@ -413,6 +450,7 @@ def greedy_plan(
     closed = np.array([c.closed for c in candidates], dtype=bool)
     used = np.zeros(n, dtype=bool)
     active = [b > 0 for b in fleet.budgets]
+    starts = [p.copy() for p in fleet.positions]
     fp = footprints
 
     def gains() -> FloatArray:
@@ -439,7 +477,17 @@ def greedy_plan(
         score = np.where(~used & fits & (g > 0), g / np.maximum(cost, 1e-6), -np.inf)
         best = int(np.argmax(score))
         if not np.isfinite(score[best]):
-            active[k] = False
+            # nothing fits: fly the picks in a shorter order, and use what that frees
+            route = shorten_route(fleet.picks[k], starts[k])
+            before = sum(p.transit_m for p in fleet.picks[k])
+            saved = before - sum(p.transit_m for p in route)
+            fleet.picks[k] = route
+            if saved > 1.0:
+                fleet.loads[k] -= saved
+                last = route[-1]
+                fleet.positions[k] = last.path_m[0] if last.candidate.closed else last.path_m[-1]
+            else:
+                active[k] = False
             continue
         c = candidates[int(best)]
         path, t_m = _entry(c, pos)
