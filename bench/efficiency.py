@@ -228,8 +228,12 @@ def scan_survey(args: tuple[str, int, float, str, str | None, list[float]]) -> d
 # -- summaries ----------------------------------------------------------------------------
 
 
-def distance_to(rows: list[dict[str, Any]], ok: Any) -> float:
+def distance_to(rows: list[dict[str, Any]], ok: Any, budget_m: float = math.inf) -> float:
+    """Flight distance of the first estimate for which ``ok`` holds, within the budget (a
+    last batch that overran the budget does not count)."""
     for row in rows:
+        if row["flight_m"] > budget_m:
+            break
         if ok(row):
             return float(row["flight_m"])
     return math.nan
@@ -295,7 +299,8 @@ def table(field: str, planners: list[str], runs: list[dict[str, Any]],
                 cells.append(f"{fmt(med(d) / 1000, '.2f')} ({sum(not math.isnan(x) for x in d)}/"
                              f"{len(d)})")
                 continue
-            d = [distance_to(r["rows"], lambda row, t=t: row["mae_db"] <= t) for r in rs]
+            d = [distance_to(r["rows"], lambda row, t=t: row["mae_db"] <= t, budgets[-1])
+                 for r in rs]
             by_seed = {r["seed"]: x for r, x in zip(rs, d, strict=True)}
             wins = sum(1 for s in seeds if s in by_seed and not math.isnan(by_seed[s]) and (
                 math.isnan(surveys[s]["to_db"][str(t)]) or by_seed[s] < surveys[s]["to_db"][str(t)]))
@@ -328,7 +333,7 @@ def table(field: str, planners: list[str], runs: list[dict[str, Any]],
 
 
 def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
-                    bar: str, md: bool) -> None:
+                    budget_m: float, bar: str, md: bool) -> None:
     rs = [r for r in runs if r["field"] == field and r["planner"].endswith(":threshold")]
     if not rs:
         return
@@ -340,7 +345,7 @@ def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, d
         print(bar + bar.join("---" for _ in head) + bar)
     ratios = []
     for r in sorted(rs, key=lambda r: r["seed"]):
-        d = distance_to(r["rows"], lambda row: row["iso_target"] <= ISO_TARGET_M)
+        d = distance_to(r["rows"], lambda row: row["iso_target"] <= ISO_TARGET_M, budget_m)
         sv = surveys[r["seed"]]["to_iso50"]
         ratio = d / sv if sv and not math.isnan(sv) else math.nan
         ratios.append(ratio)
@@ -377,7 +382,8 @@ def main() -> int:
     if unknown:
         p.error(f"--fields: unknown field {unknown[0]!r} (one of {', '.join(FIELDS)})")
     planners = [x for x in a.planners.split(",") if x]
-    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b <= a.budget]
+    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
+    budgets.append(a.budget)
     if a.cache:
         Path(a.cache).mkdir(parents=True, exist_ok=True)
     settings = parse_settings(a.adaptive)
@@ -409,7 +415,7 @@ def main() -> int:
         print(f"\n## field: {field}\n")
         by_seed = {s["seed"]: s for s in surveys if s["field"] == field}
         table(field, planners, runs, by_seed, budgets, bar, a.markdown)
-        threshold_table(field, runs, by_seed, bar, a.markdown)
+        threshold_table(field, runs, by_seed, a.budget, bar, a.markdown)
     return 0
 
 
