@@ -68,8 +68,7 @@ class LiveDisplay:
         for col in ("vehicle", "armed", "item", "phase", "flown m", "samples", "state"):
             table.add_column(col, justify="right" if col in ("flown m", "samples") else "left")
         for r in self.executor.status_rows():
-            state = "[red]LOST[/]" if r["lost"] else r["status"]
-            table.add_row(str(r["sysid"]), "yes" if r["armed"] else "no",
-                          f"{r['item']}/{r['items']}", r["phase"], f"{r['flown_m']:.0f}",
-                          str(r["samples"]), state)
+            state = "[red]LOST[/]" if r.lost else r.status
+            table.add_row(str(r.sysid), "yes" if r.armed else "no", f"{r.item}/{r.items}",
+                          r.phase.name.lower(), f"{r.flown_m:.0f}", str(r.samples), state)
         return Group(head, lv, mae, table)

@@ -121,7 +121,7 @@ def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
     v = ex.vehicles[1]
     assert len(v.raw) == 10 and len(v.stray) == SAMPLE_BATCH
     # the path length runs across batch boundaries without a gap or a double count
-    assert ex.status_rows()[0]["flown_m"] == pytest.approx(n - 1, abs=1e-3)
+    assert ex.status_rows()[0].flown_m == pytest.approx(n - 1, abs=1e-3)
     assert len(ex.pending_samples()) == n
 
 
