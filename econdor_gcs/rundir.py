@@ -24,6 +24,7 @@ about 30 kB per iteration on a 101 x 101 grid).
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import threading
@@ -379,10 +380,13 @@ class RunDir:
 
 
 def read_samples(path: str | Path) -> SampleLog:
-    """Load ``samples.csv`` back into a SampleLog."""
-    a = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if a.size == 0:
+    """Load ``samples.csv`` back into a SampleLog (empty when it has only its header)."""
+    with Path(path).open(encoding="utf-8") as f:
+        f.readline()  # the header
+        rows = f.read()
+    if not rows.strip():
         return SampleLog()
+    a = np.loadtxt(io.StringIO(rows), delimiter=",", ndmin=2)
     return SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(np.int8),
                      a[:, 5].astype(np.int16))
 

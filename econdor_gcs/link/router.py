@@ -61,6 +61,8 @@ HDG_UNKNOWN = 0xFFFF
 """``GLOBAL_POSITION_INT.hdg`` when the heading is unknown (UINT16_MAX, MAVLink common)."""
 AIRBORNE_ALT_M = 0.5
 """Above home by more than this, a vehicle counts as flying (for ``VehicleLink.airborne_s``)."""
+REBOOT_MS = 10_000
+"""A ``time_boot_ms`` this far behind the last one means the vehicle restarted."""
 Address = tuple[str, int]
 
 
@@ -163,7 +165,10 @@ class VehicleLink:
     heading_deg: float | None = None  # last known (GLOBAL_POSITION_INT.hdg; kept while unknown)
     airborne_s: float = 0.0
     """Vehicle (sim) time spent above ``AIRBORNE_ALT_M``: the sum of the ``time_boot_ms``
-    steps between consecutive positions that were both airborne."""
+    steps between consecutive positions that were both airborne (late, out-of-order
+    positions are left out)."""
+    last_fix_ms: int | None = None
+    last_fix_airborne: bool = False
     # mission progress
     mission_current: int | None = None
     mission_reached: int | None = None
@@ -468,9 +473,12 @@ class Router:
         link.messages += 1
         if kind == "GLOBAL_POSITION_INT":
             rel_alt_m = msg.relative_alt / 1000.0
-            if (link.time_boot_ms is not None and msg.time_boot_ms > link.time_boot_ms
-                    and rel_alt_m > AIRBORNE_ALT_M and (link.rel_alt_m or 0.0) > AIRBORNE_ALT_M):
-                link.airborne_s += (msg.time_boot_ms - link.time_boot_ms) / 1000.0
+            t_ms, last_ms = msg.time_boot_ms, link.last_fix_ms
+            if last_ms is None or t_ms > last_ms or t_ms < last_ms - REBOOT_MS:
+                airborne = rel_alt_m > AIRBORNE_ALT_M
+                if last_ms is not None and t_ms > last_ms and airborne and link.last_fix_airborne:
+                    link.airborne_s += (t_ms - last_ms) / 1000.0
+                link.last_fix_ms, link.last_fix_airborne = t_ms, airborne
             link.time_boot_ms = msg.time_boot_ms
             link.lat_deg, link.lon_deg = msg.lat / 1e7, msg.lon / 1e7
             link.alt_m, link.rel_alt_m = msg.alt / 1000.0, rel_alt_m

@@ -113,17 +113,17 @@ class WebServer:
         self.token = token if token is not None else (
             None if self.loopback else secrets.token_urlsafe(18))
         self.rate_hz = rate_hz
-        self.loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._run, name="econdor-web", daemon=True)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
         self._pages: set[_Page] = set()
         self._closing = False
         self.bound_port = port
 
     # -- lifecycle -------------------------------------------------------------------------------
-    def _run(self) -> None:
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
+    def _run(self, loop: asyncio.AbstractEventLoop) -> None:
+        asyncio.set_event_loop(loop)
+        loop.run_forever()
 
     @property
     def url(self) -> str:
@@ -135,9 +135,12 @@ class WebServer:
         """Bind and serve; returns the page's address (with its token, if any).
 
         Raises :class:`WebError` when the address cannot be bound."""
+        loop = self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._run, args=(loop,), name="econdor-web",
+                                        daemon=True)
         self._thread.start()
         try:
-            asyncio.run_coroutine_threadsafe(self._start(), self.loop).result(15.0)
+            asyncio.run_coroutine_threadsafe(self._start(), loop).result(15.0)
         except OSError as exc:
             self._stop_loop()
             raise WebError(f"--web {self.host}:{self.port}: cannot listen "
@@ -164,9 +167,9 @@ class WebServer:
 
     def stop(self, flush_s: float = 2.0) -> None:
         """Send every page what it has not seen yet (the run's end), close, stop the thread."""
-        if not self._thread.is_alive():
+        if self._thread is None or self._loop is None or not self._thread.is_alive():
             return
-        fut = asyncio.run_coroutine_threadsafe(self._shutdown(flush_s), self.loop)
+        fut = asyncio.run_coroutine_threadsafe(self._shutdown(flush_s), self._loop)
         try:
             fut.result(flush_s + 5.0)
         except TimeoutError:
@@ -174,10 +177,11 @@ class WebServer:
         self._stop_loop()
 
     def _stop_loop(self) -> None:
-        self.loop.call_soon_threadsafe(self.loop.stop)
+        assert self._loop is not None and self._thread is not None
+        self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(5.0)
         if not self._thread.is_alive():
-            self.loop.close()
+            self._loop.close()
 
     async def _shutdown(self, flush_s: float) -> None:
         self._closing = True

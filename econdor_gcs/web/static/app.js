@@ -66,12 +66,15 @@ function mapBox(canvas) {
            py: (y) => oy + (r.ymax - y) * s };
 }
 function sizeCanvases() {
+  // true when the canvases were resized (and so cleared)
   const dpr = window.devicePixelRatio || 1;
+  let resized = false;
   for (const id of ["estimate", "paths", "overlay"]) {
     const c = $(id);
     const w = Math.round(c.clientWidth * dpr), h = Math.round(c.clientHeight * dpr);
-    if (c.width !== w || c.height !== h) { c.width = w; c.height = h; }
+    if (c.width !== w || c.height !== h) { c.width = w; c.height = h; resized = true; }
   }
+  return resized;
 }
 
 // -- the estimate -------------------------------------------------------------------------------
@@ -426,11 +429,22 @@ function setView(iteration, fromUser) {
     $("follow").checked = state.follow;
   }
   if (!state.frames.has(iteration)) send({ type: "seek", iteration });
-  renderAll();
+  scheduleRender(ALL);
 }
 
 // -- messages -----------------------------------------------------------------------------------
+// what a message changes on the page (each part is redrawn only when it changed)
+const ALL = ["estimate", "paths", "overlay", "vehicles", "pieces", "log", "status", "charts"];
+const TOUCHES = {
+  hello: ALL, records: ["charts", "status", "paths", "overlay", "pieces", "vehicles", "log"],
+  frame: ["estimate", "overlay", "pieces"], plan: ["overlay", "pieces", "status", "vehicles"],
+  samples: ["paths", "overlay", "vehicles"], trail: ["paths"], vehicles: ["overlay", "vehicles"],
+  log: ["log"], control: ["status"], done: ["status", "overlay", "pieces", "paths"], error: ["log"],
+};
+const dirty = new Set();
+
 function onMessage(m) {
+  for (const part of TOUCHES[m.type] || []) dirty.add(part);
   switch (m.type) {
     case "hello":
       state.hello = m;
@@ -472,23 +486,29 @@ function logLocal(text, severity) {
                     source: "page", severity, text });
 }
 
-let dirty = false;
+let scheduled = false;
 function renderAll() {
   if (!state.hello) return;
-  sizeCanvases();
+  if (sizeCanvases()) for (const part of ALL) dirty.add(part);
   const f = state.frames.get(state.view);
-  if ($("estimate").dataset.iteration !== String(state.view) || state.resized) {
+  if (dirty.has("estimate") || $("estimate").dataset.iteration !== String(f ? f.iteration : "")) {
     drawEstimate(f || null);
-    state.resized = false;
   }
-  drawPaths(); drawOverlay(); renderVehicles(); renderPieces(); renderLog(); renderStatus();
-  for (const { u } of charts) u.redraw(false);
+  if (dirty.has("paths")) drawPaths();
+  if (dirty.has("overlay")) drawOverlay();
+  if (dirty.has("vehicles")) renderVehicles();
+  if (dirty.has("pieces")) renderPieces();
+  if (dirty.has("log")) renderLog();
+  if (dirty.has("status")) renderStatus();
+  if (dirty.has("charts")) for (const { u } of charts) u.redraw(false);
+  dirty.clear();
   $("slider-value").textContent = state.view >= 0 ? String(state.view) : "–";
 }
-function scheduleRender() {
-  if (dirty) return;
-  dirty = true;
-  requestAnimationFrame(() => { dirty = false; renderAll(); });
+function scheduleRender(parts) {
+  for (const part of parts || []) dirty.add(part);
+  if (scheduled) return;
+  scheduled = true;
+  requestAnimationFrame(() => { scheduled = false; renderAll(); });
 }
 
 function send(obj) {
@@ -512,11 +532,11 @@ window.addEventListener("DOMContentLoaded", () => {
   $("slider").addEventListener("input", (e) => setView(Number(e.target.value), true));
   $("follow").addEventListener("change", (e) => {
     state.follow = e.target.checked;
-    if (state.follow) setView(lastIteration(), false); else scheduleRender();
+    if (state.follow) setView(lastIteration(), false); else scheduleRender(ALL);
   });
   $("btn-pause").addEventListener("click", () => askControl("pause"));
   $("btn-resume").addEventListener("click", () => askControl("resume"));
   $("btn-stop").addEventListener("click", () => askControl("stop"));
-  window.addEventListener("resize", () => { state.resized = true; scheduleRender(); });
+  window.addEventListener("resize", () => scheduleRender(ALL));
   connect();
 });
