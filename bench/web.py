@@ -105,6 +105,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{v} / plain wall time: median {med[v]:.2f} / {med['plain']:.2f} s = "
                   f"{med[v] / med['plain']:.3f}; per round "
                   + ", ".join(f"{x:.3f}" for x in ratios))
+        fly = {v: statistics.median(r["flight_s"] for r in rs) for v, rs in results.items()}
+        for v in variants[1:]:
+            print(f"{v} / plain flying time (waiting for the vehicles; the MAVLink side): "
+                  f"median {fly[v]:.2f} / {fly['plain']:.2f} s = {fly[v] / fly['plain']:.3f}")
         share = [r["rundir_s"] / r["wall_s"] for rs in results.values() for r in rs]
         print(f"run directory per-iteration files on the DFC thread: "
               f"{100 * statistics.median(share):.2f} % of the wall time (median, all runs)")

@@ -18,7 +18,7 @@ Layout::
 
 ``iterations/`` and ``log.jsonl`` are what ``econdor view RUN_DIR`` replays, iteration by
 iteration, without anything else; they are small (the estimate as float32, compressed:
-about 30 kB per iteration on a 101 x 101 grid).
+about 40 kB per iteration on a 101 x 101 grid).
 """
 
 from __future__ import annotations
