@@ -456,3 +456,16 @@ def test_run_with_a_malformed_web_address_is_one_line(tmp_path: Path,
                      "--web", "localhost:eighty"])
     assert code == 1
     assert "expected [HOST:]PORT" in capsys.readouterr().err
+
+
+def test_the_last_update_has_the_vehicles_as_they_ended() -> None:
+    """However recent the last snapshot, the run's end brings a fresh one (e.g. landed)."""
+    feed, _, rows = _live_feed(rate_hz=0.001)  # one snapshot per 1000 s
+    cur = Cursor()
+    assert feed.updates(cur)[-1]["vehicles"][0]["status"] == "flying"
+    rows[0] = VehicleStatus(**{**_status(1, 0.0).__dict__, "status": "landed"})
+    assert "vehicles" not in _types(feed.updates(cur))  # rate-limited
+    feed.finish({"stop_reason": "stopped"})
+    msgs = feed.updates(cur)
+    assert _types(msgs) == ["vehicles", "done"]
+    assert msgs[0]["vehicles"][0]["status"] == "landed"

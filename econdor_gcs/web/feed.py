@@ -127,6 +127,7 @@ class LiveFeed:
         self._sysids: list[int] = []
         self._vehicles: list[VehicleStatus] = []
         self._vehicles_at = -math.inf
+        self._final_taken = False
         self._frames: dict[int, Message] = {}
         self._pieces: dict[int, list[PlannedPiece]] = {}
         self._sample_msgs: list[Message] = []
@@ -213,14 +214,16 @@ class LiveFeed:
         state = self.run_control.request(action)
         return messages.control(state.value, self.run_control.iteration)
 
-    def _snapshot(self) -> list[VehicleStatus]:
+    def _snapshot(self, final: bool) -> list[VehicleStatus]:
+        """Vehicle snapshots at most ``rate_hz`` times a second, and one after the run's end."""
         now = time.monotonic()
-        if now - self._vehicles_at >= 1.0 / self.rate_hz:
+        if now - self._vehicles_at >= 1.0 / self.rate_hz or (final and not self._final_taken):
             with self._lock:
                 status = self._status
             if status is not None:
                 self._vehicles = list(status())
                 self._vehicles_at = now
+            self._final_taken = final
         return self._vehicles
 
     def updates(self, cursor: Cursor) -> list[Message]:
@@ -252,7 +255,7 @@ class LiveFeed:
                 self._sample_msgs.append(messages.samples(log))
             out.append(self._sample_msgs[k])
             cursor.sample_logs += 1
-        vehicles = self._snapshot()
+        vehicles = self._snapshot(final=summary is not None)
         if reset or raw:
             x, y, vi, ph = self._trail.convert(raw, self.origin, vehicles)
             out.append(messages.trail(reset, x, y, vi, ph))
