@@ -23,10 +23,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from fleet import quick_mission  # noqa: E402  (bench/fleet.py, beside this file)
 
 from econdor_gcs.gcs import run_mission  # noqa: E402
 from econdor_gcs.mission import load_mission  # noqa: E402
@@ -77,13 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     variants = ["plain", "web"] + (["page"] if args.page else [])
     with tempfile.TemporaryDirectory(prefix="econdor-bench-web-") as tmp:
-        mission_path = args.mission
-        if args.quick:
-            raw = yaml.safe_load(args.mission.read_text(encoding="utf-8"))
-            raw.setdefault("algorithm", {})["max_iterations"] = 2
-            raw["algorithm"]["min_iterations"] = 1
-            mission_path = Path(tmp) / "mission.yaml"
-            mission_path.write_text(yaml.safe_dump(raw), encoding="utf-8")
+        mission_path = quick_mission(args.mission, Path(tmp)) if args.quick else args.mission
         mission = load_mission(mission_path)
         print(f"mission {mission.name}, {mission.vehicles.count} vehicles, speedup "
               f"{mission.vehicles.speedup:g}x, {args.pairs} rounds of {', '.join(variants)}")

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from vehicle_helpers import wait_for
 from web_helpers import (
     Browser,
     EcondorProcess,
@@ -26,7 +27,6 @@ from web_helpers import (
     require_chromium,
     vehicle_positions,
     vehicle_rows,
-    wait_until,
 )
 
 pytestmark = pytest.mark.slow
@@ -94,7 +94,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory, browser: Browser) -> dict
         page = browser.page(proc.url)
         seen = _watch(page, proc, timeout_s=240)
         # the run is over: the page keeps its last state
-        wait_until(lambda: "finished" in page.inner_text("#run-state"), 10, "finished state")
+        wait_for(lambda: "finished" in page.inner_text("#run-state"), 10, "finished state")
         seen["final_state"] = page.inner_text("#run-state")
         seen["log"] = page.inner_text("#log")
         seen["charts"] = page.eval_on_selector_all("#charts .uplot", "els => els.length")
@@ -168,7 +168,7 @@ def test_view_replays_a_finished_run(live_run: dict[str, Any], browser: Browser)
     proc = EcondorProcess("view", str(out), "--web", "127.0.0.1:0")
     try:
         page = browser.page(proc.url)
-        wait_until(lambda: estimate_iteration(page) == 3, 30, "the last iteration's estimate")
+        wait_for(lambda: estimate_iteration(page) == 3, 30, "the last iteration's estimate")
         last = canvas_digest(page)
         assert canvas_coloured_fraction(page) > 0.5
         end_positions = vehicle_positions(page)
@@ -176,7 +176,7 @@ def test_view_replays_a_finished_run(live_run: dict[str, Any], browser: Browser)
         # back to the start with the slider (keyboard, as a person would)
         page.focus("#slider")
         page.keyboard.press("Home")
-        wait_until(lambda: estimate_iteration(page) == 0, 15, "the initiation's estimate")
+        wait_for(lambda: estimate_iteration(page) == 0, 15, "the initiation's estimate")
         first = canvas_digest(page)
         assert first != last
         start_positions = vehicle_positions(page)
@@ -184,7 +184,7 @@ def test_view_replays_a_finished_run(live_run: dict[str, Any], browser: Browser)
         assert "#1 " not in page.inner_text("#log")  # only iteration 0's lines
         # one step forward: the pieces that iteration flew, with their vehicles
         page.keyboard.press("ArrowRight")
-        wait_until(lambda: estimate_iteration(page) == 1, 15, "iteration 1's estimate")
+        wait_for(lambda: estimate_iteration(page) == 1, 15, "iteration 1's estimate")
         assert canvas_digest(page) not in (first, last)
         assert "iteration 1" in (page.text_content("#pieces-title") or "")
         rows = page.eval_on_selector_all("#pieces tbody tr", "r => r.length")
@@ -202,11 +202,11 @@ def test_pause_then_stop_brings_every_vehicle_home(tmp_path: Path, browser: Brow
                           "--quiet", "--web", "127.0.0.1:0")
     try:
         page = browser.page(proc.url)
-        wait_until(lambda: page.is_enabled("#btn-pause"), 60, "the pause button")
-        home = wait_until(lambda: (p := vehicle_positions(page)) and len(p) == 3 and p, 60,
+        wait_for(lambda: page.is_enabled("#btn-pause"), 60, "the pause button")
+        home = wait_for(lambda: (p := vehicle_positions(page)) and len(p) == 3 and p, 60,
                           "vehicle positions")
         confirm_control(page, "#btn-pause")
-        wait_until(lambda: page.inner_text("#run-state") == "paused", 90, "paused")
+        wait_for(lambda: page.inner_text("#run-state") == "paused", 90, "paused")
         held = estimate_iteration(page)  # the iteration that was flying when we asked
         assert held is not None and held < 4
         time.sleep(2.0)
@@ -217,7 +217,7 @@ def test_pause_then_stop_brings_every_vehicle_home(tmp_path: Path, browser: Brow
         assert all(math.dist(away[s], home[s]) > 5.0 for s in home)
         confirm_control(page, "#btn-stop")
         assert proc.wait(90) == 0, proc.output()
-        wait_until(lambda: page.inner_text("#run-state") == "stopped", 10, "stopped")
+        wait_for(lambda: page.inner_text("#run-state") == "stopped", 10, "stopped")
         rows = vehicle_rows(page)
         assert {c["status"] for c in rows.values()} == {"landed"}
         for sysid, cells in rows.items():

@@ -29,6 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 CHROMIUM_ARGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
     "--disable-component-update", "--disable-sync", "--no-first-run",
+    "--disable-dev-shm-usage",  # containers often have a tiny /dev/shm
 ]
 URL_RE = re.compile(r"^web: (http://\S+)", re.MULTILINE)
 
@@ -140,17 +141,6 @@ class EcondorProcess:
 
 
 # -- reading the page (DOM and canvas pixels) ------------------------------------------------
-
-
-def wait_until(cond: Any, timeout_s: float, what: str, interval_s: float = 0.1) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = cond()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(interval_s)
 
 
 def vehicle_rows(page: Any) -> dict[int, dict[str, str]]:
