@@ -203,12 +203,14 @@ def test_pause_then_stop_brings_every_vehicle_home(tmp_path: Path, browser: Brow
     try:
         page = browser.page(proc.url)
         wait_for(lambda: page.is_enabled("#btn-pause"), 60, "the pause button")
-        home = wait_for(lambda: (p := vehicle_positions(page)) and len(p) == 3 and p, 60,
-                          "vehicle positions")
+        wait_for(lambda: len(vehicle_positions(page)) == 3, 60, "vehicle positions")
+        home = {sysid: (0.0, 0.0) for sysid in (1, 2, 3)}  # launch: the mission origin
         confirm_control(page, "#btn-pause")
         wait_for(lambda: page.inner_text("#run-state") == "paused", 90, "paused")
-        held = estimate_iteration(page)  # the iteration that was flying when we asked
-        assert held is not None and held < 4
+        # the iteration that was flying when we asked
+        held = wait_for(lambda: (it := estimate_iteration(page)) is not None and (it,), 10,
+                        "the estimate before the pause")[0]
+        assert held < 4
         time.sleep(2.0)
         assert estimate_iteration(page) == held
         statuses = {c["status"] for c in vehicle_rows(page).values()}

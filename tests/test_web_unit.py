@@ -245,7 +245,7 @@ def test_live_feed_sends_each_thing_once_in_order() -> None:
     mission = load_mission(DEMO).with_overrides(grid_spacing_m=5.0)
     cur = Cursor()
     first = feed.updates(cur)
-    assert _types(first) == ["control", "trail", "vehicles"]
+    assert _types(first) == ["trail", "control", "vehicles"]
     assert first[-1]["vehicles"][0]["x_m"] == 10.0 and first[-1]["vehicles"][0]["phase"] == "trace"
     est = np.fromfunction(lambda r, c: r + c, mission.grid.shape)
     feed.progress(IterationDone(_record(0, 2), est))

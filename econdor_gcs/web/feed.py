@@ -239,9 +239,6 @@ class LiveFeed:
             raw = self._raw[0 if reset else max(0, cursor.trail_sent - raw_base):]
             summary = self._summary
         version, state, ctl_iteration = control
-        if state is not None and version != cursor.control_version:
-            out.append(messages.control(state.value, ctl_iteration))
-            cursor.control_version = version
         lines = self.runlog.since(cursor.log_lines)
         if lines:
             out.append(messages.log(lines))
@@ -268,6 +265,9 @@ class LiveFeed:
         if records:
             out.append(messages.records(records))
             cursor.records += len(records)
+        if state is not None and version != cursor.control_version:  # after what led to it
+            out.append(messages.control(state.value, ctl_iteration))
+            cursor.control_version = version
         if vehicles and self._vehicles_at > cursor.vehicles_at:
             by_vehicle: dict[int, list[int]] = {}
             for p in self._planned(planned_iteration) if planned_iteration >= 0 else []:
