@@ -221,6 +221,7 @@ def scan_survey(args: tuple[str, int, float, str, str | None, list[float]]) -> d
     r = scan.first_reaching(lambda row: row["iso"][1] <= ISO_TARGET_M, max_lines)
     out["to_iso50"] = r["flight_m"] if r else math.nan
     out["runs"] = len(scan.runs)
+    out["scanned"] = sorted(scan.runs.values(), key=lambda r: r["lines"])
     out["wall_s"] = time.perf_counter() - t0
     return out
 
@@ -359,6 +360,59 @@ def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, d
           f"ratio ≤ 0.5 in {sum(x <= 0.5 for x in ratios if not math.isnan(x))}")
 
 
+def figures(out: Path, fields: list[str], planners: list[str], runs: list[dict[str, Any]],
+            surveys: list[dict[str, Any]], budget_m: float) -> list[Path]:
+    """MAE against distance, median over the seeds, per field: every planner and the best
+    survey for each distance (the lower envelope of the scanned surveys, per seed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    grid = np.linspace(0.0, budget_m, 201)
+    paths = []
+    for field in fields:
+        fig, ax = plt.subplots(figsize=(6.4, 4.2))
+        for pl in [*planners, "best survey"]:
+            curves = []
+            if pl == "best survey":
+                for sv in (s for s in surveys if s["field"] == field):
+                    rows = sorted(sv["scanned"], key=lambda r: r["flight_m"])
+                    best, curve, k = math.nan, [], 0
+                    for d in grid:
+                        while k < len(rows) and rows[k]["flight_m"] <= d:
+                            best = min(best, rows[k]["mae_db"]) if not math.isnan(best) else (
+                                rows[k]["mae_db"])
+                            k += 1
+                        curve.append(best)
+                    curves.append(curve)
+            else:
+                for r in (r for r in runs if r["field"] == field and r["planner"] == pl):
+                    curves.append([(at_budget(r["rows"], d) or {"mae_db": math.nan})["mae_db"]
+                                   for d in grid])
+            if not curves:
+                continue
+            arr = np.array(curves, dtype=float)
+            ok = np.sum(np.isfinite(arr), axis=0) * 2 > arr.shape[0]  # most seeds have a value
+            with np.errstate(all="ignore"):
+                median = np.where(ok, np.nanmedian(np.where(np.isfinite(arr), arr, np.nan), axis=0),
+                                  np.nan)
+            ax.plot(grid / 1000, median, label=pl, lw=2 if pl in ("adaptive", "best survey") else 1)
+        for t in TARGETS_DB:
+            ax.axhline(t, color="0.85", lw=0.8, zorder=0)
+        ax.set_xlabel("flight distance (km), everything counted")
+        ax.set_ylabel("MAE (dB), median over seeds")
+        ax.set_title(f"{field}: MAE against distance")
+        ax.legend()
+        path = out / f"efficiency_{field}.png"
+        fig.tight_layout()
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", default="0:20")
@@ -371,6 +425,8 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cache", default=None, help="directory memoising survey runs")
     p.add_argument("--json", default=None, help="write every run's rows here")
+    p.add_argument("--from-json", default=None, help="print tables (and figures) from a saved run")
+    p.add_argument("--figures", default=None, help="draw MAE-against-distance figures here")
     p.add_argument("--quick", action="store_true", help="2 seeds, 3 km budget")
     p.add_argument("--markdown", action="store_true", help="print Markdown tables")
     a = p.parse_args()
@@ -394,14 +450,19 @@ def main() -> int:
                  for f in fields for s in seeds]
     survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets) for f in fields for s in seeds]
     t0 = time.perf_counter()
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
-        survey_futs = [pool.submit(scan_survey, j) for j in survey_jobs]
-        run_futs = [pool.submit(run_planner, j) for j in jobs]
-        surveys = [f.result() for f in survey_futs]
-        runs = [f.result() for f in run_futs]
+    if a.from_json:
+        saved = json.loads(Path(a.from_json).read_text())
+        runs, surveys = saved["runs"], saved["surveys"]
+        jobs = [r for r in runs]
+    else:
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
+            survey_futs = [pool.submit(scan_survey, j) for j in survey_jobs]
+            run_futs = [pool.submit(run_planner, j) for j in jobs]
+            surveys = [f.result() for f in survey_futs]
+            runs = [f.result() for f in run_futs]
     wall = time.perf_counter() - t0
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
@@ -416,6 +477,9 @@ def main() -> int:
         by_seed = {s["seed"]: s for s in surveys if s["field"] == field}
         table(field, planners, runs, by_seed, budgets, bar, a.markdown)
         threshold_table(field, runs, by_seed, a.budget, bar, a.markdown)
+    if a.figures:
+        for path in figures(Path(a.figures), fields, planners, runs, surveys, a.budget):
+            print(f"wrote {path}")
     return 0
 
 
