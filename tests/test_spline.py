@@ -12,6 +12,7 @@ from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.spline import (
     BiharmonicSpline,
     FastBiharmonicSpline,
+    TileLevel,
     greens_function,
     reconstruct,
 )
@@ -180,6 +181,7 @@ def test_unknown_method_and_unfitted_predict():
 
 
 def test_constructor_args_stored_as_given():
-    est = FastBiharmonicSpline(cell_size=0.25, coarse_cell=None, tile_size=30)
-    assert est.cell_size == 0.25 and est.coarse_cell is None and est.tile_size == 30
+    levels = (TileLevel(tile_m=30.0, margin_m=5.0, overlap_m=2.0),)
+    est = FastBiharmonicSpline(cell_size=0.25, coarse_cell=None, levels=levels)
+    assert est.cell_size == 0.25 and est.coarse_cell is None and est.levels is levels
     assert not any(k.endswith("_") for k in vars(est))
