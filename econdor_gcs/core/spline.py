@@ -78,8 +78,9 @@ AUTO_EXACT_MAX_SAMPLES = 2000
 FAST_EVAL_SPACING_M = 1.0
 
 # Upper bound on the number of (query, sample) pairs held in memory at once
-# while evaluating (8 bytes each, a few temporaries: ~100 MB).
-_CHUNK_PAIRS = 2_000_000
+# while evaluating: 1 MB per temporary, so they are reused from the heap instead
+# of mapped fresh (page faults cost more than the arithmetic on small VMs).
+_CHUNK_PAIRS = 131_072
 
 
 # --------------------------------------------------------------------------- #
@@ -302,19 +303,23 @@ def _check_samples(x: ArrayLike, y: ArrayLike, v: ArrayLike) -> tuple[FloatArray
 def _merge_duplicates(
     x: FloatArray, y: FloatArray, v: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Average the values of samples at identical positions (else ``G`` is singular)."""
-    xy = np.column_stack((x, y))
-    uniq, inverse = np.unique(xy, axis=0, return_inverse=True)
-    if uniq.shape[0] == x.size:
+    """Average the values of samples at identical positions (else ``G`` is singular).
+
+    Without duplicates the input is returned as it is; with them, the distinct
+    positions sorted by ``(x, y)`` and the mean value at each.
+    """
+    order = np.lexsort((y, x))
+    xs, ys = x[order], y[order]
+    new = np.ones(x.size, dtype=bool)
+    new[1:] = (xs[1:] != xs[:-1]) | (ys[1:] != ys[:-1])
+    n_distinct = int(np.count_nonzero(new))
+    if n_distinct == x.size:
         return x, y, v
-    inverse = inverse.ravel()
-    counts = np.bincount(inverse)
-    vm = np.bincount(inverse, weights=v) / counts
-    if uniq.shape[0] < 3:
-        raise ReconstructionError(
-            f"need at least 3 distinct sample positions, got {uniq.shape[0]}"
-        )
-    return uniq[:, 0].copy(), uniq[:, 1].copy(), vm
+    if n_distinct < 3:
+        raise ReconstructionError(f"need at least 3 distinct sample positions, got {n_distinct}")
+    group = np.cumsum(new) - 1
+    vm = np.bincount(group, weights=v[order]) / np.bincount(group)
+    return xs[new], ys[new], vm
 
 
 def _check_query(x: ArrayLike, y: ArrayLike) -> tuple[FloatArray, FloatArray, tuple[int, ...]]:
@@ -334,7 +339,8 @@ def _check_query(x: ArrayLike, y: ArrayLike) -> tuple[FloatArray, FloatArray, tu
 # --------------------------------------------------------------------------- #
 def _cell_keys(x: FloatArray, y: FloatArray, cell: float
                ) -> tuple[NDArray[np.int64], FloatArray]:
-    """Cell number of each point and its squared distance to the cell centre (in cells)."""
+    """Cell number of each point and its squared distance to the cell centre (in cells,
+    so below 0.5)."""
     fx = x / cell
     fy = y / cell
     ix = np.floor(fx)
@@ -347,13 +353,20 @@ def _cell_keys(x: FloatArray, y: FloatArray, cell: float
     return iyi * (int(ixi.max()) + 1) + ixi, d2
 
 
+def _by_cell(key: NDArray[np.int64], d2: FloatArray) -> tuple[IndexArray, NDArray[np.bool_]]:
+    """Order by cell, nearest the centre first (``key + d2`` sorts both at once, d2 < 1),
+    and the mask of each cell's first entry in that order."""
+    order = np.argsort(key + d2)
+    ks = key[order]
+    first = np.ones(order.size, dtype=bool)
+    np.not_equal(ks[1:], ks[:-1], out=first[1:])
+    return order, first
+
+
 def _block_pick(x: FloatArray, y: FloatArray, cell: float) -> IndexArray:
     """Indices of one sample per occupied ``cell`` x ``cell`` square (the one nearest its
-    centre, the earliest among equals), in cell order."""
-    key, d2 = _cell_keys(x, y, cell)
-    order = np.lexsort((d2, key))
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = key[order][1:] != key[order][:-1]
+    centre), in cell order."""
+    order, first = _by_cell(*_cell_keys(x, y, cell))
     return order[first]
 
 
@@ -361,11 +374,7 @@ def _thin_pick(x: FloatArray, y: FloatArray, v: FloatArray, cell: float
                ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """:func:`_block_pick`, with the values of samples at the picked position averaged
     (as :func:`_merge_duplicates` does; duplicates share the cell and the distance)."""
-    key, d2 = _cell_keys(x, y, cell)
-    order = np.lexsort((d2, key))
-    ks = key[order]
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = ks[1:] != ks[:-1]
+    order, first = _by_cell(*_cell_keys(x, y, cell))
     head = np.flatnonzero(first)
     group = np.cumsum(first) - 1
     xo, yo = x[order], y[order]
@@ -394,10 +403,18 @@ def _block_mean(
 class _RectIndex:
     """Points sorted by x, for the points inside axis-aligned rectangles."""
 
-    def __init__(self, x: FloatArray, y: FloatArray) -> None:
-        self.order = np.argsort(x, kind="stable")
+    def __init__(self, x: FloatArray, y: FloatArray, order: IndexArray | None = None) -> None:
+        self.order = np.argsort(x) if order is None else order
         self.xs = x[self.order]
         self.ys = y[self.order]
+
+    def clamped(self, x0: float, x1: float, y0: float, y1: float) -> _RectIndex:
+        """The same points clamped to a rectangle (clamping keeps the x order)."""
+        out = _RectIndex.__new__(_RectIndex)
+        out.order = self.order
+        out.xs = np.clip(self.xs, x0, x1)
+        out.ys = np.clip(self.ys, y0, y1)
+        return out
 
     def inside(self, x0: float, x1: float, y0: float, y1: float) -> IndexArray:
         lo = int(np.searchsorted(self.xs, x0, side="left"))
@@ -538,7 +555,7 @@ class TileLevel:
 #: exact solve does; a fine level adds the detail along the lines.
 DEFAULT_LEVELS = (
     TileLevel(tile_m=20.0, margin_m=10.0, overlap_m=5.0, cell_m=1.5, max_samples=400),
-    TileLevel(tile_m=10.0, margin_m=4.0, overlap_m=2.5, max_samples=300),
+    TileLevel(tile_m=10.0, margin_m=4.0, overlap_m=2.5, max_samples=120, min_margin_m=1.0),
 )
 
 _TileKey = tuple[float, float, float, float]
@@ -678,18 +695,19 @@ class FastBiharmonicSpline(_Spline):
             self.n_factored_ = self.n_resolved_ = self.n_kept_ = 0
             last = len(self.levels) - 1
             pts = np.column_stack((x, y))
+            index = _RectIndex(x, y)
             for k, level in enumerate(self.levels):
                 if level.cell_m is not None and level.cell_m > float(self.cell_size):
                     sel = _block_pick(x, y, level.cell_m)
-                    lpts, rs = pts[sel], r[sel]
+                    lpts, rs, lindex = pts[sel], r[sel], _RectIndex(x[sel], y[sel])
                 else:
-                    lpts, rs = pts, r
+                    lpts, rs, lindex = pts, r, index
                 prev = previous[k] if k < len(previous) else {}
-                tiles, bounds = self._fit_level(level, lpts, rs, prev, blocks)
+                tiles, bounds = self._fit_level(level, lpts, rs, lindex, prev, blocks)
                 self.tiles_.append(tiles)
                 self.bounds_.append(bounds)
                 if k < last:
-                    r = r - _evaluate_level(tiles, bounds, pts, blocks)
+                    r = r - _evaluate_level(tiles, bounds, pts, index, blocks)
         return self
 
     def _previous_tiles(self) -> list[dict[_TileKey, Tile]]:
@@ -731,7 +749,7 @@ class FastBiharmonicSpline(_Spline):
         return v - blocks.evaluate(np.column_stack(self.coarse_.coords_), self.coarse_.force_,
                                    np.column_stack((x, y)))
 
-    def _fit_level(self, level: TileLevel, pts: FloatArray, r: FloatArray,
+    def _fit_level(self, level: TileLevel, pts: FloatArray, r: FloatArray, index: _RectIndex,
                    previous: dict[_TileKey, Tile], blocks: _Blocks
                    ) -> tuple[list[Tile], tuple[float, float, float, float]]:
         x, y = pts[:, 0], pts[:, 1]
@@ -742,7 +760,6 @@ class FastBiharmonicSpline(_Spline):
         # tiles are split in four (margin and overlap scale with the tile).
         stack = [(i * tile, (i + 1) * tile, j * tile, (j + 1) * tile, 1.0)
                  for j in range(j1, j0 - 1, -1) for i in range(i1, i0 - 1, -1)]
-        index = _RectIndex(x, y)
         n_min = min(level.min_samples, x.size)
         tiles: list[Tile] = []
         while stack:
@@ -791,25 +808,26 @@ class FastBiharmonicSpline(_Spline):
         xq, yq, shape = _check_query(x, y)
         blocks = _Blocks()
         query = np.column_stack((xq, yq))
+        index = _RectIndex(xq, yq)
         with _one_blas_thread():
             out = np.zeros(xq.size)
             if self.coarse_ is not None:
                 out += blocks.evaluate(np.column_stack(self.coarse_.coords_),
                                        self.coarse_.force_, query)
             for tiles, bounds in zip(self.tiles_, self.bounds_, strict=True):
-                out += _evaluate_level(tiles, bounds, query, blocks)
+                out += _evaluate_level(tiles, bounds, query, index, blocks)
         return out.reshape(shape)
 
 
 def _evaluate_level(tiles: list[Tile], bounds: tuple[float, float, float, float],
-                    query: FloatArray, blocks: _Blocks) -> FloatArray:
+                    query: FloatArray, index: _RectIndex, blocks: _Blocks) -> FloatArray:
     """One level's blend ``sum_k phi_k r_k / sum_k phi_k`` at ``(m, 2)`` query points."""
     x0, x1, y0, y1 = bounds
     # Outside the tiles the blending weights of the edge tiles are extended
     # (clamped coordinates) so every point gets a value.
     xw = np.clip(query[:, 0], x0, x1)
     yw = np.clip(query[:, 1], y0, y1)
-    index = _RectIndex(xw, yw)
+    index = index.clamped(x0, x1, y0, y1)
     num = np.zeros(query.shape[0])
     den = np.zeros(query.shape[0])
     for t in tiles:
@@ -830,7 +848,8 @@ def _evaluate_level(tiles: list[Tile], bounds: tuple[float, float, float, float]
 # Convenience entry point
 # --------------------------------------------------------------------------- #
 def reconstruct(
-    x: ArrayLike, y: ArrayLike, v: ArrayLike, grid: Grid, method: str = "auto"
+    x: ArrayLike, y: ArrayLike, v: ArrayLike, grid: Grid, method: str = "auto",
+    estimator: FastBiharmonicSpline | None = None,
 ) -> FloatArray:
     """Reconstruct the field on ``grid`` from scattered samples.
 
@@ -848,6 +867,11 @@ def reconstruct(
         :data:`AUTO_EXACT_MAX_SAMPLES` distinct positions, fast otherwise. The
         fast method is evaluated at :data:`FAST_EVAL_SPACING_M` spacing and
         upsampled bicubically when ``grid`` is finer.
+    estimator : FastBiharmonicSpline, optional
+        The fast estimator to fit when the fast method is chosen: for example
+        one with ``warm_start=True`` kept between calls on a growing sample set,
+        which then reuses the tiles whose samples did not change. Default: a
+        new :class:`FastBiharmonicSpline`.
 
     Returns
     -------
@@ -869,7 +893,7 @@ def reconstruct(
     if method == "exact" or (method == "auto" and xa.size <= AUTO_EXACT_MAX_SAMPLES):
         est: BiharmonicSpline | FastBiharmonicSpline = BiharmonicSpline()
     else:
-        est = FastBiharmonicSpline()
+        est = FastBiharmonicSpline() if estimator is None else estimator
     est._fit_checked(xa, ya, va, merged=True)
     est.n_samples_ = int(n_samples)
     if isinstance(est, FastBiharmonicSpline) and min(grid.dx, grid.dy) < FAST_EVAL_SPACING_M:
