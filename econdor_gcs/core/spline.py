@@ -127,9 +127,19 @@ def _sq_dist(xa: FloatArray, ya: FloatArray, xb: FloatArray, yb: FloatArray) -> 
     return dx
 
 
+def _green_matrix(x: FloatArray, y: FloatArray) -> FloatArray:
+    """``G_ij = g(|x_i - x_j|)``, built in row blocks (peak memory ~ one ``N x N`` array)."""
+    gmat = np.empty((x.size, x.size))
+    step = max(1, _CHUNK_PAIRS // max(1, x.size))
+    for start in range(0, x.size, step):
+        stop = min(start + step, x.size)
+        gmat[start:stop] = _green_from_sq(_sq_dist(x[start:stop], y[start:stop], x, y))
+    return gmat
+
+
 def _solve_weights(x: FloatArray, y: FloatArray, v: FloatArray) -> FloatArray:
     """Solve ``G w = v`` for distinct positions (already validated and merged)."""
-    gmat = _green_from_sq(_sq_dist(x, y, x, y))
+    gmat = _green_matrix(x, y)
     with warnings.catch_warnings():
         # Closely spaced samples make G badly conditioned; the solution is
         # still what MATLAB's backslash would return, so do not warn.
@@ -141,7 +151,7 @@ def _solve_weights(x: FloatArray, y: FloatArray, v: FloatArray) -> FloatArray:
         except (scipy.linalg.LinAlgError, ValueError):
             w = None
     if w is None or not np.all(np.isfinite(w)):
-        gmat = _green_from_sq(_sq_dist(x, y, x, y))
+        gmat = _green_matrix(x, y)
         w = scipy.linalg.lstsq(gmat, v, check_finite=False)[0]
     return np.asarray(w, dtype=np.float64)
 
@@ -166,25 +176,29 @@ def _evaluate(
 _BLOCK_PAIRS = 131_072
 _INV_E = float(np.exp(-1.0))
 _G_PER_H = 0.5 * float(np.exp(2.0))  # g = _G_PER_H * h (see _Blocks)
+# Where a level's blending weights add up to less than this, its correction fades to zero.
+_PHI_FLOOR = 0.1
 
 
 @dataclass(frozen=True)
 class Tile:
     """One partition-of-unity tile of a fitted :class:`FastBiharmonicSpline`.
 
-    The tile proper is ``[x0_m, x1_m] x [y0_m, y1_m]``; its blending weight is
-    positive up to ``overlap_m`` beyond each edge. Its spline interpolates
-    ``values`` (the residuals its level fits) at the samples ``xy_m`` (an
-    ``(n, 2)`` array of positions) within its margin:
-    ``r(x) = sum_i force_i g(|x - x_i|)``. ``lu`` and ``piv`` are the LU factors of
-    its matrix, kept only by a warm-starting estimator.
+    The tile proper is ``[x0_m, x1_m] x [y0_m, y1_m]`` (its place in the level's
+    lattice); its blending weight is positive on ``blend_m = (xmin, xmax, ymin,
+    ymax)``: the tile plus its overlap, cut to within the overlap of its samples'
+    bounding box (a tile does not extrapolate into a gap). Its spline interpolates
+    ``values`` (the residuals its level fits) at the samples ``xy_m`` (an ``(n, 2)``
+    array of positions) within its margin: ``r(x) = sum_i force_i g(|x - x_i|)``.
+    ``lu`` and ``piv`` are the LU factors of its matrix, kept only by a
+    warm-starting estimator.
     """
 
     x0_m: float
     x1_m: float
     y0_m: float
     y1_m: float
-    overlap_m: float
+    blend_m: tuple[float, float, float, float]
     xy_m: FloatArray
     values: FloatArray
     force: FloatArray
@@ -781,9 +795,14 @@ class FastBiharmonicSpline(_Spline):
                           (xm, tx1, ty0, ym, half), (tx0, xm, ty0, ym, half)]
                 continue
             tpts, rs = pts[sel], r[sel]
-            sol = self._tile_solution(previous.get((tx0, tx1, ty0, ty1)), tpts, rs, blocks)
             overlap = min(level.overlap_m * scale, margin)
-            tiles.append(Tile(tx0, tx1, ty0, ty1, overlap, tpts, rs, sol.force, sol.lu, sol.piv))
+            lo, hi = tpts.min(axis=0) - overlap, tpts.max(axis=0) + overlap
+            blend = (max(tx0 - overlap, float(lo[0])), min(tx1 + overlap, float(hi[0])),
+                     max(ty0 - overlap, float(lo[1])), min(ty1 + overlap, float(hi[1])))
+            if blend[0] >= blend[1] or blend[2] >= blend[3]:
+                continue  # its samples are all beyond its overlap: nothing to blend in
+            sol = self._tile_solution(previous.get((tx0, tx1, ty0, ty1)), tpts, rs, blocks)
+            tiles.append(Tile(tx0, tx1, ty0, ty1, blend, tpts, rs, sol.force, sol.lu, sol.piv))
         return tiles, (i0 * tile, (i1 + 1) * tile, j0 * tile, (j1 + 1) * tile)
 
     def _tile_solution(self, prev: Tile | None, pts: FloatArray, rs: FloatArray,
@@ -831,16 +850,18 @@ def _evaluate_level(tiles: list[Tile], bounds: tuple[float, float, float, float]
     num = np.zeros(query.shape[0])
     den = np.zeros(query.shape[0])
     for t in tiles:
-        ov = t.overlap_m
-        lo_x, hi_x, lo_y, hi_y = t.x0_m - ov, t.x1_m + ov, t.y0_m - ov, t.y1_m + ov
+        lo_x, hi_x, lo_y, hi_y = t.blend_m
         idx = index.inside(lo_x, hi_x, lo_y, hi_y)
         if idx.size == 0:
             continue
         phi = _bump(xw[idx], lo_x, hi_x)
         phi *= _bump(yw[idx], lo_y, hi_y)
-        f = blocks.evaluate(t.xy_m, t.force, query[idx])
-        num[idx] += phi * f
         den[idx] += phi
+        num[idx] += phi * blocks.evaluate(t.xy_m, t.force, query[idx])
+    # A plain partition of unity where the weights add up to more than the floor
+    # (inside a level's cover they add up to at least ~0.38); beyond the tiles'
+    # blending areas the correction fades out instead of jumping to zero.
+    np.maximum(den, _PHI_FLOOR, out=den)
     return num / den
 
 
