@@ -19,11 +19,12 @@ state in attributes ending in ``_``):
 * :class:`BiharmonicSpline` -- the exact dense solve, the reference.
   ``O(N^2)`` memory and ``O(N^3)`` time: fine up to a few thousand samples.
 * :class:`FastBiharmonicSpline` -- thinned samples, a coarse global exact
-  spline, and a partition of unity of small overlapping tiles (an exact
-  spline per tile, split where samples are dense) for the residual. About
-  linear in ``N``; on samples recorded from real runs its error against the
-  true field is no worse than the exact solve's where that is feasible (see
-  ``bench/reconstruction.py`` for the numbers behind the default parameters).
+  spline, and partition-of-unity levels of overlapping tiles (an exact spline
+  per tile, split where samples are dense) for the residual: a mid level on
+  samples 1.5 m apart that fills the gaps between contour lines, a fine level
+  on all kept samples. About linear in ``N``; on samples recorded from real
+  runs its error against the true field stays within a few percent of the
+  exact solve's wherever that is feasible (``bench/reconstruction.py``).
   With ``warm_start=True`` a refit keeps the factorisations (and, when their
   data did not change, the weights) of tiles whose samples did not change.
 
@@ -101,8 +102,8 @@ def greens_function(r: ArrayLike) -> FloatArray:
 
     Examples
     --------
-    >>> greens_function([0.0, 1.0, 2.0]).round(4)
-    array([ 0.    , -1.    , -1.2274])
+    >>> greens_function([1.0, 2.0, 10.0]).round(4).tolist()
+    [-1.0, -1.2274, 130.2585]
     """
     r = np.asarray(r, dtype=np.float64)
     return _green_from_sq(r * r)
@@ -178,6 +179,20 @@ _INV_E = float(np.exp(-1.0))
 _G_PER_H = 0.5 * float(np.exp(2.0))  # g = _G_PER_H * h (see _Blocks)
 # Where a level's blending weights add up to less than this, its correction fades to zero.
 _PHI_FLOOR = 0.1
+
+# A tile spline that reaches this many times the range of its data somewhere in its
+# blending area is ill-conditioned (samples nearly on one line, spline bending away
+# from it); such a tile is left out and its area left to the levels above.
+_WILD_RATIO = 100.0
+
+
+def _is_wild(blocks: _Blocks, pts: FloatArray, force: FloatArray, values: FloatArray,
+             blend: tuple[float, float, float, float]) -> bool:
+    """Whether the tile spline exceeds ``_WILD_RATIO`` x its data range at the corners,
+    edge midpoints or centre of its blending area."""
+    gx, gy = np.meshgrid(np.linspace(blend[0], blend[1], 3), np.linspace(blend[2], blend[3], 3))
+    probe = blocks.evaluate(pts, force, np.column_stack((gx.ravel(), gy.ravel())))
+    return bool(np.abs(probe).max() > _WILD_RATIO * max(float(np.ptp(values)), 1e-300))
 
 
 @dataclass(frozen=True)
@@ -545,7 +560,8 @@ class TileLevel:
     widened (x1.5) until it holds them; a tile whose window holds more than
     ``max_samples`` is split in four, margin and overlap halved but the margin
     not below ``min_margin_m``. Tile splines are blended with weights positive up
-    to ``overlap_m`` beyond the tile (``overlap_m <= margin_m``).
+    to ``overlap_m`` beyond the tile (``overlap_m <= margin_m``), and not beyond
+    ``overlap_m`` from the bounding box of the tile's samples.
     """
 
     tile_m: float
@@ -610,11 +626,17 @@ class FastBiharmonicSpline(_Spline):
                  f = f_0 + \\sum_l f_l,
 
        ``phi_k`` a product of C^1 bumps ``(1 - s^2)^2`` over the tile plus its
-       overlap. Every ``r_k`` interpolates all samples of its level where its
-       weight is positive, so the finest level (on all thinned samples) makes
-       ``f`` interpolate every kept sample. A mid level on sparser samples with
-       wide windows fills the gaps between contour lines as the global solve
-       does; the fine level's small windows stay cheap.
+       overlap, cut to within the overlap of the bounding box of the tile's
+       samples (a tile whose window had to be widened into a sparse area does
+       not extrapolate across a gap). Where the weights add up to less than 0.1
+       (beyond a level's samples) the denominator is held at 0.1, so the
+       level's correction fades out there. A tile whose spline reaches 100x
+       the range of its data in its blending area (samples nearly on one line)
+       is left out. Every ``r_k`` interpolates all samples of its level where
+       its weight is positive, so the finest level (on all thinned samples)
+       makes ``f`` interpolate every kept sample. A mid level on sparser
+       samples with wide windows fills the gaps between contour lines as the
+       global solve does; the fine level's small windows stay cheap.
 
     With ``warm_start=True``, :meth:`fit` reuses the previous fit: a tile whose
     samples are the same as before keeps the LU factors of its matrix and is
@@ -657,6 +679,8 @@ class FastBiharmonicSpline(_Spline):
         Tiles re-solved from kept factors (warm start).
     n_kept_ : int
         Tiles whose weights were kept as they were (warm start).
+    n_dropped_ : int
+        Ill-conditioned tiles left out (see above).
 
     References
     ----------
@@ -706,7 +730,7 @@ class FastBiharmonicSpline(_Spline):
             r = self._fit_coarse(x, y, v, blocks)
             self.tiles_: list[list[Tile]] = []
             self.bounds_: list[tuple[float, float, float, float]] = []
-            self.n_factored_ = self.n_resolved_ = self.n_kept_ = 0
+            self.n_factored_ = self.n_resolved_ = self.n_kept_ = self.n_dropped_ = 0
             last = len(self.levels) - 1
             pts = np.column_stack((x, y))
             index = _RectIndex(x, y)
@@ -802,6 +826,9 @@ class FastBiharmonicSpline(_Spline):
             if blend[0] >= blend[1] or blend[2] >= blend[3]:
                 continue  # its samples are all beyond its overlap: nothing to blend in
             sol = self._tile_solution(previous.get((tx0, tx1, ty0, ty1)), tpts, rs, blocks)
+            if _is_wild(blocks, tpts, sol.force, rs, blend):
+                self.n_dropped_ += 1
+                continue
             tiles.append(Tile(tx0, tx1, ty0, ty1, blend, tpts, rs, sol.force, sol.lu, sol.piv))
         return tiles, (i0 * tile, (i1 + 1) * tile, j0 * tile, (j1 + 1) * tile)
 
