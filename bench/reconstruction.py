@@ -120,17 +120,16 @@ def timed(fn: Method, x: np.ndarray, y: np.ndarray, v: np.ndarray, grid: Grid
 
 
 def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
-                baseline: ModuleType | None, libraries: bool) -> None:
-    methods: dict[str, Method] = {
-        "fast (this)": lambda x, y, v, g: reconstruct(x, y, v, g, method="fast"),
-    }
-    if baseline is not None:
-        methods[f"fast ({BASELINE_REV})"] = (
+                baseline: ModuleType | None, rev: str, libraries: bool) -> None:
+    methods: dict[str, Method] = {}
+    if baseline is not None:  # first, so the ratios of this checkout's method are to hand
+        methods[f"fast ({rev})"] = (
             lambda x, y, v, g: baseline.reconstruct(x, y, v, g, method="fast"))
+    methods["fast (this)"] = lambda x, y, v, g: reconstruct(x, y, v, g, method="fast")
     if libraries:
         methods["scipy RBF k=64"] = rbf_local
     head = (f"{'run':13} {'N':>6} {'method':16} {'wall_s':>7} {'cpu_s':>7} {'MAE':>10} "
-            f"{'MAE/exact':>9} {'|f-ex|/MAEex':>12} {'MAE/base':>8} {'t/base':>7}")
+            f"{'MAE/exact':>9} {'|f-ex|/MAEex':>12} {'MAE/base':>8} {'cpu/base':>8}")
     print(head)
     print("-" * len(head))
     for run in runs:
@@ -151,9 +150,13 @@ def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
                 exact = run.stored_exact[n]
                 print(f"{label} {'exact (stored)':16} {'':>7} {'':>7} {run.mae(exact):10.3e}",
                       flush=True)
-            base_mae = base_t = None
+            base_mae = base_cpu = None
             for name, fn in methods.items():
-                z, wall, cpu = timed(fn, x, y, v, run.grid)
+                try:
+                    z, wall, cpu = timed(fn, x, y, v, run.grid)
+                except np.linalg.LinAlgError as exc:
+                    print(f"{label} {name:16} failed: {str(exc).splitlines()[0]}", flush=True)
+                    continue
                 mae = run.mae(z)
                 cols = f"{label} {name:16} {wall:7.2f} {cpu:7.2f} {mae:10.3e}"
                 if exact is not None:
@@ -162,15 +165,11 @@ def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
                     cols += f" {mae / ex_mae:9.3f} {dev:12.3f}"
                 else:
                     cols += f" {'n/a':>9} {'n/a':>12}"
-                if name.startswith("fast (") and name != "fast (this)":
-                    base_mae, base_t = mae, cpu
+                if name == f"fast ({rev})":
+                    base_mae, base_cpu = mae, cpu
+                elif base_mae is not None and base_cpu:
+                    cols += f" {mae / base_mae:8.3f} {cpu / base_cpu:8.3f}"
                 print(cols, flush=True)
-            if base_mae is not None:
-                # the ratio of this checkout's fast spline to the baseline, same run
-                z, wall, cpu = timed(methods["fast (this)"], x, y, v, run.grid)
-                print(f"{label} {'fast (this) vs':16} {wall:7.2f} {cpu:7.2f} {run.mae(z):10.3e}"
-                      f" {'':>9} {'':>12} {run.mae(z) / base_mae:8.3f} {cpu / base_t:7.3f}",
-                      flush=True)
 
 
 def stream_table(runs: list[Run], baseline: ModuleType | None) -> None:
@@ -219,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default="2000,5000,20000,50000")
     ap.add_argument("--exact-max", type=int, default=5000,
                     help="compute the exact solve up to this many samples (20000: ~10 min)")
-    ap.add_argument("--baseline", default=BASELINE_REV, help="git revision to compare with")
+    ap.add_argument("--baseline", default=BASELINE_REV,
+                    help="git revision whose fast spline to compare with")
     ap.add_argument("--no-baseline", action="store_true")
     ap.add_argument("--no-stream", action="store_true")
     ap.add_argument("--libraries", action="store_true", help="also scipy's RBFInterpolator")
@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = [Run(p) for p in args.data]
     sizes = [2000, 5000] if args.quick else [int(s) for s in args.sizes.split(",")]
     baseline = None if args.no_baseline else load_baseline(args.baseline)
-    sizes_table(runs, sizes, args.exact_max, baseline, args.libraries)
+    sizes_table(runs, sizes, args.exact_max, baseline, args.baseline, args.libraries)
     if not (args.quick or args.no_stream):
         stream_table(runs, baseline)
     return 0

@@ -217,11 +217,10 @@ def test_fast_tracks_the_exact_solve_on_recorded_run_samples(name, n):
 
 def test_fast_does_not_extrapolate_into_wide_gaps():
     # The first 2000 samples of the MAVLink demo run leave a 30 m gap at the west edge
-    # with samples on one side only. Tile splines there used to extrapolate into it
-    # (MAE 10.6x the exact solve's, values up to 1300 in a field of 1..95); a tile now
-    # blends in only within its overlap of its samples and an ill-conditioned one is
-    # left out. Measured: MAE 1.15x the exact solve's (the previous fast spline 2.0x),
-    # largest value 107 (exact 86).
+    # with samples on one side only, nearly on one line. Tile splines there used to
+    # extrapolate into it (MAE 10.6x the exact solve's, values up to 5600 in a field of
+    # 1..95); such an ill-conditioned tile is now left out. Measured: MAE 1.10x the
+    # exact solve's (the previous fast spline 2.0x), largest value 107 (exact 86).
     x, y, v, grid, truth = recorded_run("demo-mavlink", 2000)
     exact = reconstruct(x, y, v, grid, method="exact")
     fast = reconstruct(x, y, v, grid, method="fast")

@@ -201,8 +201,7 @@ class Tile:
 
     The tile proper is ``[x0_m, x1_m] x [y0_m, y1_m]`` (its place in the level's
     lattice); its blending weight is positive on ``blend_m = (xmin, xmax, ymin,
-    ymax)``: the tile plus its overlap, cut to within the overlap of its samples'
-    bounding box (a tile does not extrapolate into a gap). Its spline interpolates
+    ymax)``, the tile plus its overlap. Its spline interpolates
     ``values`` (the residuals its level fits) at the samples ``xy_m`` (an ``(n, 2)``
     array of positions) within its margin: ``r(x) = sum_i force_i g(|x - x_i|)``.
     ``lu`` and ``piv`` are the LU factors of its matrix, kept only by a
@@ -560,8 +559,7 @@ class TileLevel:
     widened (x1.5) until it holds them; a tile whose window holds more than
     ``max_samples`` is split in four, margin and overlap halved but the margin
     not below ``min_margin_m``. Tile splines are blended with weights positive up
-    to ``overlap_m`` beyond the tile (``overlap_m <= margin_m``), and not beyond
-    ``overlap_m`` from the bounding box of the tile's samples.
+    to ``overlap_m`` beyond the tile (``overlap_m <= margin_m``).
     """
 
     tile_m: float
@@ -626,13 +624,12 @@ class FastBiharmonicSpline(_Spline):
                  f = f_0 + \\sum_l f_l,
 
        ``phi_k`` a product of C^1 bumps ``(1 - s^2)^2`` over the tile plus its
-       overlap, cut to within the overlap of the bounding box of the tile's
-       samples (a tile whose window had to be widened into a sparse area does
-       not extrapolate across a gap). Where the weights add up to less than 0.1
-       (beyond a level's samples) the denominator is held at 0.1, so the
-       level's correction fades out there. A tile whose spline reaches 100x
-       the range of its data in its blending area (samples nearly on one line)
-       is left out. Every ``r_k`` interpolates all samples of its level where
+       overlap. A tile whose spline reaches 100x the range of its data in its
+       blending area is left out: its window had to be widened into a sparse
+       area and its samples lie nearly on one line, so it would extrapolate
+       wildly across a gap. Where the weights add up to less than 0.1 (around
+       such a tile, beyond a level's tiles) the denominator is held at 0.1, so
+       the level's correction fades out there. Every ``r_k`` interpolates all samples of its level where
        its weight is positive, so the finest level (on all thinned samples)
        makes ``f`` interpolate every kept sample. A mid level on sparser
        samples with wide windows fills the gaps between contour lines as the
@@ -820,11 +817,7 @@ class FastBiharmonicSpline(_Spline):
                 continue
             tpts, rs = pts[sel], r[sel]
             overlap = min(level.overlap_m * scale, margin)
-            lo, hi = tpts.min(axis=0) - overlap, tpts.max(axis=0) + overlap
-            blend = (max(tx0 - overlap, float(lo[0])), min(tx1 + overlap, float(hi[0])),
-                     max(ty0 - overlap, float(lo[1])), min(ty1 + overlap, float(hi[1])))
-            if blend[0] >= blend[1] or blend[2] >= blend[3]:
-                continue  # its samples are all beyond its overlap: nothing to blend in
+            blend = (tx0 - overlap, tx1 + overlap, ty0 - overlap, ty1 + overlap)
             sol = self._tile_solution(previous.get((tx0, tx1, ty0, ty1)), tpts, rs, blocks)
             if _is_wild(blocks, tpts, sol.force, rs, blend):
                 self.n_dropped_ += 1
