@@ -180,19 +180,24 @@ _G_PER_H = 0.5 * float(np.exp(2.0))  # g = _G_PER_H * h (see _Blocks)
 # Where a level's blending weights add up to less than this, its correction fades to zero.
 _PHI_FLOOR = 0.1
 
-# A tile spline that reaches this many times the range of its data somewhere in its
-# blending area is ill-conditioned (samples nearly on one line, spline bending away
+# A tile spline that reaches this many times the range of its data on the edge of its
+# blending area is ill-conditioned (samples nearly on one line, the spline bending away
 # from it); such a tile is left out and its area left to the levels above.
 _WILD_RATIO = 100.0
+# The corners and edge midpoints of a rectangle, in units of its half sides.
+_EDGE_PROBES = np.array([[-1.0, -1.0], [0.0, -1.0], [1.0, -1.0], [-1.0, 0.0],
+                         [1.0, 0.0], [-1.0, 1.0], [0.0, 1.0], [1.0, 1.0]])
 
 
 def _is_wild(blocks: _Blocks, pts: FloatArray, force: FloatArray, values: FloatArray,
              blend: tuple[float, float, float, float]) -> bool:
-    """Whether the tile spline exceeds ``_WILD_RATIO`` x its data range at the corners,
-    edge midpoints or centre of its blending area."""
-    gx, gy = np.meshgrid(np.linspace(blend[0], blend[1], 3), np.linspace(blend[2], blend[3], 3))
-    probe = blocks.evaluate(pts, force, np.column_stack((gx.ravel(), gy.ravel())))
-    return bool(np.abs(probe).max() > _WILD_RATIO * max(float(np.ptp(values)), 1e-300))
+    """Whether the tile spline exceeds ``_WILD_RATIO`` x its data range at the corners
+    or edge midpoints of its blending area."""
+    x0, x1, y0, y1 = blend
+    probe = _EDGE_PROBES * (0.5 * (x1 - x0), 0.5 * (y1 - y0)) + (0.5 * (x0 + x1),
+                                                                  0.5 * (y0 + y1))
+    return bool(np.abs(blocks.evaluate(pts, force, probe)).max()
+                > _WILD_RATIO * max(float(np.ptp(values)), 1e-300))
 
 
 @dataclass(frozen=True)
@@ -624,10 +629,10 @@ class FastBiharmonicSpline(_Spline):
                  f = f_0 + \\sum_l f_l,
 
        ``phi_k`` a product of C^1 bumps ``(1 - s^2)^2`` over the tile plus its
-       overlap. A tile whose spline reaches 100x the range of its data in its
-       blending area is left out: its window had to be widened into a sparse
-       area and its samples lie nearly on one line, so it would extrapolate
-       wildly across a gap. Where the weights add up to less than 0.1 (around
+       overlap. A tile whose spline reaches 100x the range of its data on the
+       edge of its blending area is left out: its samples lie nearly on one
+       line (typically a window widened into a sparse area), and it would
+       extrapolate wildly across a gap. Where the weights add up to less than 0.1 (around
        such a tile, beyond a level's tiles) the denominator is held at 0.1, so
        the level's correction fades out there. Every ``r_k`` interpolates all samples of its level where
        its weight is positive, so the finest level (on all thinned samples)
@@ -930,12 +935,19 @@ def reconstruct(
         raise ValueError(f"method must be 'auto', 'exact' or 'fast', got {method!r}")
     xa, ya, va = _check_samples(x, y, v)
     n_samples = xa.size
-    xa, ya, va = _merge_duplicates(xa, ya, va)
-    if method == "exact" or (method == "auto" and xa.size <= AUTO_EXACT_MAX_SAMPLES):
+    exact = method == "exact"
+    if method == "auto" and (n_samples <= AUTO_EXACT_MAX_SAMPLES
+                             # one sample per 0.5 m cell: a lower bound on the distinct
+                             # positions, cheaper than counting them
+                             or _block_pick(xa, ya, 0.5).size <= AUTO_EXACT_MAX_SAMPLES):
+        xa, ya, va = _merge_duplicates(xa, ya, va)
+        exact = xa.size <= AUTO_EXACT_MAX_SAMPLES
+    if exact:
         est: BiharmonicSpline | FastBiharmonicSpline = BiharmonicSpline()
+        xa, ya, va = _merge_duplicates(xa, ya, va)
     else:
         est = FastBiharmonicSpline() if estimator is None else estimator
-    est._fit_checked(xa, ya, va, merged=True)
+    est._fit_checked(xa, ya, va, merged=False)  # (merging twice returns the input)
     est.n_samples_ = int(n_samples)
     if isinstance(est, FastBiharmonicSpline) and min(grid.dx, grid.dy) < FAST_EVAL_SPACING_M:
         # The field varies on scales of metres: evaluate on a grid of about
