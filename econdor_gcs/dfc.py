@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .core import metrics
 from .core.adaptive import AdaptiveParams, AdaptivePlanner
@@ -284,11 +285,14 @@ class Dfc:
             s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
                           s.vehicle[keep])
         t0 = time.perf_counter()
+        # One BLAS thread: the station shares the cores with the vehicles (and a study
+        # with its other runs); idle BLAS threads spin and slow every process down.
         method = self.mission.algorithm.reconstruction
-        if method == "kriging":
-            est = kriging_reconstruct(s.x_m, s.y_m, s.value, self.grid)
-        else:
-            est = reconstruct(s.x_m, s.y_m, s.value, self.grid, method=method)
+        with threadpool_limits(limits=1, user_api="blas"):
+            if method == "kriging":
+                est = kriging_reconstruct(s.x_m, s.y_m, s.value, self.grid)
+            else:
+                est = reconstruct(s.x_m, s.y_m, s.value, self.grid, method=method)
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         return est
