@@ -57,6 +57,19 @@ def samples_along(points: list[tuple[float, float]], field, step_m: float = 0.8)
                      np.full(x.size, Phase.SURVEY, dtype=np.int8), np.zeros(x.size, np.int16))
 
 
+def after_diagonals(seed: int, positions: list[tuple[float, float]], budget_left_m: float
+                    ) -> PlanContext:
+    """The context of iteration 1 on plume field ``seed``: the diagonals flown."""
+    from econdor_gcs.core.spline import reconstruct
+
+    field = load_mission(ROOT / "missions" / "plume.yaml").build_field(seed)
+    s = samples_along([(0, 0), (100, 100), (100, 0), (0, 100)], field)
+    est = reconstruct(s.x_m, s.y_m, s.value, GRID)
+    return PlanContext(iteration=1, region=REGION, n_vehicles=len(positions), grid=GRID,
+                       estimate=est, samples=s, positions_m=positions,
+                       budget_left_m=budget_left_m)
+
+
 def test_contour_pieces_are_cut_and_oriented_for_the_tracer():
     xx, _ = GRID.mesh
     ramp = xx.copy()  # g = x: iso-lines run north-south, higher values to the east
@@ -107,14 +120,7 @@ def test_the_fleet_shares_the_work():
 
 
 def test_planner_routes_its_jobs_and_the_assignment_keeps_them():
-    m = load_mission(ROOT / "missions" / "plume.yaml")
-    field = m.build_field(0)
-    s = samples_along([(0, 0), (100, 100), (100, 0), (0, 100)], field)
-    from econdor_gcs.core.spline import reconstruct
-
-    est = reconstruct(s.x_m, s.y_m, s.value, GRID)
-    ctx = PlanContext(iteration=1, region=REGION, n_vehicles=2, grid=GRID, estimate=est,
-                      samples=s, positions_m=[(0.0, 100.0), (100.0, 0.0)], budget_left_m=5000.0)
+    ctx = after_diagonals(0, [(0.0, 100.0), (100.0, 0.0)], 5000.0)
     batch = AdaptivePlanner(AdaptiveParams(batch_m=300.0)).next_batch(ctx)
     assert batch.jobs and all(j.vehicle in (0, 1) for j in batch.jobs)
     plans = assign_jobs(batch.jobs, ctx.positions_m, first_piece_id=7000)
@@ -131,14 +137,7 @@ def test_planner_routes_its_jobs_and_the_assignment_keeps_them():
 
 
 def test_planner_never_plans_beyond_the_budget_left():
-    m = load_mission(ROOT / "missions" / "plume.yaml")
-    field = m.build_field(1)
-    s = samples_along([(0, 0), (100, 100), (100, 0), (0, 100)], field)
-    from econdor_gcs.core.spline import reconstruct
-
-    est = reconstruct(s.x_m, s.y_m, s.value, GRID)
-    ctx = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID, estimate=est,
-                      samples=s, positions_m=[(0.0, 100.0)], budget_left_m=120.0)
+    ctx = after_diagonals(1, [(0.0, 100.0)], 120.0)
     batch = AdaptivePlanner().next_batch(ctx)
     assert len(batch.jobs) == 1  # one pick may overrun a tiny remainder; no second one
 
