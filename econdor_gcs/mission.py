@@ -20,7 +20,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                 min_piece_length_m, keep_diagonals, max_idle_iterations, target_levels}
     lawnmower: {spacing_m, budget_m}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
-               line_orientation, start, model, length_m, fit_length, weighting, floor, gradient_gain_m, power,
+               line_orientation, start, model, length_m, fit_length, floor, gradient_gain_m, power,
                plan_spacing_m, search_radius_m, resolve_m, explore_m, band_m, level_tol}
 """
 
@@ -133,7 +133,6 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "model": (str, "auto", _one_of("auto", "gp", "proxy")),
         "length_m": (float, 5.0, _positive),
         "fit_length": (bool, True, None),
-        "weighting": (str, "gradient", _one_of("gradient", "innovation")),
         "floor": (float, 0.0, _non_negative),
         "gradient_gain_m": (float, 5.0, _non_negative),
         "power": (float, 2.0, _range(0.5, 4.0)),
@@ -301,7 +300,6 @@ class AdaptiveConfig:
     model: str
     length_m: float
     fit_length: bool
-    weighting: str
     floor: float
     gradient_gain_m: float
     power: float

@@ -24,11 +24,16 @@ Each iteration the planner
 
 **Threshold mode** (``target_levels``): only the iso-lines at those levels matter. The
 per-cell value is the straddle score ``max(1.96 sigma - min_L |mu - L|, 0)`` (Bryan et al.
-2005), zero in cells within ``resolve_m`` of a sample (observed); candidates are the
+2005) and, farther than ``explore_m`` from every sample (by the model's equivalent
+distance), ``a (d_eq / explore_m - 1)``: a coverage floor, since an iso-line around a
+feature narrower than the data can show may hide there whatever the model says. Cells
+within ``resolve_m`` of a sample (observed) or within ``band_m`` of a sample that reads a
+target level (an iso-line already flown on) count for nothing. Candidates are the
 estimate's whole contour components at the target levels (each traced until it closes or
 meets the area's edge on both sides) plus the exploration legs and lines. The planner
-reports ``done`` when no open cell straddles any more: nowhere is left where an iso-line
-could still be, under the model.
+reports ``done`` when no open cell scores any more: nowhere is left where an iso-line
+could still be, under the model (by default the GP posterior with ``l = length_m``: its
+variance shrinks where samples surround a place, which the distance proxy cannot see).
 
 Every job is an ordinary trace task (``TraceTask``) or a pair of waypoints, so the plan
 flies over MAVLink exactly like E-CONDOR's; contour pieces are traced by the vehicle's
@@ -55,7 +60,6 @@ from .planners import Batch, Job, PlanContext
 from .tasks import FlightReport, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
-    InnovationAmplitude,
     UncertaintyMap,
     expected_error,
     resample_polyline,
@@ -128,10 +132,6 @@ class AdaptiveParams:
         Length of the ``proxy`` model, and of the ``gp`` model unless ``fit_length``.
     fit_length : bool
         The ``gp`` model's length scale is fitted to the samples (else ``length_m``).
-    weighting : {"gradient", "innovation"}
-        The amplitude: from the steepness of the estimate (with the floor), or learned
-        from the estimate's errors at the next samples
-        (:class:`~econdor_gcs.core.uncertainty.InnovationAmplitude`; at least the floor).
     floor : float
         Amplitude floor ``s0``; 0 picks it from the data (``sigma_f`` of the GP).
     gradient_gain_m : float
@@ -172,7 +172,6 @@ class AdaptiveParams:
     model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
-    weighting: str = "gradient"
     floor: float = 0.0
     gradient_gain_m: float = 5.0
     power: float = 2.0
@@ -530,15 +529,11 @@ class AdaptivePlanner:
                 fit_length=params.fit_length and not params.target_levels)
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
-        if params.weighting not in ("gradient", "innovation"):
-            raise ValueError(f"weighting: must be gradient or innovation, got {params.weighting!r}")
         if params.start not in ("diagonals", "perimeter", "plan"):
             raise ValueError(f"start: must be diagonals, perimeter or plan, got {params.start!r}")
         self.params = params
         self.seed = seed
         self.hyper: MaternHyper | None = None
-        self.innovation = InnovationAmplitude(params.length_m)
-        self._previous: tuple[FloatArray, Grid, int] | None = None
         self.open_cells = 0
         """Threshold mode: planning cells where an iso-line could still be (after the last plan)."""
 
@@ -574,14 +569,6 @@ class AdaptivePlanner:
         umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid, plan_grid,
                                model=p.model, length_m=p.length_m, floor=p.floor or None,
                                gradient_gain_m=p.gradient_gain_m, hyper=self.hyper)
-        if p.weighting == "innovation":
-            if self._previous is not None:
-                prev, prev_grid, n_old = self._previous
-                self.innovation.update(s.x_m, s.y_m, s.value, n_old, prev, prev_grid)
-            self._previous = (context.estimate, context.grid, len(s))
-            learned = self.innovation.amplitude(plan_grid)
-            if np.all(np.isfinite(learned)):
-                umap.amplitude = np.maximum(learned, p.floor)
         return umap, plan_grid
 
     def next_batch(self, context: PlanContext) -> Batch:

@@ -51,7 +51,7 @@ from scipy.spatial import cKDTree
 from .geometry import FloatArray, Grid
 from .gp import Kriging, MaternHyper
 
-__all__ = ["Footprints", "InnovationAmplitude", "UncertaintyMap", "expected_error", "line_variance",
+__all__ = ["Footprints", "UncertaintyMap", "expected_error", "line_variance",
            "resample_polyline", "straddle", "uncertainty_map"]
 
 STRADDLE_Z = 1.96
@@ -261,67 +261,6 @@ class Footprints:
                                   distance_upper_bound=r)
         near = np.isfinite(d)
         return idx[near], d[near]
-
-
-class InnovationAmplitude:
-    """The amplitude learned from the estimate's own errors at the samples taken next.
-
-    When samples arrive where the previous estimate ``mu_prev`` predicted something, the
-    prediction error ``e_i = |v_i - mu_prev(x_i)|`` over the unit standard deviation the
-    model gave that place, ``u_i = sqrt(v(D_i))`` (``D_i``: distance to the samples the
-    estimate was made from), is a measurement of the amplitude there: ``a_i = e_i / u_i``
-    (only where ``u_i >= min_std``: next to old samples the ratio is noise). The
-    amplitude map is the largest ``a_i`` within ``window_m``; where none was measured, the
-    prior is the root mean square of every ``a_i`` so far: an unexplored place may err as
-    much as unexplored places did (on plumes: a missed source; on a smooth field: the
-    usual). Gradient weighting guesses where the estimate errs; this measures it.
-    """
-
-    def __init__(self, length_m: float, window_m: float = 10.0, min_std: float = 0.5) -> None:
-        self.length_m = length_m
-        self.window_m = window_m
-        self.min_std = min_std
-        self.x_m = np.zeros(0)
-        self.y_m = np.zeros(0)
-        self.a = np.zeros(0)
-
-    def update(self, x_m: FloatArray, y_m: FloatArray, values: FloatArray, n_old: int,
-               previous: FloatArray, grid: Grid) -> None:
-        """Learn from the samples ``[n_old:]`` taken after ``previous`` was estimated from
-        the samples ``[:n_old]``."""
-        if n_old < 3 or n_old >= len(x_m):
-            return
-        xn, yn, vn = x_m[n_old:], y_m[n_old:], values[n_old:]
-        mu = RegularGridInterpolator((grid.y, grid.x), previous, bounds_error=False,
-                                     fill_value=None)(np.column_stack([yn, xn]))
-        d, _ = cKDTree(np.column_stack([x_m[:n_old], y_m[:n_old]])).query(
-            np.column_stack([xn, yn]))
-        u = np.sqrt(1.0 - np.exp(-(d * d) / (self.length_m * self.length_m)))
-        keep = u >= self.min_std
-        self.x_m = np.r_[self.x_m, xn[keep]]
-        self.y_m = np.r_[self.y_m, yn[keep]]
-        self.a = np.r_[self.a, np.abs(vn[keep] - mu[keep]) / u[keep]]
-
-    @property
-    def prior(self) -> float:
-        """Root mean square of the measured amplitudes (``nan`` before any)."""
-        return float(np.sqrt(np.mean(self.a**2))) if self.a.size else math.nan
-
-    def amplitude(self, plan_grid: Grid) -> FloatArray:
-        """Amplitude per planning cell (flattened): measured nearby, else the prior."""
-        out = np.full(plan_grid.shape, np.nan)
-        if self.a.size == 0:
-            return out.ravel()
-        col = np.clip(np.rint((self.x_m - plan_grid.region.xmin) / plan_grid.dx), 0,
-                      plan_grid.nx - 1).astype(np.intp)
-        row = np.clip(np.rint((self.y_m - plan_grid.region.ymin) / plan_grid.dy), 0,
-                      plan_grid.ny - 1).astype(np.intp)
-        cell = np.full(plan_grid.shape, -1.0)
-        np.maximum.at(cell, (row, col), self.a)
-        size = max(1, int(round(self.window_m / min(plan_grid.dx, plan_grid.dy)))) | 1
-        near = maximum_filter(cell, size=size, mode="nearest")
-        out = np.where(near >= 0, near, self.prior)
-        return out.ravel()
 
 
 def expected_error(amplitude: FloatArray, variance: FloatArray, power: float) -> FloatArray:
