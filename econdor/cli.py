@@ -131,6 +131,12 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from econdor_gcs.gcs import run_mission_cli
 
+    if not args.connect:
+        # the vehicles we start load the compiled tracer from numba's cache; on a cold
+        # cache compile it here first, before the station starts waiting for them
+        from sim_vehicle.tracer import warm_up
+
+        warm_up()
     return run_mission_cli(args)
 
 

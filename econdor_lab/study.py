@@ -24,6 +24,7 @@ from econdor_gcs.dfc import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import Mission
 from econdor_gcs.rundir import RunDir, write_json
+from sim_vehicle.tracer import warm_up
 
 from .inprocess import InProcessExecutor
 
@@ -127,6 +128,9 @@ def run_study(
     t0 = time.perf_counter()
     results: list[dict[str, Any]] = []
     notify = progress or (lambda r: None)
+    if scheduler or ((workers or 1) > 1 and len(jobs) > 1):
+        # compile the tracer here on a cold cache, once, before workers start using it
+        warm_up()
     if scheduler:
         results = _run_dask(mission, jobs, str(out), scheduler, notify, connect_timeout_s)
     elif (workers or 1) <= 1 or len(jobs) == 1:

@@ -29,14 +29,25 @@ samples where they happened.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
+import logging
 import math
+from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 from numba import njit
+from numba.core.registry import CPUDispatcher
 
+from econdor_gcs.core import fields as _fields
 from econdor_gcs.core.fields import gaussian_sum_at
 
+from . import kinematics as _kinematics
 from .kinematics import point_step, wrap_angle_rad
+
+log = logging.getLogger(__name__)
 
 # ----------------------------------------------------------------------------- records
 
@@ -266,35 +277,21 @@ def fit_gradient(buf: np.ndarray, start: int, length: int, count: int,
 
 
 @njit(cache=True)
-def _orthonormal_trend(along: np.ndarray, q: np.ndarray) -> int:
-    """Orthonormal basis of ``span(1, s, s^2)`` (columns of ``q``) by modified Gram-Schmidt
-    with one re-orthogonalisation; returns its rank (columns below 1e-10 of their norm are
-    dropped, as a least-squares solve with a rank cutoff would)."""
-    n = along.shape[0]
-    rank = 0
-    for j in range(3):
-        col = np.empty(n)
-        for i in range(n):
-            col[i] = 1.0 if j == 0 else (along[i] if j == 1 else along[i] * along[i])
-        norm0 = math.sqrt(np.sum(col * col))
-        for _ in range(2):
-            for c in range(rank):
-                proj = np.sum(q[:, c] * col)
-                col -= proj * q[:, c]
-        norm = math.sqrt(np.sum(col * col))
-        if norm > 1e-10 * norm0 and norm > 0.0:
-            q[:, rank] = col / norm
-            rank += 1
-    return rank
+def _dot(a: np.ndarray, b: np.ndarray, n: int) -> float:
+    acc = 0.0
+    for i in range(n):
+        acc += a[i] * b[i]
+    return acc
 
 
 @njit(cache=True)
-def _residual(q: np.ndarray, rank: int, v: np.ndarray) -> np.ndarray:
-    r = v.copy()
+def _project_out(q: np.ndarray, rank: int, r: np.ndarray, n: int) -> None:
+    """``r -= Q Q^T r`` twice (re-orthogonalised), ``Q`` the first ``rank`` rows of ``q``."""
     for _ in range(2):
         for c in range(rank):
-            r -= np.sum(q[:, c] * r) * q[:, c]
-    return r
+            proj = _dot(q[c], r, n)
+            for i in range(n):
+                r[i] -= proj * q[c, i]
 
 
 @njit(cache=True)
@@ -305,8 +302,10 @@ def fit_cross_gradient(buf: np.ndarray, start: int, length: int) -> tuple[float,
     ``n`` across it) and fitted with ``v = a + b s + c s^2 + g n``: the quadratic term
     absorbs the curvature of a contour that is being followed, so ``g`` is only
     determined by genuine excursions across the iso-line. ``g`` is computed by
-    Frisch-Waugh-Lovell: the residuals of ``n`` and ``v`` after projecting out the
-    quadratic trend in ``s`` give ``g = <r_n, r_v> / <r_n, r_n>``.
+    Frisch-Waugh-Lovell: with ``r_n`` and ``r_v`` the residuals of ``n`` and ``v`` after
+    projecting out the trend ``(1, s, s^2)`` (an orthonormal basis by modified
+    Gram-Schmidt, re-orthogonalised; a column below 1e-10 of its norm is dropped, as a
+    least-squares solve with a rank cutoff would), ``g = <r_n, r_v> / <r_n, r_n>``.
 
     Returns
     -------
@@ -314,41 +313,59 @@ def fit_cross_gradient(buf: np.ndarray, start: int, length: int) -> tuple[float,
         ``|g|`` and the standard deviation of ``n`` left after removing a quadratic
         trend in ``s`` (how well ``g`` is determined).
     """
-    n_pts = length
-    if n_pts < 6:
+    n = length
+    if n < 6:
         return 0.0, 0.0
     cap = buf.shape[0]
-    xs = np.empty(n_pts)
-    ys = np.empty(n_pts)
-    vs = np.empty(n_pts)
-    for i in range(n_pts):
+    k0 = start % cap
+    k1 = (start + n - 1) % cap
+    mx = my = 0.0
+    for i in range(n):
         k = (start + i) % cap
-        xs[i] = buf[k, 0]
-        ys[i] = buf[k, 1]
-        vs[i] = buf[k, 2]
-    cx = xs - xs.mean()
-    cy = ys - ys.mean()
-    chord_x, chord_y = xs[-1] - xs[0], ys[-1] - ys[0]
+        mx += buf[k, 0]
+        my += buf[k, 1]
+    mx /= n
+    my /= n
+    chord_x, chord_y = buf[k1, 0] - buf[k0, 0], buf[k1, 1] - buf[k0, 1]
     chord = math.hypot(chord_x, chord_y)
     if chord < 1e-6:
         return 0.0, 0.0
     ux, uy = chord_x / chord, chord_y / chord
-    along = cx * ux + cy * uy
-    across = -cx * uy + cy * ux
-    q = np.zeros((n_pts, 3))
-    rank = _orthonormal_trend(along, q)
-    r_n = _residual(q, rank, across)
-    spread = math.sqrt(np.mean(r_n * r_n))
+    work = np.empty((6, n))  # rows: q0, q1, q2, along, r_n, r_v
+    q = work[:3]
+    along, r_n, r_v = work[3], work[4], work[5]
+    for i in range(n):
+        k = (start + i) % cap
+        cx = buf[k, 0] - mx
+        cy = buf[k, 1] - my
+        along[i] = cx * ux + cy * uy
+        r_n[i] = -cx * uy + cy * ux
+        r_v[i] = buf[k, 2]
+    rank = 0
+    for j in range(3):
+        col = q[rank]
+        for i in range(n):
+            col[i] = 1.0 if j == 0 else (along[i] if j == 1 else along[i] * along[i])
+        norm0 = math.sqrt(_dot(col, col, n))
+        _project_out(q, rank, col, n)
+        norm = math.sqrt(_dot(col, col, n))
+        if norm > 1e-10 * norm0 and norm > 0.0:
+            for i in range(n):
+                col[i] /= norm
+            rank += 1
+    _project_out(q, rank, r_n, n)
+    nn = _dot(r_n, r_n, n)
+    spread = math.sqrt(nn / n)
     if spread <= 1e-9:
         return 0.0, spread
-    r_v = _residual(q, rank, vs)
-    return abs(np.sum(r_n * r_v) / np.sum(r_n * r_n)), spread
+    _project_out(q, rank, r_v, n)
+    return abs(_dot(r_n, r_v, n) / nn), spread
 
 
 # ----------------------------------------------------------------------------- tasks
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _call_fly_to(s, b, x: float, y: float, phase: int, tol: float, speed: float, ret: int
                  ) -> None:
     s.ft_x = x
@@ -363,7 +380,7 @@ def _call_fly_to(s, b, x: float, y: float, phase: int, tol: float, speed: float,
     s.pc = PC_FT
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _call_search(s, level: float, cx: float, cy: float, radius: float, ret: int) -> None:
     s.sr_level = level
     s.sr_cx = cx
@@ -375,14 +392,14 @@ def _call_search(s, level: float, cx: float, cy: float, radius: float, ret: int)
     s.pc = PC_SR_PROBE_START
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _call_leg(s, heading: float, side: float) -> None:
     s.leg_heading = heading
     s.side = side
     s.pc = PC_LEG_START
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _emit(events: np.ndarray, n_events: int, code: int, n_out: int) -> int:
     if n_events < events.shape[0]:
         events[n_events, 0] = code
@@ -391,7 +408,7 @@ def _emit(events: np.ndarray, n_events: int, code: int, n_out: int) -> int:
     return n_events
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _command(s, vx: float, vy: float, phase: int) -> bool:
     s.cmd_vx = vx
     s.cmd_vy = vy
@@ -781,7 +798,7 @@ def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_eve
         raise AssertionError("tracer state machine: unknown program counter")
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _leg_end(s, status: int) -> None:
     s.leg_status = status
     s.pc = PC_TR_AFTER_LEG
@@ -792,7 +809,7 @@ def _post(s, b, recent: np.ndarray, window: np.ndarray, turns: np.ndarray,
           x: float, y: float, v: float) -> None:
     """What the loop that issued the command does with the new sample."""
     pc = s.pc
-    if pc == PC_SR_PROBE or pc == PC_SR_SPIRAL:
+    if pc in (PC_SR_PROBE, PC_SR_SPIRAL):
         if not _bracketed(s, recent, x, y, v):
             s.has_prev, s.prev_x, s.prev_y, s.prev_v = 1, x, y, v
         return
@@ -960,3 +977,51 @@ def start_trace(body: np.ndarray, state: np.ndarray) -> None:
     s.rec_start = s.rec_len = 0
     s.await_value = 0
     s.pc = PC_TR_START
+
+
+@contextlib.contextmanager
+def cache_lock() -> Iterator[None]:
+    """Hold an exclusive lock on the compiled cache (processes starting together take
+    turns: one compiles, the others load its result). No lock where the cache directory
+    cannot be written."""
+    cache_path = advance.stats.cache_path
+    try:
+        f = (Path(cache_path) / "machine.lock").open("a") if cache_path else None
+    except OSError:
+        f = None
+    if f is None:
+        yield
+        return
+    with f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield
+
+
+def _drop_stale_cache() -> None:
+    """Forget this module's cached machine code when a kernel it inlines has changed.
+
+    numba checks a cached function against its own source file only, but the code here
+    inlines :func:`~econdor_gcs.core.fields.gaussian_sum_at` and the kinematics: after an
+    edit of those files alone the cache would still hand out the old code. A digest of
+    the three files, kept beside the cache, decides.
+    """
+    sources = (Path(__file__), Path(_kinematics.__file__), Path(_fields.__file__))
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
+    caches = [getattr(d, "_cache", None) for d in globals().values()
+              if isinstance(d, CPUDispatcher)]
+    if advance.stats.cache_path is None:
+        return
+    stamp = Path(advance.stats.cache_path) / "machine-sources.sha256"
+    try:
+        with cache_lock():
+            if stamp.is_file() and stamp.read_text(encoding="ascii") == digest:
+                return
+            for cache in caches:
+                if cache is not None:
+                    cache.flush()
+            stamp.write_text(digest, encoding="ascii")
+    except OSError as exc:  # a read-only cache: numba itself then compiles in memory
+        log.warning("tracer: cannot check the compiled cache at %s: %s", stamp.parent, exc)
+
+
+_drop_stale_cache()

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import yaml
+
 from econdor_gcs.dfc import Dfc, RunResult
 from econdor_gcs.mission import Mission, load_mission, parse_mission
 from econdor_lab.inprocess import InProcessExecutor
@@ -14,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PINNED_ITERATIONS = 2
 
 #: name -> (field section or None for the paper mission's own, seed)
-CASES: dict[str, tuple[dict | None, int]] = {
+CASES: dict[str, tuple[dict[str, object] | None, int]] = {
     "paper-0": (None, 0),
     "paper-1": (None, 1),
     "paper-2": (None, 2),
@@ -25,15 +27,10 @@ CASES: dict[str, tuple[dict | None, int]] = {
 
 
 def case_mission(name: str) -> Mission:
+    """The paper mission, with the case's field section if it has one."""
     field, _ = CASES[name]
     if field is None:
         return load_mission(ROOT / "missions" / "paper.yaml")
-    return _with_field(field)
-
-
-def _with_field(field: dict) -> Mission:
-    import yaml
-
     raw = yaml.safe_load((ROOT / "missions" / "paper.yaml").read_text(encoding="utf-8"))
     raw["field"] = field
     return parse_mission(raw, base_dir=ROOT / "missions")
