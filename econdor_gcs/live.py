@@ -11,6 +11,8 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from .dfc import DfcEvent, IterationDone, IterationPlanned
+
 
 class LiveDisplay:
     """Iteration, levels, kappa, delta, MAE so far, and one row per vehicle.
@@ -37,13 +39,14 @@ class LiveDisplay:
     def stop(self) -> None:
         self._live.stop()
 
-    def progress(self, event: str, info: dict[str, Any]) -> None:
+    def progress(self, event: DfcEvent) -> None:
         s = self.state
-        if event == "plan":
-            s.update(iteration=info["iteration"], levels=info["levels"], kappa=info["kappa"],
-                     delta=info["delta"], pieces=info["pieces"])
-        elif event == "iteration":
-            s["mae_db"].append(info.get("mae_db"))
+        if isinstance(event, IterationPlanned):
+            b = event.batch
+            s.update(iteration=event.iteration, levels=[float(v) for v in b.levels],
+                     kappa=b.kappa, delta=b.delta, pieces=len(b.jobs))
+        elif isinstance(event, IterationDone):
+            s["mae_db"].append(event.record.mae_db)
 
     def _render(self) -> Group:
         s = self.state
@@ -62,11 +65,12 @@ class LiveDisplay:
         lv = Text.assemble(("levels ", "bold"), levels or "-")
         mae = Text.assemble(("MAE dB ", "bold"), " → ".join(maes[-6:]) or "-")
         table = Table(box=None, pad_edge=False, header_style="bold")
-        for col in ("vehicle", "armed", "item", "phase", "flown m", "samples", "state"):
+        for col in ("vehicle", "armed", "item", "phase", "flown m", "samples", "state",
+                    "message"):
             table.add_column(col, justify="right" if col in ("flown m", "samples") else "left")
         for r in self.executor.status_rows():
             state = "[red]LOST[/]" if r["lost"] else r["status"]
             table.add_row(str(r["sysid"]), "yes" if r["armed"] else "no",
                           f"{r['item']}/{r['items']}", r["phase"], f"{r['flown_m']:.0f}",
-                          str(r["samples"]), state)
+                          str(r["samples"]), state, r.get("message", "")[:40])
         return Group(head, lv, mae, table)
