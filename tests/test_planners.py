@@ -146,7 +146,7 @@ def test_assignment_matches_the_one_by_one_search(seed):
 
     def batch():
         p = ContourPlanner(m0=12, sg=False, lloyd_bins=None)
-        return p.next_batch(estimate, GRID).jobs
+        return p.next_batch(ctx(estimate)).jobs
 
     expected = _assign_one_by_one(batch(), positions, first_piece_id=1000)
     got = assign_jobs(batch(), positions, first_piece_id=1000)
