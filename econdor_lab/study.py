@@ -141,9 +141,9 @@ def run_study(
     t0 = time.perf_counter()
     results: list[dict[str, Any]] = []
     notify = progress or (lambda r: None)
-    if scheduler or ((workers or 1) > 1 and len(jobs) > 1):
-        # compile the tracer here on a cold cache, once, before workers start using it
-        warm_up()
+    # load the compiled tracer (compile it, on a cold cache) once, before any run: the runs'
+    # wall times are then the runs', and workers load it from the disk cache
+    warm_up()
     if scheduler:
         results = _run_dask(mission, jobs, str(out), scheduler, notify, connect_timeout_s)
     elif (workers or 1) <= 1 or len(jobs) == 1:
