@@ -83,7 +83,8 @@ def main() -> int:
             # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which turns off
             # glibc's adaptive mmap threshold: every large numpy temporary is then mapped and
             # unmapped afresh; measured here, that doubles the reconstruction's CPU time
-            dask.config.set({"distributed.nanny.pre-spawn-environ": {}})
+            dask.config.set({"distributed.nanny.pre-spawn-environ": {
+                k: 1 for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}})
         results = []
         with LocalCluster(n_workers=a.workers, threads_per_worker=1, processes=True,
                           dashboard_address=None) as cluster, \
