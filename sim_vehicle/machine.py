@@ -955,28 +955,20 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
 
 
 @njit(cache=True)
-def start_fly_to(body: np.ndarray, state: np.ndarray) -> None:
-    """Begin a fly-to task from ``wp_*`` and ``task_*`` fields set by the caller."""
+def start_task(body: np.ndarray, state: np.ndarray) -> None:
+    """Begin the task set up in ``state``: a fly-to (``kind`` 1, from the ``wp_*`` and
+    ``task_*`` fields) or a trace (``kind`` 2: fly to the start, search, trace)."""
     b = body[0]
     s = state[0]
     s.odo0_m = b.odometer_m
     s.traced_m = 0.0
     s.rec_start = s.rec_len = 0
     s.await_value = 0
-    _call_fly_to(s, b, s.task_x_m, s.task_y_m, s.wp_phase, s.wp_tolerance_m, s.wp_speed_mps,
-                 PC_FT_END)
-
-
-@njit(cache=True)
-def start_trace(body: np.ndarray, state: np.ndarray) -> None:
-    """Begin a trace task (fly to the start, search, trace) from the ``task_*`` fields."""
-    b = body[0]
-    s = state[0]
-    s.odo0_m = b.odometer_m
-    s.traced_m = 0.0
-    s.rec_start = s.rec_len = 0
-    s.await_value = 0
-    s.pc = PC_TR_START
+    if s.kind == KIND_TRACE:
+        s.pc = PC_TR_START
+    else:
+        _call_fly_to(s, b, s.task_x_m, s.task_y_m, s.wp_phase, s.wp_tolerance_m,
+                     s.wp_speed_mps, PC_FT_END)
 
 
 @contextlib.contextmanager

@@ -182,14 +182,13 @@ class _TaskRun:
             s["search_radius_m"] = task.search_radius_m
             s["max_length_m"] = task.max_length_m
             self.turns = np.zeros((m.trace_tick_budget(body.state, self.state) + 2, 2))
-            m.start_trace(body.state, self.state)
         else:
             s["kind"] = m.KIND_FLY_TO
             s["wp_phase"] = int(phase)
             s["wp_tolerance_m"] = tolerance_m
             s["wp_speed_mps"] = body.limits.max_speed_mps if speed_mps is None else speed_mps
             self.turns = np.zeros((1, 2))
-            m.start_fly_to(body.state, self.state)
+        m.start_task(body.state, self.state)
         self._s = s
 
     @property
