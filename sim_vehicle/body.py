@@ -28,7 +28,7 @@ MAX_SUBSTEP_S = 0.02
 _NO_TERMS = np.zeros(0)
 # 8-byte slots of the BODY record, read through plain float64 / int64 views (much cheaper
 # per read than a field lookup on a record)
-_SLOT = {name: BODY.fields[name][1] // 8 for name in BODY.names}
+_SLOT = {name: offset // 8 for name, (_, offset, *_) in (BODY.fields or {}).items()}
 _X, _Y, _VX, _VY = _SLOT["x_m"], _SLOT["y_m"], _SLOT["vx_mps"], _SLOT["vy_mps"]
 _ODO, _HDG, _T0, _DT = (_SLOT["odometer_m"], _SLOT["last_heading_rad"], _SLOT["t0_s"],
                         _SLOT["dt_s"])
