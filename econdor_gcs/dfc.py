@@ -15,7 +15,9 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
   span of the estimate changed by less than 1 % in the last iteration;
 * ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
   redundant or without a contour piece): the run has stalled. An idle iteration still
-  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop.
+  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
+* the ``checkpoint`` asked before each iteration says stop (``stop_reason = "stopped"``,
+  e.g. an operator's stop on the web page); it may also hold the loop there (pause).
 """
 
 from __future__ import annotations
@@ -208,6 +210,10 @@ class RunDone:
 
 DfcEvent = RunStarted | IterationPlanned | IterationDone | RunDone
 Progress = Callable[[DfcEvent], None]
+Checkpoint = Callable[[int], bool]
+"""Asked between iterations with the number of the next one: ``True`` flies it, ``False``
+stops the run (the vehicles are then brought home). It may block, e.g. while an operator
+has paused the run (:class:`econdor_gcs.control.RunControl`)."""
 
 
 def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
@@ -227,6 +233,7 @@ class Dfc:
         seed: int | None = None,
         progress: Progress | None = None,
         on_samples: Callable[[SampleLog], None] | None = None,
+        checkpoint: Checkpoint | None = None,
     ) -> None:
         self.mission = mission
         self.executor = executor
@@ -236,6 +243,7 @@ class Dfc:
         self.seed = mission.seed if seed is None else seed
         self.progress: Progress = progress or (lambda event: None)
         self.on_samples = on_samples
+        self.checkpoint: Checkpoint = checkpoint or (lambda iteration: True)
         self.grid = mission.grid
         self.truth = None
         if truth is not None:
@@ -384,6 +392,9 @@ class Dfc:
         span_prev = metrics.span(estimate)
         idle = 0
         for it in range(1, a.max_iterations + 1):
+            if not self.checkpoint(it):
+                reason = "stopped"
+                break
             if a.flight_budget_m > 0 and self.flight_m >= a.flight_budget_m:
                 reason = "flight_budget"
                 break
