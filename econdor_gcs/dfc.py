@@ -475,8 +475,9 @@ class Dfc:
 
     def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
         """Iso-line error (m) at 25, 50 and 75 % of the true span; with target levels also
-        their mean error (``target``) and the true iso-line pieces missed
-        (``target_missed`` of ``target_pieces``)."""
+        the error at each (``target@L``) and their mean (``target``), and the true iso-line
+        pieces missed (``target@L_missed``; all levels: ``target_missed`` of
+        ``target_pieces``)."""
         assert self.truth is not None
         out = {f"p{frac}": metrics.isoline_error(self.truth, estimate, self.grid, lv)
                for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True)}
@@ -487,6 +488,9 @@ class Dfc:
                       for lv in targets]
             finite = [e for e in errs if not math.isnan(e)]
             out["target"] = sum(finite) / len(finite) if finite else math.nan
+            for lv, e, (m, n) in zip(targets, errs, missed, strict=True):
+                out[f"target@{lv:g}"] = e
+                out[f"target@{lv:g}_missed"] = float(m)
             out["target_missed"] = float(sum(m for m, _ in missed))
             out["target_pieces"] = float(sum(n for _, n in missed))
         return out

@@ -213,3 +213,4 @@ def test_threshold_mode_finds_an_iso_line_piece_the_diagonals_missed():
     assert first["target_missed"] >= 1  # the diagonals alone miss a piece at level 55
     assert last["target_missed"] == 0
     assert last["target"] < 0.5
+    assert last["target@55"] == last["target"] and last["target@55_missed"] == 0
