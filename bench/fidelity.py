@@ -69,7 +69,7 @@ def main() -> int:
     bar = "|" if a.markdown else " "
     print(f"# E-CONDOR, paper setting, {len(seeds)} seeds, {time.perf_counter() - t0:.0f} s\n")
     head = ["Lloyd-Max", "delta_0", "first levels (seed 0)", "final MAE dB", "flown km",
-            "MAE dB @5 km", "MAE dB @10 km", "levels traced (sum)"]
+            "MAE dB @5 km", "MAE dB @10 km", "levels traced (sum per run)"]
     print(bar + bar.join(head) + bar)
     if a.markdown:
         print(bar + bar.join("---" for _ in head) + bar)
