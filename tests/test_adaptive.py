@@ -204,13 +204,29 @@ def test_adaptive_run_maps_a_plume_field_to_a_stated_error():
 
 
 @pytest.mark.slow
-def test_threshold_mode_finds_an_iso_line_piece_the_diagonals_missed():
-    m = load_mission(ROOT / "missions" / "threshold.yaml")
-    field = m.build_field(4)
-    result = dfc.Dfc(m, InProcessExecutor(m, field, seed=4), planner="adaptive", truth=field,
-                     seed=4).run()
-    first, last = result.records[0].isoline_error_m, result.records[-1].isoline_error_m
-    assert first["target_missed"] >= 1  # the diagonals alone miss a piece at level 55
-    assert last["target_missed"] == 0
-    assert last["target"] < 0.5
-    assert last["target@55"] == last["target"] and last["target@55_missed"] == 0
+def test_threshold_study_finds_every_piece_and_stops_when_nothing_is_left(tmp_path):
+    """``econdor study missions/threshold.yaml``: the diagonals miss pieces of the iso-line at
+    55; the planner finds them, traces them and stops (``planner_done``) before the budget
+    does; study.csv reports the iso-line error at the target and the pieces missed."""
+    import csv
+    import json
+
+    from econdor.cli import main
+
+    out = tmp_path / "study"
+    assert main(["study", str(ROOT / "missions" / "threshold.yaml"), "--seeds", "0",
+                 "--planner", "adaptive", "--out", str(out), "--workers", "1", "--no-figures",
+                 "--quiet"]) == 0
+    run = json.loads((out / "summary.json").read_text())["runs"][0]
+    assert run["stop_reason"] == "planner_done"
+    assert run["flight_distance_m"] - run["return_m"] < 3000.0  # the budget did not stop it
+    assert run["isoline_error_m"]["target@55"] == run["isoline_error_m"]["target"] < 0.5
+    with (out / "study.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    first, last = rows[0], rows[-1]
+    assert float(first["isoline_target_missed"]) >= 1  # the diagonals alone miss a piece
+    assert float(first["isoline_target_m"]) > 2.0
+    assert float(last["isoline_target_missed"]) == 0
+    assert float(last["isoline_target_m"]) < 0.5
+    errors = [float(r["isoline_target_m"]) for r in rows]
+    assert all(e == e for e in errors)  # a number in every row, never NaN

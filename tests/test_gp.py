@@ -126,3 +126,36 @@ def test_unit_variance_is_within_zero_and_one():
     var = Kriging(hyper=hyper).fit(x, y, np.zeros_like(x)).unit_variance(*GRID.mesh)
     assert var.min() >= 0.0 and var.max() <= 1.0
     assert var.max() > 0.5  # halfway between lines 20 m apart, l = 6 m
+
+
+def test_mission_reconstruction_kriging_is_what_the_dfc_estimates_with():
+    """``algorithm.reconstruction: kriging``: the same flight (a 10-line survey of the paper's
+    setting), reconstructed by the DFC with kriging and with the spline."""
+    from pathlib import Path
+
+    from econdor_gcs.dfc import Dfc, IterationDone
+    from econdor_gcs.mission import parse_mission
+    from econdor_lab.inprocess import InProcessExecutor
+
+    raw = {"name": "krig", "field": {"model": "authors"}, "vehicles": {"count": 1},
+           "algorithm": {"planner": "lawnmower", "max_iterations": 1, "min_iterations": 1},
+           "lawnmower": {"budget_m": 10 * 100.0 + 100.0}}
+    results, used = {}, {}
+    for method in ("auto", "kriging"):
+        raw["algorithm"]["reconstruction"] = method
+        m = parse_mission(raw, base_dir=Path(__file__).resolve().parents[1] / "missions")
+        field = m.build_field(0)
+        counts: list[int] = []  # samples behind each estimate (before the flight home)
+        results[method] = Dfc(m, InProcessExecutor(m, field, seed=0), planner="lawnmower",
+                              truth=field, seed=0,
+                              progress=lambda e, c=counts: c.append(e.record.samples)
+                              if isinstance(e, IterationDone) else None).run()
+        used[method] = counts[-1]
+    spline, krig = results["auto"], results["kriging"]
+    assert used["auto"] == used["kriging"]  # the same flight
+    n, s = used["kriging"], krig.samples
+    np.testing.assert_array_equal(spline.samples.x_m[:n], s.x_m[:n])
+    expected = kriging_reconstruct(s.x_m[:n], s.y_m[:n], s.value[:n], krig.grid)
+    np.testing.assert_allclose(krig.estimate, expected, atol=1e-6)
+    assert krig.records[-1].mae == pytest.approx(metrics.mae(krig.truth, expected), rel=1e-6)
+    assert krig.records[-1].mae < 0.9 * spline.records[-1].mae

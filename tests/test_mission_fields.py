@@ -140,7 +140,7 @@ def test_budget_missions_let_the_budget_bind():
     for name in ("plume", "threshold"):
         a = load_mission(ROOT / "missions" / f"{name}.yaml").algorithm
         assert a.planner == "adaptive" and a.flight_budget_m > 0
-        # even 1 m per iteration would not reach the cap before the budget
+        # a batch is 400 m: even at 100 m per iteration the cap is out of reach
         assert a.max_iterations * 100.0 > a.flight_budget_m and a.stop_lambda == 0
     assert load_mission(ROOT / "missions" / "threshold.yaml").algorithm.target_levels == (55.0,)
 
