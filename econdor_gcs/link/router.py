@@ -611,17 +611,39 @@ class Router:
         return await self.command(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0,
                                   21196 if force else 0)
 
-    async def set_mode(self, sysid: int, custom_mode: int,
+    async def set_mode(self, sysid: int, main_mode: int, sub_mode: int = 0,
                        base_mode: int = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
                        ) -> MAVLinkMessage:
-        """MAV_CMD_DO_SET_MODE (the way ArduPilot and PX4 both accept)."""
-        return await self.command(sysid, mavlink.MAV_CMD_DO_SET_MODE, base_mode, custom_mode)
+        """MAV_CMD_DO_SET_MODE: param1 ``base_mode``, param2 the custom main mode, param3 the
+        custom sub mode.
 
-    async def takeoff(self, sysid: int, alt_m: float) -> MAVLinkMessage:
-        """MAV_CMD_NAV_TAKEOFF to ``alt_m`` above home, here."""
+        PX4 reads its main mode (4 = AUTO) from param2 and the AUTO sub mode (2 TAKEOFF,
+        3 LOITER, 4 MISSION, 5 RTL, 6 LAND) from param3 -- not the packed
+        ``main << 16 | sub << 24`` of its HEARTBEAT; ArduPilot reads its mode number from
+        param2 (``sub_mode`` 0).
+        """
+        return await self.command(sysid, mavlink.MAV_CMD_DO_SET_MODE, base_mode, main_mode,
+                                  sub_mode)
+
+    async def takeoff(self, sysid: int, alt_rel_m: float) -> MAVLinkMessage:
+        """MAV_CMD_NAV_TAKEOFF to ``alt_rel_m`` above home, here.
+
+        PX4 (and our simulated vehicle) read param7 as an altitude AMSL: home's AMSL altitude
+        comes from the vehicle's last GLOBAL_POSITION_INT (``alt - relative_alt``). ArduPilot
+        reads param7 above home, so it gets ``alt_rel_m`` as is.
+        """
+        link = self.vehicles.get(sysid)
+        if link is None:
+            raise LinkError(f"vehicle {sysid} has never been heard from")
+        param7 = alt_rel_m
+        if link.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            if link.alt_m is None or link.rel_alt_m is None:
+                raise LinkError(f"vehicle {sysid}: no position yet, so no home altitude to "
+                                "take off from")
+            param7 = link.alt_m - link.rel_alt_m + alt_rel_m
         nan = float("nan")
         return await self.command(sysid, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan,
-                                  alt_m)
+                                  param7)
 
     async def start_mission(self, sysid: int, first: int = 0, last: int = 0) -> MAVLinkMessage:
         """MAV_CMD_MISSION_START (``first = last = 0``: the whole mission)."""
