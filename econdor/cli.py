@@ -42,15 +42,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="run a mission over MAVLink (starts simulated vehicles "
                                      "unless --connect is given)")
-    run.add_argument("mission", type=Path)
-    run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<name>-<time>)")
+    run.add_argument("mission", type=Path, nargs="?",
+                     help="mission YAML (not with --resume: the run directory has it)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="run directory (default runs/<name>-<time>); a non-empty one is "
+                          "refused unless --force")
+    run.add_argument("--force", action="store_true",
+                     help="replace an earlier run in --out")
+    run.add_argument("--resume", type=Path, default=None, metavar="RUN_DIR",
+                     help="continue an interrupted run after its last finished flight")
     run.add_argument("--planner", choices=PLANNER_NAMES, default=None)
     run.add_argument("--vehicles", type=_positive_int, default=None)
     run.add_argument("--speedup", type=_positive_float, default=None)
     run.add_argument("--seed", type=int, default=None)
     run.add_argument("--connect", default=None,
                      help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
-    run.add_argument("--timeout", type=_positive_float, default=20.0,
+    run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
     run.add_argument("--quiet", action="store_true")
 
@@ -129,6 +136,23 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Usage errors of ``econdor run`` (exit 2): what --resume excludes and needs."""
+    if args.resume is None:
+        if args.mission is None:
+            parser.error("run: a MISSION.yaml is needed (or --resume RUN_DIR)")
+        if args.timeout is None:
+            args.timeout = 20.0
+        return
+    clash = [f"--{name}" for name in ("out", "planner", "vehicles", "speedup", "seed")
+             if getattr(args, name) is not None] + (["--force"] if args.force else [])
+    if args.mission is not None:
+        clash.insert(0, "MISSION.yaml")
+    if clash:
+        parser.error(f"run: --resume continues the recorded run; {', '.join(clash)} cannot "
+                     "change it")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from econdor_gcs.gcs import run_mission_cli
 
@@ -145,7 +169,10 @@ COMMANDS = {"study": _cmd_study, "report": _cmd_report, "run": _cmd_run, "export
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "run":
+        _check_run_args(parser, args)
     try:
         return COMMANDS[args.command](args)
     except EcondorError as exc:

@@ -48,6 +48,7 @@ import asyncio
 import contextlib
 import dataclasses
 import json
+import logging
 import math
 import re
 import signal
@@ -63,11 +64,13 @@ import numpy as np
 
 from .core.tasks import FlightReport, Phase, SampleLog, Task, TaskOutcome, TraceTask
 from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
+from .export import write_wpl
 from .link.codec import MAVLinkMessage, mavlink
 from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
 from .link.router import Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
 from .mission import Mission
+from .rundir import RunDirMode
 
 __all__ = [
     "MavlinkExecutor",
@@ -81,6 +84,7 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
@@ -237,6 +241,8 @@ class Station:
         self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s)
         self._thread = threading.Thread(target=self._run, name="econdor-gcs", daemon=True)
         self._started = False
+        self.close_error: str | None = None
+        """Why :meth:`close` could not close the endpoint cleanly (logged), else None."""
 
     def _run(self) -> None:
         asyncio.set_event_loop(self.loop)
@@ -273,8 +279,11 @@ class Station:
         if not self._started:
             self.loop.close()
             return
-        with contextlib.suppress(Exception):
+        try:
             asyncio.run_coroutine_threadsafe(self.router.close(), self.loop).result(5.0)
+        except Exception as exc:  # noqa: BLE001 - logged and kept: closing goes on regardless
+            self.close_error = f"closing the GCS endpoint failed: {exc!r}"
+            log.error("%s", self.close_error)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self._thread.join(5.0)
         if not self._thread.is_alive():
@@ -552,13 +561,12 @@ class MavlinkExecutor:
             return
         self.missions_dir.mkdir(parents=True, exist_ok=True)
         stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}"
-        stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
         try:
-            from .export import write_wpl
-        except ImportError:
-            return
-        with contextlib.suppress(Exception):
+            stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
             write_wpl(stem.with_suffix(".waypoints"), items)
+        except OSError as exc:
+            raise RunError(f"cannot save the mission of vehicle {sysid} in {stem.parent}: "
+                           f"{exc.strerror or exc}") from exc
 
     async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
         v.status = "uploading"
@@ -740,15 +748,19 @@ def run_mission(
     quiet: bool = True,
     mission_path: Path | None = None,
     figures: bool = True,
+    mode: RunDirMode = RunDirMode.NEW,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
+
+    ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
+    resume a run use :func:`resume_mission`.
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
     """
     from .dfc import Dfc
     from .fleet import Fleet
-    from .rundir import RunDir
+    from .rundir import RunDir, read_checkpoint
 
     wall0 = time.perf_counter()
     n = vehicles or mission.vehicles.count
@@ -757,8 +769,17 @@ def run_mission(
     planner = planner or mission.algorithm.planner
     mission = mission.with_vehicles(count=n, speedup=speed)
     out = Path(out)
-    rd = RunDir(out)
-    tlog = TlogWriter(out / "telemetry.tlog")
+    resume = mode == RunDirMode.RESUME
+    replay = read_checkpoint(out) if resume else []
+    rd = RunDir(out, mode)
+    if not resume:
+        mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
+        rd.write_run_config({
+            "transport": "mavlink", "mission": mission.name, "planner": planner, "seed": seed,
+            "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
+            "mission_path": str(mission_path.resolve()) if mission_path else None,
+        }, mission_text)
+    tlog = TlogWriter(out / "telemetry.tlog", append=resume)
     station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
     fleet: Fleet | None = None
     executor: MavlinkExecutor | None = None
@@ -806,7 +827,8 @@ def run_mission(
                 live = LiveDisplay(executor, planner=planner, mission=mission.name)
                 live.start()
             dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
-                      progress=live.progress if live else None, on_samples=rd.append_samples)
+                      progress=live.progress if live else None, on_flight=rd.record_flight,
+                      replay=replay)
             result = dfc.run()
             if live is not None:
                 live.stop()
@@ -817,8 +839,11 @@ def run_mission(
             result.sim_s = executor.sim_s
             extra = {**base, "sysids": sysids, "timings": timings,
                      "samples_dropped_unpaired": station.router.pairer.dropped}
+            if resume:
+                extra["resumed"] = {"flights_replayed": dfc.replayed,
+                                    "samples_interrupted": rd.interrupted_samples}
             rd.write_result(result, extra=extra)
-            summary = {**result.summary(), **extra}
+            summary = {**result.summary(), **extra, "samples_recorded": rd.n_samples}
     except (EcondorError, KeyboardInterrupt) as exc:
         if live is not None:
             live.stop()
@@ -841,14 +866,61 @@ def run_mission(
     return summary
 
 
+def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
+                   connect: str | None = None, timeout_s: float | None = None
+                   ) -> dict[str, Any]:
+    """Continue the MAVLink run recorded in ``out`` after its last finished flight.
+
+    The finished flights are replayed from ``flights.jsonl`` and ``samples.csv`` (the DFC
+    plans them again from the same estimates and checks the plans match), then the vehicles
+    fly on from wherever they are: started anew by this process, or the ones at
+    ``connect`` (default: the run's own ``--connect``). Samples of the interrupted flight
+    are kept in ``samples_interrupted.csv`` and not used.
+    """
+    from .mission import parse_mission
+    from .rundir import read_run_config
+
+    config = read_run_config(out)
+    if config.get("transport") != "mavlink":
+        raise RunError(f"{out}: a {config.get('transport')} run, not a MAVLink one")
+    copy = out / "mission.yaml"
+    original = Path(config["mission_path"]) if config.get("mission_path") else None
+    try:
+        text = copy.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RunError(f"{copy}: cannot read the run's mission ({exc.strerror or exc})") from exc
+    import yaml
+
+    base_dir = original.parent if original is not None else out
+    mission = parse_mission(yaml.safe_load(text), base_dir=base_dir, source=str(copy))
+    mission_path = original if original is not None and original.exists() else copy
+    return run_mission(
+        mission, out, planner=config["planner"], vehicles=config["vehicles"],
+        speedup=config["speedup"], seed=config["seed"],
+        connect=connect if connect is not None else config.get("connect"),
+        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
+        quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME)
+
+
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
                    base: dict[str, Any], timings: dict[str, float], fill: Any,
                    error: str) -> None:
-    with contextlib.suppress(Exception):
-        if executor is not None:
+    """Leave a usable run directory after ``error``: the samples still pending, the metrics
+    so far, a ``summary.json`` with ``"error"``.
+
+    Failures on this path do not hide the original error: each is logged (one line on
+    stderr) and listed in the summary's ``"error_path"``.
+    """
+    problems: list[str] = []
+    if executor is not None:
+        try:
             pending = executor.pending_samples()
             if len(pending):
-                rd.append_samples(pending)
+                # an unfinished flight: resume sets these aside (no flights.jsonl line)
+                rd.append_samples(pending, executor.iteration)
+        except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
+            problems.append(f"the samples still pending were not written: {exc!r}")
+            log.exception("econdor: %s", problems[-1])
     fill()
     records = list(dfc.records) if dfc is not None else []
     last = records[-1] if records else None
@@ -861,14 +933,19 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
         "span_ratio": last.span_ratio if last else None,
         "flight_distance_m": dfc.flight_m if dfc is not None else 0.0,
         "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
-        "samples": rd.n_samples,
+        "samples": sum(len(s) for s in dfc.logs) if dfc is not None else 0,
+        "samples_recorded": rd.n_samples,
         "converged": False,
         "wall_s": timings.get("total_wall_s"),
         "sim_s": timings.get("sim_s", 0.0),
         "timings": timings,
     }
-    with contextlib.suppress(Exception):
+    if problems:
+        summary["error_path"] = problems
+    try:
         rd.write_partial(records, summary)
+    except Exception as exc:  # noqa: BLE001 - as above
+        log.exception("econdor: the partial summary.json was not written: %r", exc)
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
@@ -890,11 +967,18 @@ def run_mission_cli(args: Any) -> int:
     """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
     from .mission import load_mission
 
-    mission = load_mission(args.mission)
-    out = args.out or _default_out(mission)
-    summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
-                          speedup=args.speedup, seed=args.seed, connect=args.connect,
-                          timeout_s=args.timeout, quiet=args.quiet, mission_path=args.mission)
+    if args.resume is not None:
+        out = args.resume
+        summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
+                                 timeout_s=args.timeout)
+    else:
+        mission = load_mission(args.mission)
+        out = args.out or _default_out(mission)
+        mode = RunDirMode.FORCE if args.force else RunDirMode.NEW
+        summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
+                              speedup=args.speedup, seed=args.seed, connect=args.connect,
+                              timeout_s=args.timeout, quiet=args.quiet,
+                              mission_path=args.mission, mode=mode)
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

@@ -128,6 +128,24 @@ class SimBody:
         """Number of ticks taken so far."""
         return self._ticks
 
+    def state(self) -> dict[str, Any]:
+        """Everything that moves: time, position, velocity, heading, odometer and the noise
+        generator (JSON-safe; :meth:`restore` puts it back exactly)."""
+        p = self.point
+        return {"t0_s": self._t0_s, "ticks": self._ticks, "x_m": p.x_m, "y_m": p.y_m,
+                "vx_mps": p.vx_mps, "vy_mps": p.vy_mps, "odometer_m": p.odometer_m,
+                "heading_rad": p._last_heading_rad, "rng": self._rng.bit_generator.state}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Continue from a :meth:`state` of a body built with the same parameters."""
+        p = self.point
+        self._t0_s, self._ticks = float(state["t0_s"]), int(state["ticks"])
+        p.x_m, p.y_m = float(state["x_m"]), float(state["y_m"])
+        p.vx_mps, p.vy_mps = float(state["vx_mps"]), float(state["vy_mps"])
+        p.odometer_m = float(state["odometer_m"])
+        p._last_heading_rad = float(state["heading_rad"])
+        self._rng.bit_generator.state = state["rng"]
+
     def sense(self) -> float:
         """Read the sensor at the current position (true value + noise).
 
