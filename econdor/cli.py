@@ -36,6 +36,19 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _probability(text: str) -> float:
+    """``0.1`` or ``10%`` -> 0.1."""
+    scale = 100.0 if text.endswith("%") else 1.0
+    try:
+        v = float(text.rstrip("%")) / scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability (0.1 or 10%), got {text!r}"
+                                         ) from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within 0..1 (0..100%), got {text}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="econdor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -60,6 +73,21 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
     run.add_argument("--quiet", action="store_true")
+
+    rl = sub.add_parser("relay", help="a fault-injecting UDP relay between two loopback "
+                                      "endpoints (for tests and link checks)")
+    rl.add_argument("--listen", required=True, metavar="EP",
+                    help="where the vehicles send, e.g. udpin:127.0.0.1:14560 (port 0: any)")
+    rl.add_argument("--to", required=True, metavar="EP",
+                    help="where to relay to (the GCS), e.g. udpout:127.0.0.1:14550")
+    for name, what in (("drop", "lose"), ("duplicate", "deliver twice"),
+                       ("reorder", "hold back behind the next one"),
+                       ("corrupt", "flip one bit of")):
+        rl.add_argument(f"--{name}", type=_probability, default=0.0, metavar="P",
+                        help=f"probability to {what} each datagram, each way (0.1 or 10%%)")
+    rl.add_argument("--seed", type=int, default=None, help="seed of the fault draws")
+    rl.add_argument("--duration", type=_positive_float, default=None, metavar="S",
+                    help="stop after S seconds (default: at Ctrl-C / SIGTERM)")
 
     st = sub.add_parser("study", help="in-process study over many seeds")
     st.add_argument("mission", type=Path)
@@ -165,7 +193,27 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return export_cli(args)
 
 
-COMMANDS = {"study": _cmd_study, "report": _cmd_report, "run": _cmd_run, "export": _cmd_export}
+def _cmd_relay(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from econdor_gcs.link.relay import Faults, Relay, parse_relay_endpoint, serve
+
+    listen, to = parse_relay_endpoint(args.listen), parse_relay_endpoint(args.to)
+    relay = Relay(listen, to, Faults(args.drop, args.duplicate, args.reorder, args.corrupt),
+                  seed=args.seed)
+
+    def ready(r: Relay) -> None:
+        host, port = r.listen_address
+        print(f"relay: listening on udpin:{host}:{port} -> udpout:{to[0]}:{to[1]}",
+              file=sys.stderr, flush=True)
+
+    asyncio.run(serve(relay, duration_s=args.duration, ready=ready))
+    print(f"relay: {relay.stats_line()}", file=sys.stderr, flush=True)
+    return 0
+
+
+COMMANDS = {"relay": _cmd_relay, "study": _cmd_study, "report": _cmd_report, "run": _cmd_run,
+            "export": _cmd_export}
 
 
 def main(argv: list[str] | None = None) -> int:
