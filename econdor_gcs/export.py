@@ -82,9 +82,6 @@ _FLOAT_TO_INT = {v: k for k, v in _INT_TO_FLOAT.items()}
 _GLOBAL_FRAMES = frozenset((0, 3, 5, 6, 10, 11))
 # QGC's AltitudeMode: 1 relative to home, 2 absolute (AMSL), 4 terrain frame
 _ALTITUDE_MODE = {0: 2, 5: 2, 3: 1, 6: 1, 10: 4, 11: 4}
-_POSITION_COMMANDS = frozenset(
-    (MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LOITER_UNLIM, 18, 19, 21, MAV_CMD_NAV_TAKEOFF,
-     MAV_CMD_WAYPOINT_USER_1))
 
 PathLike = str | Path
 

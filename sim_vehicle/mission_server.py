@@ -21,7 +21,7 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -351,7 +351,3 @@ class MissionServer:
         "MISSION_SET_CURRENT": _on_set_current,
     }
 
-
-def with_current(items: list[StoredItem], seq: int) -> list[StoredItem]:
-    """``items`` with the current flag set on ``seq`` only (helper for tests/GCS code)."""
-    return [replace(it, current=int(it.seq == seq)) for it in items]

@@ -111,10 +111,22 @@ def test_run_three_vehicles_end_to_end(full_run: tuple[Path, Path, int, str]) ->
 
 def test_report_redraws_the_figures(full_run: tuple[Path, Path, int, str],
                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """``econdor report`` draws every run figure again, from the run directory alone."""
+    import shutil
+
+    from matplotlib.image import imread
+
+    from econdor_gcs.figures import RUN_FIGURES
+
     _, out, code, _ = full_run
     assert code == 0
+    shutil.rmtree(out / "figures")
     assert cli.main(["report", str(out)]) == 0
-    assert "maps.png" in capsys.readouterr().out
+    printed = capsys.readouterr().out.split()
+    assert sorted(Path(p).name for p in printed) == sorted(RUN_FIGURES)
+    for p in printed:
+        image = imread(p)  # a PNG that decodes, and not blank
+        assert image.ndim == 3 and np.ptp(image[..., :3]) > 0.5, p
 
 
 def test_transport_parity(full_run: tuple[Path, Path, int, str]) -> None:

@@ -12,6 +12,7 @@ import pytest
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
+from econdor_gcs.errors import VehicleTimeout
 from econdor_gcs.gcs import (
     Flight,
     MavlinkExecutor,
@@ -234,7 +235,7 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     assert len(ex.pending_samples()) == 1
     # losing a vehicle is remembered and raised at the next step
     router.handlers["event"](VehicleLost(2, 21.0))
-    with pytest.raises(Exception, match="vehicle 2 lost: no heartbeat for 21 s"):
+    with pytest.raises(VehicleTimeout, match="vehicle 2 lost: no heartbeat for 21 s"):
         ex._check_lost()
 
 

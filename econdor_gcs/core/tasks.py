@@ -77,14 +77,6 @@ class SampleLog:
             vehicle=np.concatenate([s.vehicle for s in logs]).astype(np.int16),
         )
 
-    @classmethod
-    def from_rows(cls, rows: list[tuple[float, float, float, float, int, int]]) -> SampleLog:
-        if not rows:
-            return cls()
-        a = np.asarray(rows, dtype=float)
-        return cls(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(np.int8),
-                   a[:, 5].astype(np.int16))
-
 
 @dataclass
 class TaskOutcome:

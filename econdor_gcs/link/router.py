@@ -39,7 +39,6 @@ from .tlog import TlogWriter
 
 __all__ = [
     "DEFAULT_ENDPOINT",
-    "GcsEndpoint",
     "MissionItemReached",
     "Router",
     "Sample",
@@ -699,5 +698,3 @@ class Router:
             return sorted(self.vehicles)[:count]
         return wanted or []
 
-
-GcsEndpoint = Router
