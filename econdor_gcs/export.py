@@ -138,6 +138,40 @@ def _text_and_name(path_or_text: PathLike) -> tuple[str, str]:
     return path_or_text, "<text>"
 
 
+_FLOAT32_MAX = 3.4028234663852886e38
+_UINT = {"seq": 0xFFFF, "command": 0xFFFF, "frame": 0xFF, "current": 0xFF,
+         "autocontinue": 0xFF}
+
+
+def _checked(item: MissionItemSpec, where: str) -> MissionItemSpec:
+    """``item`` if it fits a MISSION_ITEM_INT (and its position is on the globe), else an
+    :class:`EcondorError` naming the field.
+
+    >>> _checked(MissionItemSpec(0, 6, 16, x=900_000_001), "f line 2")
+    Traceback (most recent call last):
+    ...
+    econdor_gcs.errors.EcondorError: f line 2: latitude 90.0000001 out of range [-90, 90]
+    """
+    for name, top in _UINT.items():
+        v = getattr(item, name)
+        if not 0 <= v <= top:
+            raise EcondorError(f"{where}: {name} {v} out of range [0, {top}]")
+    for name in ("param1", "param2", "param3", "param4", "z"):
+        v = getattr(item, name)
+        if math.isfinite(v) and abs(v) > _FLOAT32_MAX:
+            raise EcondorError(f"{where}: {name} {v:g} does not fit a float32")
+    if _is_global(item.frame):
+        if not -90 * 10**7 <= item.x <= 90 * 10**7:
+            raise EcondorError(f"{where}: latitude {item.x / 1e7} out of range [-90, 90]")
+        if not -180 * 10**7 <= item.y <= 180 * 10**7:
+            raise EcondorError(f"{where}: longitude {item.y / 1e7} out of range [-180, 180]")
+    for name in ("x", "y"):
+        v = getattr(item, name)
+        if not -(2**31) <= v < 2**31:
+            raise EcondorError(f"{where}: {name} {v} does not fit an int32")
+    return item
+
+
 def read_wpl(path_or_text: PathLike, *, int_frames: bool = False) -> list[MissionItemSpec]:
     """Parse QGC WPL 110 (a path, or the text itself if it contains a newline).
 
@@ -177,9 +211,10 @@ def read_wpl(path_or_text: PathLike, *, int_frames: bool = False) -> list[Missio
             xi, yi = round(x) if math.isfinite(x) else 0, round(y) if math.isfinite(y) else 0
         if int_frames:
             frame = _FLOAT_TO_INT.get(frame, frame)
-        items.append(MissionItemSpec(
+        items.append(_checked(MissionItemSpec(
             seq=seq, frame=frame, command=command, current=current, autocontinue=autocontinue,
-            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z))
+            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z),
+            f"{name} line {lineno}"))
     return items
 
 
@@ -290,8 +325,12 @@ def plan_to_items(doc: Any, *, name: str = "<plan>",
             raise EcondorError(f"{name}: mission.plannedHomePosition must be [lat, lon, alt]")
         lat = _float(home[0], f"{name}: plannedHomePosition")
         lon = _float(home[1], f"{name}: plannedHomePosition")
-        items.append(MissionItemSpec(0, frame_of(3), MAV_CMD_NAV_WAYPOINT, current=1,
-                                     x=round(lat * 1e7), y=round(lon * 1e7), z=0.0))
+        if not (math.isfinite(lat) and math.isfinite(lon)):
+            raise EcondorError(f"{name}: mission.plannedHomePosition needs a finite latitude "
+                               "and longitude")
+        items.append(_checked(MissionItemSpec(0, frame_of(3), MAV_CMD_NAV_WAYPOINT, current=1,
+                                              x=round(lat * 1e7), y=round(lon * 1e7), z=0.0),
+                              f"{name}: mission.plannedHomePosition"))
     for i, entry in enumerate(mission["items"]):
         where = f"{name}: mission.items[{i}]"
         if not isinstance(entry, dict):
@@ -304,16 +343,16 @@ def plan_to_items(doc: Any, *, name: str = "<plan>",
             raise EcondorError(f"{where}: params must be a list of 7 values")
         try:
             frame, command = int(entry["frame"]), int(entry["command"])
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise EcondorError(f"{where}: needs integer frame and command") from None
         p = [_float(v, where) for v in params]
         scale = 1e7 if _is_global(frame) else 1.0
         x, y = (round(v * scale) if math.isfinite(v) else 0 for v in p[4:6])
-        items.append(MissionItemSpec(
+        items.append(_checked(MissionItemSpec(
             seq=len(items), frame=frame_of(frame), command=command,
             current=1 if not items else 0, autocontinue=int(bool(entry.get("autoContinue", True))),
             param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=int(x), y=int(y),
-            z=p[6] if math.isfinite(p[6]) else 0.0))
+            z=p[6] if math.isfinite(p[6]) else 0.0), where))
     return items
 
 
