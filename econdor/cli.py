@@ -72,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
     run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
+    run.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                     help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
+                          "(hashed with SHA-256, as MAVProxy does)")
     run.add_argument("--quiet", action="store_true")
 
     rl = sub.add_parser("relay", help="a fault-injecting UDP relay between two loopback "

@@ -71,6 +71,7 @@ from .link.router import Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
 from .mission import Mission
 from .rundir import RunDirMode
+from .signing import SigningKey
 
 __all__ = [
     "MavlinkExecutor",
@@ -236,9 +237,10 @@ class Station:
     """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
 
     def __init__(self, endpoint: str, tlog: TlogWriter | None = None,
-                 heartbeat_timeout_s: float = 20.0) -> None:
+                 heartbeat_timeout_s: float = 20.0, signing: SigningKey | None = None) -> None:
         self.loop = asyncio.new_event_loop()
-        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s)
+        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s,
+                             signing=signing)
         self._thread = threading.Thread(target=self._run, name="econdor-gcs", daemon=True)
         self._started = False
         self.close_error: str | None = None
@@ -749,11 +751,13 @@ def run_mission(
     mission_path: Path | None = None,
     figures: bool = True,
     mode: RunDirMode = RunDirMode.NEW,
+    signing: SigningKey | None = None,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
 
     ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
-    resume a run use :func:`resume_mission`.
+    resume a run use :func:`resume_mission`. With ``signing`` every message is signed and
+    unsigned telemetry is dropped (the key is written nowhere).
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
@@ -778,9 +782,11 @@ def run_mission(
             "transport": "mavlink", "mission": mission.name, "planner": planner, "seed": seed,
             "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
             "mission_path": str(mission_path.resolve()) if mission_path else None,
+            "signed": signing is not None,
         }, mission_text)
     tlog = TlogWriter(out / "telemetry.tlog", append=resume)
-    station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
+    station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s,
+                      signing=signing)
     fleet: Fleet | None = None
     executor: MavlinkExecutor | None = None
     dfc: Dfc | None = None
@@ -808,6 +814,9 @@ def run_mission(
             if connect is None:
                 if mission_path is None:
                     raise RunError("run_mission: mission_path is needed to start vehicles")
+                if signing is not None:
+                    raise RunError("--signing-key needs --connect for now: the simulated "
+                                   "vehicles this command starts do not sign yet")
                 fleet = Fleet(mission_path, out / "vehicles")
                 fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed)
                 sysids = list(range(1, n + 1))
@@ -837,8 +846,14 @@ def run_mission(
             timings["setup_s"] = t_setup
             result.wall_s = time.perf_counter() - wall0
             result.sim_s = executor.sim_s
+            parser = station.router.parser
             extra = {**base, "sysids": sysids, "timings": timings,
-                     "samples_dropped_unpaired": station.router.pairer.dropped}
+                     "samples_dropped_unpaired": station.router.pairer.dropped,
+                     "link": {"bad_packets": parser.bad_packets,
+                              "unknown_packets": parser.unknown_packets,
+                              "unsigned_dropped": parser.unsigned_packets,
+                              "bad_signature_dropped": parser.bad_signature_packets},
+                     "signed": signing is not None}
             if resume:
                 extra["resumed"] = {"flights_replayed": dfc.replayed,
                                     "samples_interrupted": rd.interrupted_samples}
@@ -867,8 +882,8 @@ def run_mission(
 
 
 def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
-                   connect: str | None = None, timeout_s: float | None = None
-                   ) -> dict[str, Any]:
+                   connect: str | None = None, timeout_s: float | None = None,
+                   signing: SigningKey | None = None) -> dict[str, Any]:
     """Continue the MAVLink run recorded in ``out`` after its last finished flight.
 
     The finished flights are replayed from ``flights.jsonl`` and ``samples.csv`` (the DFC
@@ -883,6 +898,8 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
     config = read_run_config(out)
     if config.get("transport") != "mavlink":
         raise RunError(f"{out}: a {config.get('transport')} run, not a MAVLink one")
+    if config.get("signed") and signing is None:
+        raise RunError(f"{out}: the run was signed; resume it with --signing-key")
     copy = out / "mission.yaml"
     original = Path(config["mission_path"]) if config.get("mission_path") else None
     try:
@@ -899,7 +916,8 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         speedup=config["speedup"], seed=config["seed"],
         connect=connect if connect is not None else config.get("connect"),
         timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
-        quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME)
+        quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
+        signing=signing)
 
 
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
@@ -966,11 +984,13 @@ async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
 def run_mission_cli(args: Any) -> int:
     """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
     from .mission import load_mission
+    from .signing import load_signing_key
 
+    signing = load_signing_key(args.signing_key) if args.signing_key is not None else None
     if args.resume is not None:
         out = args.resume
         summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
-                                 timeout_s=args.timeout)
+                                 timeout_s=args.timeout, signing=signing)
     else:
         mission = load_mission(args.mission)
         out = args.out or _default_out(mission)
@@ -978,7 +998,7 @@ def run_mission_cli(args: Any) -> int:
         summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
                               speedup=args.speedup, seed=args.seed, connect=args.connect,
                               timeout_s=args.timeout, quiet=args.quiet,
-                              mission_path=args.mission, mode=mode)
+                              mission_path=args.mission, mode=mode, signing=signing)
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

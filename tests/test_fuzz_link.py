@@ -107,3 +107,19 @@ def test_router_and_executor_survive_any_traffic(traffic: list[tuple[bytes, bool
     assert parser.packets == router.stats["messages_in"] + router.stats["foreign"]
     executor.status_rows()  # the display's view of whatever arrived
     executor.pending_samples()
+
+
+@FUZZ
+@given(frames())
+def test_a_signing_station_refuses_every_unsigned_or_damaged_frame(
+        frame: tuple[bytes, bool]) -> None:
+    """With a key, nothing unsigned gets through, whatever its state; each refusal is
+    counted as unsigned, as a bad signature or as damage."""
+    from econdor_gcs.signing import SigningKey
+
+    parser = Parser(SigningKey.from_text("fuzz"))
+    data, _ = frame
+    assert parser.feed(data) == []
+    refused = parser.unsigned_packets + parser.bad_signature_packets + parser.bad_packets \
+        + parser.unknown_packets
+    assert refused >= 1

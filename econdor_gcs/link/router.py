@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from ..errors import LinkError, VehicleTimeout
+from ..signing import SigningKey
 from .codec import GCS_COMPONENT_ID, GCS_SYSTEM_ID, Codec, MAVLinkMessage, Parser, mavlink
 from .mission import (
     DEFAULT_RETRIES,
@@ -289,19 +290,24 @@ class Router:
         Period of our own HEARTBEAT (MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID) to every known vehicle.
     sample_horizon_s:
         How long an unpaired sample half waits (:class:`SamplePairer`).
+    signing:
+        MAVLink 2 signing: everything we send is signed with this key, and whatever
+        arrives unsigned or wrongly signed is dropped and counted
+        (``parser.unsigned_packets``, ``parser.bad_signature_packets``).
     """
 
     def __init__(self, endpoint: str = DEFAULT_ENDPOINT, *, tlog: TlogWriter | None = None,
                  heartbeat_timeout_s: float = 5.0, gcs_heartbeat_s: float = 1.0,
                  sample_horizon_s: float = 5.0, system_id: int = GCS_SYSTEM_ID,
-                 component_id: int = GCS_COMPONENT_ID) -> None:
+                 component_id: int = GCS_COMPONENT_ID, signing: SigningKey | None = None
+                 ) -> None:
         self.endpoint = endpoint
         self.bind_address = parse_endpoint(endpoint)
         self.tlog = tlog
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.gcs_heartbeat_s = gcs_heartbeat_s
-        self.codec = Codec(system_id, component_id)
-        self.parser = Parser()
+        self.codec = Codec(system_id, component_id, signing)
+        self.parser = Parser(signing)
         self.pairer = SamplePairer(sample_horizon_s)
         self.vehicles: dict[int, VehicleLink] = {}
         self.stats: dict[str, int] = {
