@@ -25,12 +25,12 @@ Conventions and choices (see also DESIGN.md §4):
   in-process vehicles keep their position between iterations. A ``LOITER_UNLIM`` at the
   last task's *point* would send a tracer back to the start of its contour piece (traces
   end elsewhere), adding flight the in-process run does not have.
-* **Phase of a sample** (MAVLink carries none): ``TRANSIT`` outside trace items;
-  inside a trace item ``SEARCH`` until the vehicle says ``piece N: contour found`` (or
-  ``contour reacquired``), ``TRACE`` from then on, ``SEARCH`` again after
-  ``contour lost, searching``. The return leg after ``boundary reached`` stays ``TRACE``.
+* **Phase of a sample**: from the vehicle's ``NAMED_VALUE_INT("PHASE")`` changes, looked up
+  by the sample's ``time_boot_ms`` (:class:`~.link.reports.PhaseTrack`). A vehicle that
+  reports no phases (a stock autopilot) gets the phase its mission item implies.
 * **Distances.** ``traced_m`` and trace outcomes come from the vehicle's
-  ``piece {id}: {status} traced {x} m flown {y} m`` STATUSTEXT. ``flown_m`` is the path
+  ``DEBUG_FLOAT_ARRAY("TRACE")`` reports (:class:`~.core.tasks.TraceReport`); STATUSTEXT is
+  for people only (the live display shows the last one). ``flown_m`` is the path
   length of the reported sample positions, starting at the vehicle's position when the
   flight began (the vehicle reports no odometer; samples come every sensor tick of
   horizontal motion, so this misses only the braking drift while hovering).
@@ -50,23 +50,32 @@ import dataclasses
 import json
 import logging
 import math
-import re
 import signal
 import sys
 import threading
 import time
-from collections.abc import Coroutine, Iterator, Sequence
+from collections.abc import Callable, Coroutine, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
-from .core.tasks import FlightReport, Phase, SampleLog, Task, TaskOutcome, TraceTask
+from .core.tasks import (
+    FlightReport,
+    OutcomeStatus,
+    Phase,
+    SampleLog,
+    Task,
+    TaskOutcome,
+    TraceReport,
+    TraceTask,
+)
 from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
 from .export import write_wpl
 from .link.codec import MAVLinkMessage, mavlink
 from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
+from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
 from .mission import Mission
@@ -75,11 +84,9 @@ from .signing import SigningKey
 
 __all__ = [
     "MavlinkExecutor",
-    "PieceStatus",
     "Station",
     "StatusAssembler",
     "build_report",
-    "parse_piece_status",
     "run_mission",
     "run_mission_cli",
 ]
@@ -93,50 +100,12 @@ SAMPLE_BATCH = 512
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
 
-_PIECE_RE = re.compile(
-    r"^piece (-?\d+): ([A-Za-z_]+) traced (-?[\d.]+) m flown (-?[\d.]+) m\s*$")
-_EVENT_RE = re.compile(r"^piece (-?\d+): (.+)$")
-
-
-@dataclass(frozen=True)
-class PieceStatus:
-    """The vehicle's final word on one trace item."""
-
-    piece_id: int
-    status: str
-    traced_m: float
-    flown_m: float
-
-
-def parse_piece_status(text: str) -> PieceStatus | None:
-    """``"piece 1003: closed traced 120.4 m flown 150.0 m"`` -> :class:`PieceStatus`.
-
-    >>> parse_piece_status("piece 7: boundary traced 12.5 m flown 30.0 m")
-    PieceStatus(piece_id=7, status='boundary', traced_m=12.5, flown_m=30.0)
-    >>> parse_piece_status("piece 7: contour found") is None
-    True
-    """
-    m = _PIECE_RE.match(text.strip())
-    if m is None:
-        return None
-    return PieceStatus(int(m[1]), m[2], float(m[3]), float(m[4]))
-
-
-def phase_after_event(text: str, phase: int) -> int:
-    """The sample phase after a tracer event STATUSTEXT (``piece N: ...``)."""
-    m = _EVENT_RE.match(text.strip())
-    if m is None:
-        return phase
-    event = m[2]
-    if event.startswith(("contour found", "contour reacquired")):
-        return Phase.TRACE
-    if event.startswith(("contour lost", "contour not found")):
-        return Phase.SEARCH
-    return phase
+log = logging.getLogger(__name__)
 
 
 class StatusAssembler:
-    """Joins STATUSTEXT chunks (MAVLink 2 ``id`` / ``chunk_seq``) into whole texts.
+    """Joins STATUSTEXT chunks (MAVLink 2 ``id`` / ``chunk_seq``) into whole texts, for
+    people (the live display); nothing the station accounts for reads them.
 
     A text with ``id == 0`` is complete on its own; a chunked one is complete with a chunk
     shorter than 50 bytes (or an empty terminator). Pending chunks of one id are dropped
@@ -179,7 +148,7 @@ class Flight:
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_ms: int | None = None
     rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
-    pieces: dict[int, PieceStatus] = field(default_factory=dict)
+    pieces: dict[int, TraceReport] = field(default_factory=dict)
     item_flown_m: dict[int, float] = field(default_factory=dict)
     last_ms: int | None = None
     done: bool = False
@@ -209,14 +178,14 @@ def build_report(flight: Flight) -> FlightReport:
     for k, task in enumerate(flight.tasks):
         item_m = flight.item_flown_m.get(flight.first_seq + k, 0.0)
         if isinstance(task, TraceTask):
-            ps = flight.pieces.get(task.piece_id)
-            if ps is None:
-                outcomes.append(TaskOutcome(task, "unreported", item_m, 0.0))
+            rep = flight.pieces.get(task.piece_id)
+            if rep is None:
+                outcomes.append(TaskOutcome(task, OutcomeStatus.UNREPORTED, item_m, 0.0))
             else:
-                outcomes.append(TaskOutcome(task, ps.status, ps.flown_m, ps.traced_m))
+                outcomes.append(TaskOutcome(task, rep.status, rep.flown_m, rep.traced_m))
         else:
-            outcomes.append(TaskOutcome(task, "reached" if flight.done else "unreported",
-                                        item_m))
+            status = OutcomeStatus.REACHED if flight.done else OutcomeStatus.UNREPORTED
+            outcomes.append(TaskOutcome(task, status, item_m))
     traced = float(sum(o.traced_m for o in outcomes))
     sim_s = 0.0
     if flight.start_ms is not None and flight.last_ms is not None:
@@ -305,7 +274,11 @@ class VehicleState:
     sysid: int
     current_seq: int | None = None
     items: list[MissionItemSpec] = field(default_factory=list)
-    phase: int = Phase.TRANSIT
+    item_phase: Phase = Phase.TRANSIT
+    """The phase the current mission item implies (for vehicles that report none)."""
+    phases: PhaseTrack = field(default_factory=PhaseTrack)
+    last_text: str = ""
+    """The vehicle's last STATUSTEXT, for people."""
     last_xy: tuple[float, float] | None = None
     flown_m: float = 0.0            # the whole run
     samples: int = 0                # the whole run
@@ -363,6 +336,8 @@ class MavlinkExecutor:
         self.iteration = 0
         self.sim_s = 0.0
         self._lost: str | None = None
+        self.report_errors = 0
+        """Malformed PHASE / TRACE reports received (logged, then ignored)."""
         self.router.add_sample_handler(self._on_sample)
         self.router.add_message_handler(self._on_message)
         self.router.add_event_handler(self._on_event)
@@ -374,14 +349,15 @@ class MavlinkExecutor:
             return
         seq = v.current_seq if v.current_seq is not None else -1
         with self._raw_lock:
-            v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(v.phase),
+            phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+            v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
                           seq))
             v.samples += 1
             f = v.flight
             if f is not None:
                 if f.start_ms is None:
                     f.start_ms = s.time_boot_ms
-                f.last_ms = s.time_boot_ms
+                f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
             if len(v.raw) >= SAMPLE_BATCH:
                 self._convert(v)
 
@@ -422,8 +398,8 @@ class MavlinkExecutor:
         if v is None:
             return
         kind = msg.get_type()
+        f = v.flight
         if kind == "MISSION_CURRENT":
-            f = v.flight
             if (f is not None and f.tasks and v.status == "flying" and msg.seq == f.last_seq
                     and getattr(msg, "mission_state", 0) == mavlink.MISSION_STATE_COMPLETE):
                 f.done = True  # in case the MISSION_ITEM_REACHED was lost
@@ -432,32 +408,43 @@ class MavlinkExecutor:
                 v.current_seq = msg.seq
                 is_trace = (0 <= msg.seq < len(v.items)
                             and v.items[msg.seq].command == MAV_CMD_WAYPOINT_USER_1)
-                v.phase = Phase.SEARCH if is_trace else Phase.TRANSIT
+                v.item_phase = Phase.SEARCH if is_trace else Phase.TRANSIT
         elif kind == "MISSION_ITEM_REACHED":
-            f = v.flight
             if f is not None and f.tasks and msg.seq == f.last_seq:
                 f.done = True
                 v.status = "holding"
+        elif kind == "NAMED_VALUE_INT":
+            change = self._decode(phase_change, msg)
+            if change is not None:
+                with self._raw_lock:
+                    v.phases.add(*change)
+        elif kind == "DEBUG_FLOAT_ARRAY":
+            rep = self._decode(trace_report, msg)
+            if rep is not None and f is not None:
+                f.pieces[rep.piece_id] = rep
+        elif kind == "EXTENDED_SYS_STATE":
+            if (f is not None and not f.tasks and v.status == "returning"
+                    and msg.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND):
+                f.landed = True
+                v.status = "landed"
         elif kind == "STATUSTEXT":
             raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
                 msg.text.encode("utf-8", "replace")
             text = self.assembler.add(sysid, raw, getattr(msg, "id", 0),
                                       getattr(msg, "chunk_seq", 0))
             if text is not None:
-                self._on_text(v, text)
+                v.last_text = text
 
-    def _on_text(self, v: VehicleState, text: str) -> None:
-        f = v.flight
-        ps = parse_piece_status(text)
-        if ps is not None:
-            if f is not None:
-                f.pieces[ps.piece_id] = ps
-            return
-        if text.startswith("piece "):
-            v.phase = phase_after_event(text, v.phase)
-        elif text.startswith("landed") and f is not None and not f.tasks:
-            f.landed = True
-            v.status = "landed"
+    def _decode(self, decode: Callable[[MAVLinkMessage], T | None], msg: MAVLinkMessage
+                ) -> T | None:
+        """A report from ``msg``; a malformed one is logged and counted, then ignored (its
+        piece shows as unreported)."""
+        try:
+            return decode(msg)
+        except ProtocolError as exc:
+            self.report_errors += 1
+            log.warning("%s", exc)
+            return None
 
     def _on_event(self, event: object) -> None:
         if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
@@ -700,13 +687,18 @@ class MavlinkExecutor:
                 "lost": bool(link.lost) if link else False,
                 "item": v.current_seq if v.current_seq is not None else 0,
                 "items": n,
-                "phase": Phase(v.phase).name.lower(),
+                "phase": self._phase_now(v).name.lower(),
                 "flown_m": v.flown_m,
                 "samples": v.samples,
                 "status": v.status,
                 "alt_m": (link.rel_alt_m or 0.0) if link else 0.0,
+                "message": v.last_text,
             })
         return rows
+
+    @staticmethod
+    def _phase_now(v: VehicleState) -> Phase:
+        return v.phases.latest if v.phases.known else v.item_phase
 
 
 # --------------------------------------------------------------------------------------------
@@ -849,6 +841,7 @@ def run_mission(
             parser = station.router.parser
             extra = {**base, "sysids": sysids, "timings": timings,
                      "samples_dropped_unpaired": station.router.pairer.dropped,
+                     "report_errors": executor.report_errors,
                      "link": {"bad_packets": parser.bad_packets,
                               "unknown_packets": parser.unknown_packets,
                               "unsigned_dropped": parser.unsigned_packets,

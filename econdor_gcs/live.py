@@ -65,11 +65,12 @@ class LiveDisplay:
         lv = Text.assemble(("levels ", "bold"), levels or "-")
         mae = Text.assemble(("MAE dB ", "bold"), " → ".join(maes[-6:]) or "-")
         table = Table(box=None, pad_edge=False, header_style="bold")
-        for col in ("vehicle", "armed", "item", "phase", "flown m", "samples", "state"):
+        for col in ("vehicle", "armed", "item", "phase", "flown m", "samples", "state",
+                    "message"):
             table.add_column(col, justify="right" if col in ("flown m", "samples") else "left")
         for r in self.executor.status_rows():
             state = "[red]LOST[/]" if r["lost"] else r["status"]
             table.add_row(str(r["sysid"]), "yes" if r["armed"] else "no",
                           f"{r['item']}/{r['items']}", r["phase"], f"{r['flown_m']:.0f}",
-                          str(r["samples"]), state)
+                          str(r["samples"]), state, r.get("message", "")[:40])
         return Group(head, lv, mae, table)

@@ -11,52 +11,84 @@ import numpy as np
 import pytest
 
 from econdor_gcs.core.geodesy import Origin
-from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
-from econdor_gcs.errors import VehicleTimeout
+from econdor_gcs.core.tasks import (
+    OutcomeStatus,
+    Phase,
+    TaskOutcome,
+    TraceReport,
+    TraceTask,
+    Waypoint,
+)
+from econdor_gcs.errors import ProtocolError, VehicleTimeout
 from econdor_gcs.gcs import (
     Flight,
     MavlinkExecutor,
-    PieceStatus,
     StatusAssembler,
     build_report,
     mission_items_json,
-    parse_piece_status,
-    phase_after_event,
 )
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.mission import build_mission
+from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost
 from econdor_gcs.mission import parse_mission
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 
 
-# -- STATUSTEXT ---------------------------------------------------------------------------
+# -- machine-readable reports (PHASE, TRACE) and STATUSTEXT for people -------------------------
 
 
-@pytest.mark.parametrize("text, expected", [
-    ("piece 1003: closed traced 120.4 m flown 150.0 m", PieceStatus(1003, "closed", 120.4, 150.0)),
-    ("piece 7: length_limit traced 300.0 m flown 321.5 m",
-     PieceStatus(7, "length_limit", 300.0, 321.5)),
-    ("piece 2: not_found traced 0.0 m flown 41.2 m ", PieceStatus(2, "not_found", 0.0, 41.2)),
-    ("piece 7: contour found", None),
-    ("armed", None),
-    ("piece x: closed traced 1 m flown 2 m", None),
-])
-def test_parse_piece_status(text: str, expected: PieceStatus | None) -> None:
-    assert parse_piece_status(text) == expected
+def _trace_msg(seq: int, report: TraceReport | None = None, data: list[float] | None = None,
+               sysid: int = 2) -> Any:
+    values = report.to_array() if report is not None else list(data or [])
+    values += [0.0] * (58 - len(values))
+    return rx(mavlink.MAVLink_debug_float_array_message(123, b"TRACE", seq, values), sysid)
 
 
-def test_phase_follows_the_tracer_events() -> None:
-    p = Phase.SEARCH
-    p = phase_after_event("piece 3: contour found", p)
-    assert p == Phase.TRACE
-    p = phase_after_event("piece 3: contour lost, searching", p)
-    assert p == Phase.SEARCH
-    p = phase_after_event("piece 3: contour reacquired", p)
-    assert p == Phase.TRACE
-    assert phase_after_event("piece 3: boundary reached, tracing other direction", p) == p
-    assert phase_after_event("landed, disarmed", Phase.TRANSIT) == Phase.TRANSIT
+def rx(msg: Any, sysid: int = 2) -> Any:
+    """``msg`` as the station receives it from vehicle ``sysid`` (packed, then decoded)."""
+    enc = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+    return mavlink.MAVLink(None).decode(bytearray(msg.pack(enc)))
+
+
+def test_trace_report_round_trips_through_mavlink() -> None:
+    r = TraceReport(5, 1003, OutcomeStatus.LENGTH_LIMIT, 300.25, 1234.5, 41.5)
+    assert trace_report(_trace_msg(5, r)) == r
+    other = rx(mavlink.MAVLink_debug_float_array_message(1, b"OTHER", 5, [0.0] * 58))
+    assert trace_report(other) is None
+    with pytest.raises(ProtocolError, match="vehicle 2: .*unknown outcome status code 17"):
+        trace_report(_trace_msg(5, data=[1003, 17, 1.0, 2.0, 0.0]))
+    with pytest.raises(ProtocolError, match="must be integers"):
+        trace_report(_trace_msg(5, data=[10.5, 1, 1.0, 2.0, 0.0]))
+    with pytest.raises(ProtocolError, match="finite and >= 0"):
+        trace_report(_trace_msg(5, data=[10, 1, -1.0, 2.0, 0.0]))
+
+
+def test_outcome_status_codes_are_stable_and_unreported_has_none() -> None:
+    codes = {s: s.code for s in OutcomeStatus if s is not OutcomeStatus.UNREPORTED}
+    assert codes == {"reached": 0, "closed": 1, "boundary": 2, "length_limit": 3,
+                     "not_found": 4, "lost": 5}
+    with pytest.raises(ValueError, match="no wire code"):
+        _ = OutcomeStatus.UNREPORTED.code
+    assert TaskOutcome(Waypoint(0, 0), "closed", 1.0).status is OutcomeStatus.CLOSED
+    with pytest.raises(ValueError, match="'done' is not a valid OutcomeStatus"):
+        TaskOutcome(Waypoint(0, 0), "done", 1.0)
+
+
+def test_phase_changes_are_looked_up_by_sample_time() -> None:
+    msg = rx(mavlink.MAVLink_named_value_int_message(2500, b"PHASE", int(Phase.TRACE)))
+    assert phase_change(msg) == (2500, Phase.TRACE)
+    assert phase_change(rx(mavlink.MAVLink_named_value_int_message(1, b"OTHER", 2))) is None
+    with pytest.raises(ProtocolError, match="unknown phase 9"):
+        phase_change(rx(mavlink.MAVLink_named_value_int_message(1, b"PHASE", 9)))
+    track = PhaseTrack()
+    track.add(1000, Phase.SEARCH)
+    track.add(2500, Phase.TRACE)
+    # a sample that arrives after the change but was taken before it keeps its phase
+    assert [track.at(t) for t in (999, 1000, 2499, 2500)] == \
+        [Phase.TRANSIT, Phase.SEARCH, Phase.SEARCH, Phase.TRACE]
+    assert track.latest == Phase.TRACE
 
 
 def test_status_assembler_joins_chunks() -> None:
@@ -144,7 +176,7 @@ def test_build_report_from_a_flight() -> None:
               (1.3, 6.0, 9.0, 3.0, Phase.TRACE)]
     f.last_ms = 3500
     f.item_flown_m = {2: 10.0, 3: 1.0}
-    f.pieces[1001] = PieceStatus(1001, "closed", 42.0, 50.0)
+    f.pieces[1001] = TraceReport(3, 1001, OutcomeStatus.CLOSED, 42.0, 50.0)
     f.done = True
     r = build_report(f)
     assert r.vehicle == 2 and len(r.samples) == 3
@@ -215,21 +247,30 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
     on_msg(2, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
+    on_msg(2, rx(mavlink.MAVLink_named_value_int_message(900, b"PHASE", int(Phase.SEARCH))))
     on_sample(_sample(m.origin, 2, 1000, 1.0, 0.0, 10.0))
+    # the text is for people: it changes no phase and no outcome
     on_msg(2, mavlink.MAVLink_statustext_message(6, b"piece 1000: contour found", 0, 0))
+    on_msg(2, rx(mavlink.MAVLink_named_value_int_message(1100, b"PHASE", int(Phase.TRACE))))
     on_sample(_sample(m.origin, 2, 1100, 2.0, 0.0, 11.0))
+    on_sample(_sample(m.origin, 2, 1050, 1.5, 0.0, 10.5))  # late, taken before the change
     on_sample(_sample(m.origin, 1, 1100, 50.0, 50.0, 99.0))  # another vehicle, not flying
-    text = b"piece 1000: boundary traced 123.4 m flown 150.5 m"
-    on_msg(2, mavlink.MAVLink_statustext_message(6, text, 0, 0))
+    on_msg(2, mavlink.MAVLink_statustext_message(
+        6, b"piece 1000: closed traced 999.0 m flown 999.0 m", 0, 0))
+    assert not f.pieces and ex.status_rows()[1]["message"].endswith("flown 999.0 m")
+    on_msg(2, _trace_msg(2, TraceReport(2, 1000, OutcomeStatus.BOUNDARY, 123.4, 150.5)))
+    on_msg(2, _trace_msg(2, data=[1000, 99, 1.0, 1.0, 0.0]))  # malformed: counted, ignored
+    assert ex.report_errors == 1 and f.pieces[1000].traced_m == pytest.approx(123.4)
     assert not f.done
     on_msg(2, mavlink.MAVLink_mission_item_reached_message(2))
     assert f.done
     r = ex._end(v)
     assert r.vehicle == 1
-    assert list(r.samples.phase) == [Phase.SEARCH, Phase.TRACE]
-    np.testing.assert_allclose(r.samples.x_m, [1.0, 2.0], atol=0.02)
+    assert list(r.samples.phase) == [Phase.SEARCH, Phase.TRACE, Phase.SEARCH]
+    np.testing.assert_allclose(r.samples.x_m, [1.0, 2.0, 1.5], atol=0.02)
     assert r.traced_m == pytest.approx(123.4)
-    assert r.outcomes[0].status == "boundary"
+    assert r.outcomes[0].status == OutcomeStatus.BOUNDARY
+    assert r.outcomes[0].flown_m == pytest.approx(150.5)
     assert r.sim_s == pytest.approx(0.1)
     # vehicle 1 was not flying: its sample is kept for later, not lost
     assert len(ex.pending_samples()) == 1
@@ -237,6 +278,38 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     router.handlers["event"](VehicleLost(2, 21.0))
     with pytest.raises(VehicleTimeout, match="vehicle 2 lost: no heartbeat for 21 s"):
         ex._check_lost()
+
+
+def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
+    tr = TraceTask(50.0, 10.0, 10.0, 10.0, 0.0, 1000)
+    v = ex.vehicles[1]
+    v.items = build_mission(m.origin, [Waypoint(5.0, 5.0), tr], 30.0, end="none")
+    ex._begin(v, [Waypoint(5.0, 5.0), tr])
+    on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
+    on_msg(1, mavlink.MAVLink_mission_current_message(2, 4, 2, 1))
+    on_sample(_sample(m.origin, 1, 1000, 1.0, 0.0, 10.0))
+    on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, 2, 1))
+    on_sample(_sample(m.origin, 1, 1100, 2.0, 0.0, 11.0))
+    assert list(ex._end(v).samples.phase) == [Phase.TRANSIT, Phase.SEARCH]
+
+
+def test_returning_vehicle_has_landed_when_its_state_says_so() -> None:
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
+    v = ex.vehicles[1]
+    f = ex._begin(v, [])
+    on_msg = router.handlers["message"]
+    on_msg(1, mavlink.MAVLink_statustext_message(6, b"landed, disarmed", 0, 0))
+    assert not f.landed  # words are not state
+    v.status = "returning"
+    on_msg(1, mavlink.MAVLink_extended_sys_state_message(0, mavlink.MAV_LANDED_STATE_IN_AIR))
+    assert not f.landed
+    on_msg(1, mavlink.MAVLink_extended_sys_state_message(0, mavlink.MAV_LANDED_STATE_ON_GROUND))
+    assert f.landed and v.status == "landed"
 
 
 def test_mission_complete_state_ends_a_flight_without_item_reached() -> None:

@@ -438,14 +438,15 @@ async def _until(cond, timeout_s: float = 10.0) -> None:
 def test_set_mode_sends_main_and_sub_mode_as_px4_reads_them():
     """DO_SET_MODE carries PX4's main and sub mode in param2/3, not the packed HEARTBEAT
     value: the simulated PX4 vehicle takes off, then returns, by mode changes alone."""
-    from sim_vehicle.mavlink_vehicle import MODES, PX4_MAIN_AUTO, PX4_SUB_RTL, PX4_SUB_TAKEOFF
+    from sim_vehicle.px4 import PX4_MAIN_AUTO, PX4_SUB_RTL, PX4_SUB_TAKEOFF
+    from sim_vehicle.state import FlightMode
 
     async def body(router: Router, vehicle) -> None:
         await router.arm(1)
         await router.set_mode(1, PX4_MAIN_AUTO, PX4_SUB_TAKEOFF)
-        await _until(lambda: vehicle.alt_m > 5.0)
+        await _until(lambda: vehicle.state.alt_rel_m > 5.0)
         await router.set_mode(1, PX4_MAIN_AUTO, PX4_SUB_RTL)
-        await _until(lambda: vehicle.custom_mode in (MODES["AUTO.RTL"], MODES["AUTO.LAND"]))
+        await _until(lambda: vehicle.state.mode in (FlightMode.RTL, FlightMode.LAND))
 
     run(_with_sim_vehicle(body))
 
@@ -457,9 +458,9 @@ def test_takeoff_altitude_is_above_home_as_documented():
     async def body(router: Router, vehicle) -> None:
         await router.arm(1)
         await router.takeoff(1, 12.0)
-        await _until(lambda: vehicle.alt_m > 11.99)
+        await _until(lambda: vehicle.state.alt_rel_m > 11.99)
         await asyncio.sleep(0.3)  # 6 s of sim time: it holds there
-        assert vehicle.alt_m == pytest.approx(12.0, abs=1e-3)
+        assert vehicle.state.alt_rel_m == pytest.approx(12.0, abs=1e-3)
 
     run(_with_sim_vehicle(body))
 

@@ -22,6 +22,8 @@ from vehicle_helpers import (
     wait_for,
 )
 
+from econdor_gcs.core.tasks import Phase
+from econdor_gcs.link.reports import trace_report
 from econdor_gcs.mission import load_mission
 from sim_vehicle.mission_server import MissionServer
 
@@ -346,9 +348,25 @@ def test_trace_item_samples_are_paired_and_events_reported(vehicle, gcs):
             assert m.value == pytest.approx(float(field(x, y)), abs=0.05)
             pairs += 1
     assert pairs > 50
+    # machine-readable: a PHASE change before the first sample of each phase ...
+    phases = [(i, m) for i, m in enumerate(msgs)
+              if m.get_type() == "NAMED_VALUE_INT" and m.name == "PHASE"]
+    assert [m.value for _, m in phases][:3] == [Phase.TRANSIT, Phase.SEARCH, Phase.TRACE]
+    for i, m in phases:
+        nxt = next(s for s in msgs[i:] if s.get_type() == "GLOBAL_POSITION_INT")
+        assert nxt.time_boot_ms == m.time_boot_ms
+    # ... and the outcome as a TRACE report just before the item is reached
+    k = next(i for i, m in enumerate(msgs)
+             if m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1)
+    report = trace_report(msgs[k - 1])
+    assert report is not None and (report.seq, report.piece_id) == (1, 3)
+    assert report.status in {"closed", "length_limit", "boundary"}
+    assert 0 < report.traced_m <= report.flown_m
+    assert report.level == pytest.approx(level)
+    # STATUSTEXT says the same for people
     texts = [m.text for m in msgs if m.get_type() == "STATUSTEXT"]
     assert any(t.startswith("piece 3: contour found") for t in texts), texts
-    assert any(t.startswith("piece 3: ") and "traced" in t for t in texts), texts
+    assert any(t.startswith(f"piece 3: {report.status.value} traced") for t in texts), texts
     times = [m.time_boot_ms for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"]
     assert times == sorted(times) and len(set(times)) == len(times)
 

@@ -3,12 +3,20 @@
 These types are shared by the in-process executor and the MAVLink layers: a
 :class:`TraceTask` becomes one ``MAV_CMD_WAYPOINT_USER_1`` mission item, a
 :class:`Waypoint` a ``MAV_CMD_NAV_WAYPOINT``.
+
+What comes back over MAVLink besides the samples is machine-readable (README, "MAVLink
+conventions"): the phase of the samples as ``NAMED_VALUE_INT`` named :data:`PHASE_NAME`, and
+the end of each trace item as a :class:`TraceReport` in a ``DEBUG_FLOAT_ARRAY`` named
+:data:`TRACE_REPORT_NAME`. This module defines their content; the vehicle and the station
+build and read the messages.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from enum import IntEnum
+from enum import IntEnum, StrEnum
 
 import numpy as np
 
@@ -78,14 +86,116 @@ class SampleLog:
         )
 
 
-@dataclass
+class OutcomeStatus(StrEnum):
+    """How a task ended.
+
+    ``REACHED`` ends a waypoint; a trace ends ``CLOSED`` (the loop closed), ``BOUNDARY`` (the
+    area boundary was reached on both sides), ``LENGTH_LIMIT``, ``NOT_FOUND`` (the search
+    failed) or ``LOST``. ``UNREPORTED`` is the station's word for an outcome that never
+    arrived; it has no wire code.
+
+    >>> OutcomeStatus("closed").code, OutcomeStatus.from_code(2)
+    (1, <OutcomeStatus.BOUNDARY: 'boundary'>)
+    """
+
+    REACHED = "reached"
+    CLOSED = "closed"
+    BOUNDARY = "boundary"
+    LENGTH_LIMIT = "length_limit"
+    NOT_FOUND = "not_found"
+    LOST = "lost"
+    UNREPORTED = "unreported"
+
+    @property
+    def code(self) -> int:
+        """The status in a :class:`TraceReport` (ValueError for ``UNREPORTED``)."""
+        try:
+            return _STATUS_CODES[self]
+        except KeyError:
+            raise ValueError(f"{self.value!r} has no wire code") from None
+
+    @classmethod
+    def from_code(cls, code: int) -> OutcomeStatus:
+        for status, c in _STATUS_CODES.items():
+            if c == code:
+                return status
+        raise ValueError(f"unknown outcome status code {code}")
+
+
+_STATUS_CODES = {
+    OutcomeStatus.REACHED: 0, OutcomeStatus.CLOSED: 1, OutcomeStatus.BOUNDARY: 2,
+    OutcomeStatus.LENGTH_LIMIT: 3, OutcomeStatus.NOT_FOUND: 4, OutcomeStatus.LOST: 5,
+}
+
+
+@dataclass(init=False)
 class TaskOutcome:
-    """How one task ended, as reported by the vehicle's tracer / navigator."""
+    """How one task ended, as reported by the vehicle's tracer / navigator.
+
+    ``status`` may be given as its string value; it is stored as an :class:`OutcomeStatus`
+    (an unknown status is a ValueError).
+    """
 
     task: Task
-    status: str  # "reached" | "closed" | "boundary" | "length_limit" | "not_found" | "lost" | ...
+    status: OutcomeStatus
     flown_m: float
     traced_m: float = 0.0
+
+    def __init__(self, task: Task, status: str, flown_m: float, traced_m: float = 0.0) -> None:
+        self.task = task
+        self.status = OutcomeStatus(status)
+        self.flown_m = flown_m
+        self.traced_m = traced_m
+
+
+PHASE_NAME = "PHASE"
+"""``NAMED_VALUE_INT.name`` of a phase change: ``value`` is the :class:`Phase` of the samples
+from ``time_boot_ms`` on (the time of the first sample in the new phase)."""
+
+TRACE_REPORT_NAME = "TRACE"
+"""``DEBUG_FLOAT_ARRAY.name`` of a :class:`TraceReport` (``array_id`` = mission item seq)."""
+
+
+@dataclass(frozen=True)
+class TraceReport:
+    """A vehicle's final word on one trace item.
+
+    On the wire: ``DEBUG_FLOAT_ARRAY`` named :data:`TRACE_REPORT_NAME`, ``array_id`` = the
+    item's mission seq, ``data[0:5]`` = piece id, :attr:`OutcomeStatus.code`, traced metres,
+    flown metres (transit and search included), level. Floats are float32 on the wire: ids
+    are exact below 2**24, distances to about 7 digits.
+
+    >>> r = TraceReport(3, 1002, OutcomeStatus.BOUNDARY, 120.5, 150.25, 42.0)
+    >>> TraceReport.from_array(3, r.to_array()) == r
+    True
+    """
+
+    seq: int
+    piece_id: int
+    status: OutcomeStatus
+    traced_m: float
+    flown_m: float
+    level: float = math.nan
+
+    def to_array(self) -> list[float]:
+        return [float(self.piece_id), float(self.status.code), float(self.traced_m),
+                float(self.flown_m), float(self.level)]
+
+    @classmethod
+    def from_array(cls, seq: int, data: Sequence[float]) -> TraceReport:
+        """Decode ``data``; ValueError names what is wrong with it."""
+        if len(data) < 5:
+            raise ValueError(f"trace report of item {seq}: {len(data)} values, expected 5")
+        piece, code, traced, flown, level = (float(v) for v in data[:5])
+        if not (math.isfinite(piece) and piece == int(piece) and math.isfinite(code)
+                and code == int(code)):
+            raise ValueError(f"trace report of item {seq}: piece id {piece!r} and status "
+                             f"code {code!r} must be integers")
+        if not (math.isfinite(traced) and math.isfinite(flown) and traced >= 0 and flown >= 0):
+            raise ValueError(f"trace report of item {seq}: distances must be finite and "
+                             f">= 0, got {traced!r}, {flown!r}")
+        return cls(int(seq), int(piece), OutcomeStatus.from_code(int(code)), traced, flown,
+                   level)
 
 
 @dataclass

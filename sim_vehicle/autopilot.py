@@ -1,0 +1,427 @@
+"""The autopilot of a simulated vehicle as an I/O-free state machine, per personality.
+
+In the style of aioquic's connection objects: the I/O loop feeds received messages with
+:meth:`Autopilot.receive` (``msg, now``), steps the simulation with :meth:`Autopilot.tick`,
+calls :meth:`Autopilot.poll` when :meth:`Autopilot.next_deadline` has passed (mission transfer
+retries) and sends whatever the :class:`~sim_vehicle.telemetry.Outbox` holds. ``now`` is the
+wall clock (protocol timeouts); the flight itself runs on the body's sim clock.
+
+:class:`Autopilot` holds what every personality shares: arming, the mission protocol
+(:class:`~sim_vehicle.mission_server.MissionServer`), parameters and the common commands.
+A personality subclass says how modes are encoded and set, and adds its own habits:
+:class:`sim_vehicle.px4.Px4Autopilot`.
+
+Commands (COMMAND_LONG and COMMAND_INT, always answered by COMMAND_ACK): COMPONENT_ARM_DISARM
+(arm only on the ground; disarm in the air only with the 21196 force code), NAV_TAKEOFF
+(param7 AMSL; needs armed), MISSION_START (param1/2 first/last; needs armed + a mission),
+NAV_RETURN_TO_LAUNCH, NAV_LAND, DO_SET_MODE, DO_CHANGE_SPEED (from the next item),
+DO_SET_MISSION_CURRENT, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE,
+REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION; anything else -> MAV_RESULT_UNSUPPORTED.
+Uploading or clearing the mission while it runs makes the vehicle hold.
+
+Parameters (REAL32): SPEED_MPS, SAMPLE_HZ, SEARCH_RAD_M, TEL_RATE_HZ, NOISE_STD, ALT_M,
+SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when idle).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from econdor_gcs.core.geodesy import Origin
+from econdor_gcs.core.geometry import Region
+from econdor_gcs.core.tasks import Phase
+
+from .body import Sample
+from .mission_server import MISSION, MissionServer
+from .navigator import Activity, Navigator
+from .state import PARAM_NAMES, FlightMode, VehicleSettings, VehicleState
+from .telemetry import Outbox, Telemetry
+from .tracer import TracerParams
+
+MISSION_RETRY_S = 0.25
+MISSION_RETRIES = 20
+"""Mission upload: resend a request after MISSION_RETRY_S, fail after this many in a row
+(PX4's timing: a GCS under load can answer a request seconds late)."""
+
+FORCE_DISARM = 21196
+"""COMPONENT_ARM_DISARM param2 that allows disarming in the air."""
+
+ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
+DENIED = mavlink.MAV_RESULT_DENIED
+UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
+
+
+def _param_id(msg: Any) -> str:
+    pid = msg.param_id
+    if isinstance(pid, bytes):
+        pid = pid.decode("ascii", "replace")
+    return str(pid).rstrip("\x00")
+
+
+class Autopilot:
+    """Modes, arming, commands, parameters and the mission protocol of one vehicle.
+
+    Parameters
+    ----------
+    field, region, origin
+        The true field ``field(x, y)``, the mission area (local ENU metres) and its origin.
+    settings
+        Limits, rates, defaults, system id.
+    home
+        ``(lat_deg, lon_deg, alt_amsl_m)``; the vehicle starts landed and disarmed there.
+    tracer_params
+        Base tracer tuning (speeds are overridden by SPEED_MPS).
+    status_line
+        The link counters as one line (answer to REQUEST_MESSAGE(STATUSTEXT)).
+    """
+
+    autopilot_type = mavlink.MAV_AUTOPILOT_GENERIC
+    flight_sw_version = 0
+    boot_mode = FlightMode.HOLD
+
+    def __init__(self, field: Callable[[float, float], float], region: Region, origin: Origin,
+                 settings: VehicleSettings, home: tuple[float, float, float],
+                 tracer_params: TracerParams | None = None,
+                 status_line: Callable[[], str] = lambda: "") -> None:
+        self.state = VehicleState(field, region, origin, settings, home)
+        self.state.mode = self.boot_mode
+        self.outbox = Outbox(origin, home[2])
+        self.server = MissionServer(timeout_s=MISSION_RETRY_S, max_retries=MISSION_RETRIES)
+        self.navigator = Navigator(self.state, self.server, self.outbox, tracer_params)
+        self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line)
+        self.activity: Activity | None = None
+        self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0}
+        self.unhandled: dict[str, int] = {}
+
+    # -- the personality's part ----------------------------------------------------------------
+
+    def custom_mode(self) -> int:
+        """The current mode as this personality's ``custom_mode``."""
+        raise NotImplementedError
+
+    def mode_name(self) -> str:
+        raise NotImplementedError
+
+    def heartbeat_modes(self) -> tuple[int, int]:
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.state.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        return base, self.custom_mode()
+
+    def do_set_mode(self, base_mode: float, p2: float, p3: float) -> int:
+        """MAV_CMD_DO_SET_MODE (params 1-3) -> MAV_RESULT."""
+        raise NotImplementedError
+
+    def on_set_mode(self, msg: Any) -> None:
+        """The deprecated SET_MODE message (no answer)."""
+        raise NotImplementedError
+
+    # -- driving it ----------------------------------------------------------------------------
+
+    @property
+    def parked(self) -> bool:
+        """Landed, disarmed and idle: nothing to sense or report."""
+        return self.activity is None and not self.state.armed and self.state.alt_rel_m <= 0.0
+
+    def skip_parked(self, n_ticks: int) -> None:
+        """Jump ``n_ticks`` ahead while parked (one body rebuild instead of n idle ticks)."""
+        st = self.state
+        st.rebuild_body(st.body.t_s + n_ticks * st.body.dt_s)
+        st.vel_enu_mps = (0.0, 0.0, 0.0)
+        self.counters["ticks"] += n_ticks
+
+    def tick(self) -> None:
+        """One sim tick: step the activity (or hover); queue its sample if it is reported."""
+        st = self.state
+        self.counters["ticks"] += 1
+        x0, y0, a0 = st.body.x_m, st.body.y_m, st.alt_rel_m
+        sample: Sample | None = None
+        if self.activity is not None:
+            try:
+                sample = next(self.activity)
+            except StopIteration:
+                self.activity = None
+        if self.activity is None and sample is None:
+            st.apply_pending_body()
+            st.body.hold(Phase.TRANSIT)
+        dt = st.body.dt_s
+        st.vel_enu_mps = ((st.body.x_m - x0) / dt, (st.body.y_m - y0) / dt,
+                          (st.alt_rel_m - a0) / dt)
+        if sample is not None and st.sampling:
+            self.telemetry.sample(sample)
+
+    def next_deadline(self) -> float | None:
+        return self.server.next_deadline()
+
+    def poll(self, now: float) -> None:
+        """Mission transfer retries / timeouts due at ``now``."""
+        for m in self.server.poll(now):
+            self.outbox.put(m)
+
+    def receive(self, msg: Any, now: float) -> bool:
+        """Handle one message addressed to this vehicle; False if it is not understood."""
+        mtype = msg.get_type()
+        if mtype.startswith("MISSION_"):
+            for reply in self.server.receive(msg, now):
+                self.outbox.put(reply)
+            self._mission_events()
+            return True
+        handler = self._HANDLERS.get(mtype)
+        if handler is None:
+            self.counters["rx_unhandled"] += 1
+            self.unhandled[mtype] = self.unhandled.get(mtype, 0) + 1
+            return False
+        handler(self, msg)
+        return True
+
+    # -- mission events ------------------------------------------------------------------------
+
+    def _mission_events(self) -> None:
+        st = self.state
+        while self.server.events:
+            ev = self.server.events.pop(0)
+            if ev.mission_type != MISSION:
+                continue
+            if ev.kind in ("uploaded", "cleared"):
+                st.mission_complete = False
+            if ev.kind in ("uploaded", "cleared") and st.mission_active:
+                # the mission under execution is gone: hold where we are
+                self.set_hold()
+            elif ev.kind == "set_current" and st.mission_active:
+                self.start_mission(ev.seq, len(self.server.mission) - 1)
+
+    def set_hold(self) -> None:
+        st = self.state
+        st.mission_active = False
+        st.mode = FlightMode.HOLD
+        self.activity = self.navigator.hold_forever() if st.alt_rel_m > 0.0 else None
+
+    def start_mission(self, first: int, last: int) -> None:
+        self.state.mode = FlightMode.MISSION
+        self.activity = self.navigator.mission(first, last)
+
+    def _fly_activity(self, activity: Activity) -> None:
+        """Leave the mission (if any) for ``activity``."""
+        self.state.mission_active = False
+        self.activity = activity
+
+    # -- messages ------------------------------------------------------------------------------
+
+    def _on_heartbeat(self, msg: Any) -> None:
+        pass
+
+    def _on_ping(self, msg: Any) -> None:
+        if msg.target_system == 0:
+            self.outbox.put(mavlink.MAVLink_ping_message(
+                msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _on_timesync(self, msg: Any) -> None:
+        if msg.tc1 == 0:
+            self.outbox.put(mavlink.MAVLink_timesync_message(int(self.state.body.t_s * 1e9),
+                                                             msg.ts1))
+
+    def _on_command_long(self, msg: Any) -> None:
+        self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
+                                         msg.param5, msg.param6, msg.param7])
+
+    def _on_command_int(self, msg: Any) -> None:
+        self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
+                                         msg.x / 1e7, msg.y / 1e7, msg.z])
+
+    def _on_set_mode(self, msg: Any) -> None:
+        self.on_set_mode(msg)
+
+    def _command(self, msg: Any, cmd: int, p: list[float]) -> None:
+        self.counters["commands"] += 1
+        result, after = self.execute_command(cmd, p)
+        self.outbox.put(mavlink.MAVLink_command_ack_message(
+            cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+        for m in after:
+            self.outbox.put(m)
+
+    # -- commands ------------------------------------------------------------------------------
+
+    def execute_command(self, cmd: int, p: list[float]) -> tuple[int, list[Any]]:
+        """Run one command; return its MAV_RESULT and the messages to send after the ACK."""
+        handler = self._COMMANDS.get(cmd)
+        if handler is None:
+            return UNSUPPORTED, []
+        return handler(self, p)
+
+    def _cmd_arm_disarm(self, p: list[float]) -> tuple[int, list[Any]]:
+        st = self.state
+        if p[0] >= 0.5:
+            if st.armed:
+                return ACCEPTED, []
+            if st.in_air:
+                return DENIED, []
+            return self.arm()
+        if st.in_air and int(p[1]) != FORCE_DISARM:
+            return DENIED, []
+        st.armed = False
+        st.alt_rel_m = 0.0
+        st.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
+        self.activity = None
+        st.mission_active = False
+        st.sampling = False
+        self.outbox.statustext("disarmed")
+        return ACCEPTED, [self.telemetry.heartbeat()]
+
+    def arm(self) -> tuple[int, list[Any]]:
+        """Arm on the ground (the checks passed)."""
+        self.state.armed = True
+        self.outbox.statustext("armed")
+        return ACCEPTED, [self.telemetry.heartbeat()]
+
+    def _cmd_takeoff(self, p: list[float]) -> tuple[int, list[Any]]:
+        st = self.state
+        if not st.armed:
+            return DENIED, []
+        alt = p[6] - st.home[2] if math.isfinite(p[6]) else float("nan")
+        if not (math.isfinite(alt) and alt > 1.0):
+            alt = st.params["ALT_M"]
+        self._fly_activity(self.navigator.takeoff_then_hold(alt))
+        return ACCEPTED, []
+
+    def _cmd_mission_start(self, p: list[float]) -> tuple[int, list[Any]]:
+        n = len(self.server.mission)
+        if n == 0 or not self.state.armed:
+            return DENIED, []
+        first = int(p[0]) if math.isfinite(p[0]) else 0
+        last = int(p[1]) if math.isfinite(p[1]) else n - 1
+        if last <= 0 or last >= n:
+            last = n - 1
+        if not 0 <= first <= last:
+            return DENIED, []
+        self.start_mission(first, last)
+        return ACCEPTED, []
+
+    def _cmd_rtl(self, p: list[float]) -> tuple[int, list[Any]]:
+        if not (self.state.armed and self.state.in_air):
+            return DENIED, []
+        self._fly_activity(self.navigator.rtl())
+        return ACCEPTED, []
+
+    def _cmd_land(self, p: list[float]) -> tuple[int, list[Any]]:
+        if not self.state.in_air:
+            return ACCEPTED, []
+        self._fly_activity(self.navigator.land())
+        return ACCEPTED, []
+
+    def _cmd_set_mode(self, p: list[float]) -> tuple[int, list[Any]]:
+        return self.do_set_mode(p[0], p[1], p[2]), []
+
+    def _cmd_change_speed(self, p: list[float]) -> tuple[int, list[Any]]:
+        if not (math.isfinite(p[1]) and p[1] > 0):
+            return DENIED, []
+        # takes effect from the next item (the tracer's speed is per task)
+        self.state.speed_mps = min(float(p[1]), self.state.settings.max_speed_mps)
+        return ACCEPTED, []
+
+    def _cmd_set_mission_current(self, p: list[float]) -> tuple[int, list[Any]]:
+        seq = int(p[0])
+        if not 0 <= seq < len(self.server.mission):
+            return DENIED, []
+        self.server.set_current(seq)
+        if self.state.mission_active:
+            self.start_mission(seq, len(self.server.mission) - 1)
+        return ACCEPTED, [self.server.mission_current_msg(self.state.mission_active)]
+
+    def _cmd_message_interval(self, p: list[float]) -> tuple[int, list[Any]]:
+        ok = self.telemetry.set_interval(int(p[0]), p[1])
+        return (ACCEPTED if ok else DENIED), []
+
+    def _cmd_request_message(self, p: list[float]) -> tuple[int, list[Any]]:
+        make = self.telemetry.requestable().get(int(p[0]))
+        if make is None:
+            return UNSUPPORTED, []
+        return ACCEPTED, [make()]
+
+    def _cmd_capabilities(self, p: list[float]) -> tuple[int, list[Any]]:
+        return ACCEPTED, [self.telemetry.autopilot_version()]
+
+    def _cmd_home(self, p: list[float]) -> tuple[int, list[Any]]:
+        return ACCEPTED, [self.telemetry.home_position()]
+
+    _COMMANDS: dict[int, Callable[[Autopilot, list[float]], tuple[int, list[Any]]]] = {
+        mavlink.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm_disarm,
+        mavlink.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
+        mavlink.MAV_CMD_MISSION_START: _cmd_mission_start,
+        mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: _cmd_rtl,
+        mavlink.MAV_CMD_NAV_LAND: _cmd_land,
+        mavlink.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
+        mavlink.MAV_CMD_DO_CHANGE_SPEED: _cmd_change_speed,
+        mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: _cmd_set_mission_current,
+        mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_message_interval,
+        mavlink.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
+        mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_capabilities,
+        mavlink.MAV_CMD_GET_HOME_POSITION: _cmd_home,
+    }
+
+    # -- parameters ----------------------------------------------------------------------------
+
+    def _param_msg(self, name: str) -> Any:
+        return mavlink.MAVLink_param_value_message(
+            name.encode(), float(self.state.params[name]), mavlink.MAV_PARAM_TYPE_REAL32,
+            len(PARAM_NAMES), PARAM_NAMES.index(name))
+
+    def _on_param_request_list(self, msg: Any) -> None:
+        for name in PARAM_NAMES:
+            self.outbox.put(self._param_msg(name))
+
+    def _on_param_request_read(self, msg: Any) -> None:
+        if 0 <= msg.param_index < len(PARAM_NAMES):
+            self.outbox.put(self._param_msg(PARAM_NAMES[msg.param_index]))
+            return
+        name = _param_id(msg)
+        if name in self.state.params:
+            self.outbox.put(self._param_msg(name))
+        else:
+            self.counters["rx_unhandled"] += 1
+
+    def _on_param_set(self, msg: Any) -> None:
+        name = _param_id(msg)
+        st = self.state
+        if name not in st.params:
+            self.outbox.statustext(f"unknown parameter {name}", mavlink.MAV_SEVERITY_WARNING)
+            return
+        value = float(msg.param_value)
+        ok = math.isfinite(value) and (value >= 0 if name == "NOISE_STD" else value > 0)
+        if name == "SPEED_MPS":
+            ok = ok and value <= st.settings.max_speed_mps
+        if name == "SAMPLE_HZ":
+            ok = ok and value <= 1000.0
+        if ok:
+            self.set_param(name, value)
+        else:
+            self.outbox.statustext(f"{name}: rejected {value:g}", mavlink.MAV_SEVERITY_WARNING)
+        self.outbox.put(self._param_msg(name))
+
+    def set_param(self, name: str, value: float) -> None:
+        """Set a parameter (SPEEDUP: the I/O loop re-anchors its clock when it sees it change)."""
+        st = self.state
+        st.params[name] = value
+        if name == "SPEED_MPS":
+            st.speed_mps = value
+        elif name in ("SAMPLE_HZ", "NOISE_STD"):
+            st.body_dirty = True  # applied at the next item boundary / idle tick
+        elif name == "SEARCH_RAD_M":
+            st.settings.search_radius_m = value
+        elif name == "ALT_M":
+            st.settings.altitude_m = value
+
+    _HANDLERS: dict[str, Callable[[Autopilot, Any], None]] = {
+        "HEARTBEAT": _on_heartbeat,
+        "PING": _on_ping,
+        "TIMESYNC": _on_timesync,
+        "COMMAND_LONG": _on_command_long,
+        "COMMAND_INT": _on_command_int,
+        "SET_MODE": _on_set_mode,
+        "PARAM_REQUEST_LIST": _on_param_request_list,
+        "PARAM_REQUEST_READ": _on_param_request_read,
+        "PARAM_SET": _on_param_set,
+    }

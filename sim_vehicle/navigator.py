@@ -1,0 +1,255 @@
+"""Mission execution of a simulated vehicle: mission items -> flight activities.
+
+No I/O. An *activity* is a generator that advances the body by exactly one tick per step and
+yields the tick's :class:`~sim_vehicle.body.Sample` (or None while holding, climbing or
+descending); the autopilot keeps one activity running and steps it once per sim tick.
+Horizontal flight is delegated to the onboard tracer's generators (``run_task``, ``fly_to``);
+climbs and descents happen at :data:`CLIMB_RATE_MPS` / :data:`DESCENT_RATE_MPS` while the body
+hovers. Only ticks of horizontal tasks are reported as samples (``state.sampling``).
+
+Mission items (see :func:`sim_vehicle.mission_server.check_item` for what is accepted):
+NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_UNLIM / LOITER_TIME, DO_CHANGE_SPEED (from the next
+item), NAV_RETURN_TO_LAUNCH, NAV_LAND and the contour item ``MAV_CMD_WAYPOINT_USER_1``.
+Progress goes out as MISSION_CURRENT and MISSION_ITEM_REACHED; the outcome of a trace item as
+a ``DEBUG_FLOAT_ARRAY("TRACE")`` report just before its MISSION_ITEM_REACHED (its events and
+outcome also as STATUSTEXT, for people).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Generator
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from econdor_gcs.core.tasks import OutcomeStatus, Phase, TraceReport, TraceTask, Waypoint
+
+from .body import Sample
+from .executor import run_task
+from .mission_server import MAV_CMD_WAYPOINT_USER_1, MissionServer, StoredItem
+from .state import FlightMode, VehicleState
+from .telemetry import Outbox, trace_report_message
+from .tracer import TracerParams, fly_to
+
+CLIMB_RATE_MPS = 3.0
+DESCENT_RATE_MPS = 1.5
+
+Activity = Generator[Sample | None, None, Any]
+"""One body tick per step; yields the tick's sample when it is to be reported."""
+
+
+class Navigator:
+    """Turns mission items and flight commands into activities.
+
+    Parameters
+    ----------
+    state
+        The vehicle state the activities change (body, altitude, mode, mission progress).
+    server
+        The stored mission (items, current item, MISSION_CURRENT).
+    outbox
+        Where progress messages and texts go.
+    tracer_params
+        Base tracer tuning; the speeds come from ``state.speed_mps``.
+    """
+
+    def __init__(self, state: VehicleState, server: MissionServer, outbox: Outbox,
+                 tracer_params: TracerParams | None = None) -> None:
+        self.state = state
+        self.server = server
+        self.outbox = outbox
+        self.tracer_base = tracer_params or TracerParams()
+        self.mission_last = -1
+
+    def tracer_params(self) -> TracerParams:
+        st = self.state
+        sp = min(st.speed_mps, st.settings.max_speed_mps)
+        return dataclasses.replace(self.tracer_base, speed_mps=sp, transit_speed_mps=sp)
+
+    # -- primitives ----------------------------------------------------------------------------
+
+    def hold_forever(self) -> Activity:
+        st = self.state
+        st.sampling = False
+        while True:
+            st.body.hold(Phase.TRANSIT)
+            yield None
+
+    def climb_to(self, target_alt_m: float) -> Activity:
+        st = self.state
+        st.sampling = False
+        if st.alt_rel_m < target_alt_m:
+            st.landed_state = mavlink.MAV_LANDED_STATE_TAKEOFF
+        while abs(st.alt_rel_m - target_alt_m) > 1e-3:
+            step = CLIMB_RATE_MPS * st.body.dt_s
+            st.alt_rel_m += max(-step, min(step, target_alt_m - st.alt_rel_m))
+            st.body.hold(Phase.TRANSIT)
+            yield None
+        if st.alt_rel_m > 0.1:
+            st.landed_state = mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def descend_and_disarm(self) -> Activity:
+        st = self.state
+        st.sampling = False
+        st.landed_state = mavlink.MAV_LANDED_STATE_LANDING
+        while st.alt_rel_m > 0.0:
+            st.alt_rel_m = max(0.0, st.alt_rel_m - DESCENT_RATE_MPS * st.body.dt_s)
+            st.body.hold(Phase.TRANSIT)
+            yield None
+        st.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
+        st.armed = False
+        st.mission_active = False
+        st.mode = FlightMode.HOLD
+        self.outbox.statustext("landed, disarmed")
+
+    def fly(self, gen: Generator[Sample, None, Any], target_alt_m: float | None) -> Activity:
+        """Run a horizontal task generator, adjusting altitude on the way; report samples."""
+        st = self.state
+        while True:
+            if target_alt_m is not None and abs(st.alt_rel_m - target_alt_m) > 1e-3:
+                step = CLIMB_RATE_MPS * st.body.dt_s
+                st.alt_rel_m += max(-step, min(step, target_alt_m - st.alt_rel_m))
+            st.sampling = True
+            try:
+                sample = next(gen)
+            except StopIteration as stop:
+                st.sampling = False
+                return stop.value
+            yield sample
+
+    def takeoff_then_hold(self, alt_m: float) -> Activity:
+        self.state.mode = FlightMode.TAKEOFF
+        yield from self.climb_to(alt_m)
+        self.state.mode = FlightMode.HOLD
+        yield from self.hold_forever()
+
+    def rtl(self) -> Activity:
+        st = self.state
+        st.mode = FlightMode.RTL
+        hx, hy, _ = st.home_local
+        if math.hypot(st.body.x_m - hx, st.body.y_m - hy) > 1.0:
+            yield from self.fly(fly_to(st.body, hx, hy, Phase.TRANSIT,
+                                       speed_mps=self.tracer_params().speed_mps), None)
+        st.mode = FlightMode.LAND
+        yield from self.descend_and_disarm()
+
+    def land(self) -> Activity:
+        self.state.mode = FlightMode.LAND
+        yield from self.descend_and_disarm()
+
+    def ensure_airborne(self, alt_m: float) -> Activity:
+        st = self.state
+        if st.alt_rel_m < 0.5:
+            yield from self.climb_to(alt_m if alt_m > 1.0 else st.params["ALT_M"])
+        st.landed_state = mavlink.MAV_LANDED_STATE_IN_AIR
+
+    # -- the mission ---------------------------------------------------------------------------
+
+    def item_alt_m(self, it: StoredItem) -> float:
+        """Item altitude above home (m), or 0 if it gives none."""
+        if it.frame in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT):
+            return it.z - self.state.home[2]
+        return it.z
+
+    def item_xy(self, it: StoredItem) -> tuple[float, float] | None:
+        if not it.is_global or (it.x == 0 and it.y == 0):
+            return None
+        x, y, _ = self.state.origin.to_local(it.lat_deg, it.lon_deg, 0.0)
+        return x, y
+
+    def mission(self, first: int, last: int) -> Activity:
+        """Fly items ``first..last`` of the stored mission, then hold (or stay landed)."""
+        st = self.state
+        items = self.server.mission
+        st.mission_active = True
+        st.mission_complete = False
+        self.mission_last = last
+        seq = first
+        while seq <= last and seq < len(items):
+            it = items[seq]
+            self.server.set_current(seq)
+            self.outbox.put(self.server.mission_current_msg(True))
+            result = yield from self.run_item(it)
+            self.outbox.put(mavlink.MAVLink_mission_item_reached_message(seq))
+            if result == "end":  # RTL / land: the mission ends with the vehicle down
+                st.mission_active = False
+                st.mission_complete = True
+                return
+            seq += 1
+        st.mission_active = False
+        st.mission_complete = True
+        self.outbox.statustext("mission complete")
+        st.mode = FlightMode.HOLD
+        self.outbox.put(self.server.mission_current_msg(False, True))
+        if st.alt_rel_m > 0.0:
+            yield from self.hold_forever()
+
+    def report_trace(self, report: TraceReport) -> None:
+        self.outbox.put(trace_report_message(report, int(self.state.body.t_s * 1e6)))
+
+    def run_item(self, it: StoredItem) -> Generator[Sample | None, None, str]:
+        """One mission item; returns ``"end"`` when it ended the flight (RTL, land)."""
+        st = self.state
+        cmd = it.command
+        st.apply_pending_body()
+        alt = self.item_alt_m(it)
+        xy = self.item_xy(it)
+        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
+            yield from self.climb_to(alt if alt > 1.0 else st.params["ALT_M"])
+            return "ok"
+        if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            if it.param2 > 0:
+                st.speed_mps = min(float(it.param2), st.settings.max_speed_mps)
+            return "ok"
+        if cmd in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
+                   mavlink.MAV_CMD_NAV_LOITER_TIME):
+            if xy is not None:
+                near = math.hypot(xy[0] - st.body.x_m, xy[1] - st.body.y_m) < 1.0
+                if not (near and st.alt_rel_m < 0.5 and cmd == mavlink.MAV_CMD_NAV_WAYPOINT):
+                    yield from self.ensure_airborne(alt)
+                    tgt = alt if alt > 1.0 else st.alt_rel_m
+                    yield from self.fly(run_task(st.body, Waypoint(*xy), self.tracer_params()),
+                                        tgt)
+            if cmd == mavlink.MAV_CMD_NAV_LOITER_UNLIM:
+                yield from self.ensure_airborne(alt)
+                yield from self.hold_forever()
+            if cmd == mavlink.MAV_CMD_NAV_LOITER_TIME:
+                yield from self.ensure_airborne(alt)
+                t_end = st.body.t_s + max(0.0, it.param1)
+                while st.body.t_s < t_end - 1e-9:
+                    st.body.hold(Phase.TRANSIT)
+                    yield None
+            return "ok"
+        if cmd == MAV_CMD_WAYPOINT_USER_1:
+            if xy is None:
+                self.outbox.statustext(f"piece {int(it.param4)}: no start point",
+                                       mavlink.MAV_SEVERITY_WARNING)
+                self.report_trace(TraceReport(it.seq, int(it.param4), OutcomeStatus.NOT_FOUND,
+                                              0.0, 0.0, float(it.param1)))
+                return "ok"
+            yield from self.ensure_airborne(alt)
+            rad = it.param2 if it.param2 > 0 else st.params["SEARCH_RAD_M"]
+            task = TraceTask(level=float(it.param1), x_m=xy[0], y_m=xy[1],
+                             search_radius_m=float(rad), max_length_m=max(0.0, it.param3),
+                             piece_id=int(it.param4))
+            pid = task.piece_id
+            outcome = yield from self.fly(
+                run_task(st.body, task, self.tracer_params(),
+                         on_event=lambda text: self.outbox.statustext(f"piece {pid}: {text}")),
+                alt if alt > 1.0 else None)
+            self.outbox.statustext(f"piece {pid}: {outcome.status} traced "
+                                   f"{outcome.traced_m:.1f} m flown {outcome.flown_m:.1f} m")
+            self.report_trace(TraceReport(it.seq, pid, outcome.status, outcome.traced_m,
+                                          outcome.flown_m, task.level))
+            return "ok"
+        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            yield from self.rtl()
+            return "end"
+        if cmd == mavlink.MAV_CMD_NAV_LAND:
+            if xy is not None and st.alt_rel_m > 0.5:
+                yield from self.fly(run_task(st.body, Waypoint(*xy), self.tracer_params()), None)
+            yield from self.land()
+            return "end"
+        return "ok"  # unreachable: the server rejects other commands

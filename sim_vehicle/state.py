@@ -1,0 +1,137 @@
+"""The state of one simulated vehicle, shared by its autopilot, navigator and telemetry.
+
+Nothing here does I/O. :class:`VehicleState` is the model; the
+:class:`~sim_vehicle.autopilot.Autopilot` (modes, arming, commands) and the
+:class:`~sim_vehicle.navigator.Navigator` (mission items -> flight activities) change it, the
+:class:`~sim_vehicle.telemetry.Telemetry` reads it.
+
+Positions are local ENU metres from the mission origin (the body's ``x_m``/``y_m``); the
+altitude is ``alt_rel_m`` above home (the body is a 2-D point mass, climbs and descents are
+handled by the navigator at fixed rates).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from enum import StrEnum
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from econdor_gcs.core.geodesy import Origin
+from econdor_gcs.core.geometry import Region
+
+from .body import SimBody
+from .kinematics import VehicleLimits
+
+PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD",
+               "ALT_M", "SPEEDUP")
+"""The vehicle's parameters (REAL32), in PARAM_VALUE index order."""
+
+
+@dataclasses.dataclass
+class VehicleSettings:
+    """Everything a vehicle needs besides the mission file's field and geometry."""
+
+    sysid: int = 1
+    speed_mps: float = 8.0
+    max_speed_mps: float = 12.0
+    max_accel_mps2: float = 5.0
+    max_turn_rate_dps: float = 180.0
+    sample_rate_hz: float = 10.0
+    altitude_m: float = 30.0
+    noise_std: float = 0.0
+    speedup: float = 50.0
+    search_radius_m: float = 10.0
+    tel_rate_hz: float = 10.0
+    seed: int = 0
+
+
+class FlightMode(StrEnum):
+    """What the vehicle is doing, independent of how an autopilot encodes it.
+
+    Each personality (:mod:`sim_vehicle.autopilot`) maps these to its own ``custom_mode``.
+    """
+
+    HOLD = "hold"          # hover where it is (PX4 AUTO.LOITER)
+    TAKEOFF = "takeoff"    # climbing to the takeoff altitude (PX4 AUTO.TAKEOFF)
+    MISSION = "mission"    # executing the stored mission (PX4 AUTO.MISSION)
+    RTL = "rtl"            # flying home, then landing (PX4 AUTO.RTL)
+    LAND = "land"          # descending where it is (PX4 AUTO.LAND)
+
+
+class VehicleState:
+    """Flight state of one vehicle: body, altitude, arming, mode, mission progress.
+
+    Parameters
+    ----------
+    field, region, origin
+        The true field ``field(x, y)``, the mission area and its geodetic origin.
+    settings
+        Limits, rates and defaults (:class:`VehicleSettings`).
+    home
+        ``(lat_deg, lon_deg, alt_amsl_m)``; the vehicle starts landed and disarmed there.
+    """
+
+    def __init__(self, field: Callable[[float, float], float], region: Region, origin: Origin,
+                 settings: VehicleSettings, home: tuple[float, float, float]) -> None:
+        s = settings
+        self.settings = settings
+        self.sysid = s.sysid
+        self.field = field
+        self.region = region
+        self.origin = origin
+        self.home = home
+        hx, hy, hz = origin.to_local(home[0], home[1], home[2] - origin.alt_m)
+        self.home_local = (hx, hy, hz)
+        self.params: dict[str, float] = {
+            "SPEED_MPS": s.speed_mps, "SAMPLE_HZ": s.sample_rate_hz,
+            "SEARCH_RAD_M": s.search_radius_m, "TEL_RATE_HZ": s.tel_rate_hz,
+            "NOISE_STD": s.noise_std, "ALT_M": s.altitude_m, "SPEEDUP": s.speedup,
+        }
+        self._rng = np.random.default_rng(s.seed * 1000 + s.sysid)
+        self.body = self.make_body(hx, hy, 0.0)
+        self.odo_base_m = 0.0
+        self.body_dirty = False
+        """SAMPLE_HZ or NOISE_STD changed: rebuild the body at the next item boundary."""
+        self.armed = False
+        self.alt_rel_m = 0.0
+        self.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
+        self.mode = FlightMode.HOLD
+        self.mission_active = False
+        self.mission_complete = False
+        self.speed_mps = s.speed_mps
+        self.sampling = False
+        """The current tick is a sample to report (set by the navigator's activities)."""
+        self.vel_enu_mps = (0.0, 0.0, 0.0)
+
+    def make_body(self, x_m: float, y_m: float, t_s: float) -> SimBody:
+        s = self.settings
+        limits = VehicleLimits(max_speed_mps=s.max_speed_mps, max_accel_mps2=s.max_accel_mps2,
+                               max_turn_rate_dps=s.max_turn_rate_dps)
+        return SimBody(self.field, self.region, x_m, y_m, limits,
+                       sample_rate_hz=self.params["SAMPLE_HZ"],
+                       noise_std=self.params["NOISE_STD"], rng=self._rng, t_s=t_s)
+
+    def rebuild_body(self, t_s: float) -> None:
+        """A new body at the same place (new sample rate / noise), the odometer carried on."""
+        self.odo_base_m += self.body.odometer_m
+        self.body = self.make_body(self.body.x_m, self.body.y_m, t_s)
+        self.body_dirty = False
+
+    def apply_pending_body(self) -> None:
+        if self.body_dirty:
+            self.rebuild_body(self.body.t_s)
+
+    @property
+    def time_boot_ms(self) -> int:
+        return int(round(self.body.t_s * 1000.0)) & 0xFFFFFFFF
+
+    @property
+    def odometer_m(self) -> float:
+        return self.odo_base_m + self.body.odometer_m
+
+    @property
+    def in_air(self) -> bool:
+        return self.alt_rel_m > 0.0

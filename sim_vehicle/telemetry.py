@@ -1,0 +1,352 @@
+"""What a simulated vehicle tells the world: message builders, stream rates, the outbox.
+
+No I/O: everything to send goes into an :class:`Outbox`, which the vehicle's I/O loop drains.
+
+Time: all MAVLink timestamps (``time_boot_ms``, ``time_usec``) are sim time since boot.
+HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE (and MISSION_CURRENT while a mission is stored) go
+out at 1 Hz of wall time; GLOBAL_POSITION_INT, LOCAL_POSITION_NED and ATTITUDE at
+``TEL_RATE_HZ`` of sim time (or the interval a GCS set with SET_MESSAGE_INTERVAL) but never
+more than :data:`MAX_STREAM_WALL_HZ` per wall second.
+
+Samples: every sensor reading taken while the vehicle executes a horizontal motion task goes
+out as ``GLOBAL_POSITION_INT`` immediately followed by ``NAMED_VALUE_FLOAT("FIELD")`` with the
+same ``time_boot_ms``, regardless of the stream rates. Samples wait in the outbox as local
+positions; :meth:`Outbox.drain` converts all of them to latitude/longitude in one vectorised
+pymap3d call and keeps the order of everything queued. Whenever the phase of the sampled ticks
+changes (transit, search, trace), ``NAMED_VALUE_INT("PHASE")`` goes out just before the first
+sample of the new phase, with that sample's ``time_boot_ms``; the end of a trace item is a
+``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
+:mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from econdor_gcs.core.geodesy import Origin
+from econdor_gcs.core.tasks import PHASE_NAME, TRACE_REPORT_NAME, TraceReport
+
+from .body import Sample
+from .mission_server import MissionServer
+from .state import VehicleState
+
+MAX_STREAM_WALL_HZ = 50.0
+"""Periodic streams never go out more often than this per wall second."""
+
+SENSORS = (
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS
+    | mavlink.MAV_SYS_STATUS_PREARM_CHECK
+)
+CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+)
+STATUSTEXT_CHUNK = 50
+"""Bytes of text in one STATUSTEXT; longer texts are sent in chunks with a common id."""
+
+
+class _QueuedSample(NamedTuple):
+    time_boot_ms: int
+    x_m: float
+    y_m: float
+    alt_rel_m: float
+    vel_enu_mps: tuple[float, float, float]
+    value: float
+
+
+def gpi_message(home_alt_amsl_m: float, ms: int, lat_deg: float, lon_deg: float,
+                alt_rel_m: float, vel_enu_mps: tuple[float, float, float]) -> Any:
+    """GLOBAL_POSITION_INT at ``alt_rel_m`` above a home at ``home_alt_amsl_m``."""
+    ve, vn, vu = vel_enu_mps
+    hdg = int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)) \
+        if ve * ve + vn * vn > 0.01 else 65535
+    return mavlink.MAVLink_global_position_int_message(
+        ms, int(round(lat_deg * 1e7)), int(round(lon_deg * 1e7)),
+        int(round((home_alt_amsl_m + alt_rel_m) * 1000)), int(round(alt_rel_m * 1000)),
+        int(round(vn * 100)), int(round(ve * 100)), int(round(-vu * 100)), hdg)
+
+
+DEBUG_FLOAT_ARRAY_LEN = 58
+
+
+def trace_report_message(report: TraceReport, time_usec: int) -> Any:
+    """The ``DEBUG_FLOAT_ARRAY("TRACE")`` that carries ``report`` (array_id = item seq)."""
+    data = report.to_array()
+    data += [0.0] * (DEBUG_FLOAT_ARRAY_LEN - len(data))
+    return mavlink.MAVLink_debug_float_array_message(
+        time_usec, TRACE_REPORT_NAME.encode(), report.seq, data)
+
+
+def phase_message(time_boot_ms: int, phase: int) -> Any:
+    """``NAMED_VALUE_INT("PHASE")``: samples from ``time_boot_ms`` on are in ``phase``."""
+    return mavlink.MAVLink_named_value_int_message(time_boot_ms, PHASE_NAME.encode(),
+                                                   int(phase))
+
+
+class Outbox:
+    """Everything the vehicle wants to send, in order, until the I/O loop drains it.
+
+    Parameters
+    ----------
+    origin
+        Converts the samples' local positions to latitude/longitude.
+    home_alt_amsl_m
+        Home altitude, for the AMSL altitude of the sample positions.
+    """
+
+    def __init__(self, origin: Origin, home_alt_amsl_m: float) -> None:
+        self.origin = origin
+        self.home_alt_amsl_m = home_alt_amsl_m
+        self._queue: list[Any] = []
+        self._n_samples = 0
+        self._status_id = 0
+        self.samples_sent = 0
+        self.last_sample_wall = -1.0
+        """Wall time of the last drain that carried samples."""
+
+    def put(self, msg: Any) -> None:
+        self._queue.append(msg)
+
+    def put_sample(self, sample: Sample, x_m: float, y_m: float, alt_rel_m: float,
+                   vel_enu_mps: tuple[float, float, float]) -> None:
+        """Queue one sample taken at ``(x_m, y_m, alt_rel_m)``."""
+        ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
+        self._queue.append(_QueuedSample(ms, x_m, y_m, alt_rel_m, vel_enu_mps,
+                                         float(sample.value)))
+        self._n_samples += 1
+
+    def statustext(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
+        """Queue a STATUSTEXT; texts longer than 50 bytes go in chunks (MAVLink 2 id/chunk_seq)."""
+        raw = text.encode("utf-8", "replace")
+        if len(raw) <= STATUSTEXT_CHUNK:
+            self.put(mavlink.MAVLink_statustext_message(severity, raw, 0, 0))
+            return
+        self._status_id = self._status_id % 65535 + 1
+        chunks = [raw[i:i + STATUSTEXT_CHUNK] for i in range(0, len(raw), STATUSTEXT_CHUNK)]
+        for n, chunk in enumerate(chunks):
+            self.put(mavlink.MAVLink_statustext_message(severity, chunk, self._status_id, n))
+        if len(chunks[-1]) == STATUSTEXT_CHUNK:  # terminate explicitly
+            self.put(mavlink.MAVLink_statustext_message(severity, b"", self._status_id,
+                                                        len(chunks)))
+
+    @property
+    def has_samples(self) -> bool:
+        return self._n_samples > 0
+
+    def __len__(self) -> int:
+        return len(self._queue)
+
+    def drain(self, wall: float) -> list[Any]:
+        """Everything queued, as messages, in order; samples become GLOBAL_POSITION_INT +
+        NAMED_VALUE_FLOAT("FIELD") pairs (one vectorised geodetic conversion for all)."""
+        queue, self._queue = self._queue, []
+        if not self._n_samples:
+            return queue
+        n = self._n_samples
+        self._n_samples = 0
+        samples = [q for q in queue if isinstance(q, _QueuedSample)]
+        xy = np.asarray([(q.x_m, q.y_m) for q in samples], dtype=float)
+        lat, lon, _ = self.origin.to_global_many(xy[:, 0], xy[:, 1], 0.0)
+        places = iter(zip(lat.tolist(), lon.tolist(), strict=True))
+        out: list[Any] = []
+        for q in queue:
+            if not isinstance(q, _QueuedSample):
+                out.append(q)
+                continue
+            la, lo = next(places)
+            out.append(gpi_message(self.home_alt_amsl_m, q.time_boot_ms, la, lo, q.alt_rel_m,
+                                   q.vel_enu_mps))
+            out.append(mavlink.MAVLink_named_value_float_message(q.time_boot_ms, b"FIELD",
+                                                                 q.value))
+        self.samples_sent += n
+        self.last_sample_wall = wall
+        return out
+
+
+class ModeEncoder(Protocol):
+    """How an autopilot personality shows itself in HEARTBEAT and AUTOPILOT_VERSION."""
+
+    autopilot_type: int
+    flight_sw_version: int
+
+    def heartbeat_modes(self) -> tuple[int, int]:
+        """``(base_mode, custom_mode)`` of the current state."""
+        ...
+
+
+class Telemetry:
+    """Message builders and stream scheduling for one vehicle.
+
+    Parameters
+    ----------
+    state
+        What to report.
+    server
+        The mission store (MISSION_CURRENT).
+    outbox
+        Where the streams go.
+    modes
+        The personality's mode encoding (HEARTBEAT).
+    status_line
+        Text of the STATUSTEXT a GCS gets for REQUEST_MESSAGE(STATUSTEXT): the link counters.
+    """
+
+    STREAMS = (
+        ("GLOBAL_POSITION_INT", mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT),
+        ("LOCAL_POSITION_NED", mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+        ("ATTITUDE", mavlink.MAVLINK_MSG_ID_ATTITUDE),
+    )
+    """The periodic streams (name, message id), at ``TEL_RATE_HZ`` of sim time by default."""
+
+    def __init__(self, state: VehicleState, server: MissionServer, outbox: Outbox,
+                 modes: ModeEncoder, status_line: Callable[[], str]) -> None:
+        self.state = state
+        self.server = server
+        self.outbox = outbox
+        self.modes = modes
+        self.status_line = status_line
+        self.intervals: dict[int, float] = {}
+        """Message id -> interval override in seconds of sim time; < 0 = stream off."""
+        self._last_sent_wall: dict[str, float] = {}
+        self._last_sent_sim: dict[str, float] = {}
+        self.phase: int | None = None
+        """Phase of the last sample sent (None before the first)."""
+        self._builders: dict[str, Callable[[], Any]] = {
+            "GLOBAL_POSITION_INT": self.global_position_int,
+            "LOCAL_POSITION_NED": self.local_position_ned,
+            "ATTITUDE": self.attitude,
+        }
+
+    # -- builders ------------------------------------------------------------------------------
+
+    def heartbeat(self) -> Any:
+        base, custom = self.modes.heartbeat_modes()
+        status = mavlink.MAV_STATE_ACTIVE if self.state.armed else mavlink.MAV_STATE_STANDBY
+        return mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, self.modes.autopilot_type, base, custom, status, 3)
+
+    def sys_status(self) -> Any:
+        return mavlink.MAVLink_sys_status_message(
+            SENSORS, SENSORS, SENSORS, 100, 16000, 1000, 90, 0, 0, 0, 0, 0, 0)
+
+    def extended_sys_state(self) -> Any:
+        return mavlink.MAVLink_extended_sys_state_message(
+            mavlink.MAV_VTOL_STATE_UNDEFINED, self.state.landed_state)
+
+    def autopilot_version(self) -> Any:
+        return mavlink.MAVLink_autopilot_version_message(
+            CAPABILITIES, self.modes.flight_sw_version, 0, 0, 1, [0] * 8, [0] * 8, [0] * 8, 0,
+            0, self.state.sysid, [0] * 18)
+
+    def home_position(self) -> Any:
+        st = self.state
+        lat, lon, alt = st.home
+        hx, hy, _ = st.home_local
+        return mavlink.MAVLink_home_position_message(
+            int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
+            hy, hx, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(st.body.t_s * 1e6))
+
+    def global_position_int(self) -> Any:
+        st = self.state
+        lat, lon, _ = st.origin.to_global(st.body.x_m, st.body.y_m, 0.0)
+        return gpi_message(st.home[2], st.time_boot_ms, lat, lon, st.alt_rel_m, st.vel_enu_mps)
+
+    def local_position_ned(self) -> Any:
+        st = self.state
+        ve, vn, vu = st.vel_enu_mps
+        return mavlink.MAVLink_local_position_ned_message(
+            st.time_boot_ms, st.body.y_m - st.home_local[1], st.body.x_m - st.home_local[0],
+            -st.alt_rel_m, vn, ve, -vu)
+
+    def attitude(self) -> Any:
+        ve, vn, _ = self.state.vel_enu_mps
+        yaw = math.atan2(ve, vn) if ve * ve + vn * vn > 0.01 else 0.0
+        return mavlink.MAVLink_attitude_message(self.state.time_boot_ms, 0.0, 0.0, yaw, 0.0,
+                                                0.0, 0.0)
+
+    def mission_current(self) -> Any:
+        return self.server.mission_current_msg(self.state.mission_active)
+
+    def counters_text(self) -> Any:
+        return mavlink.MAVLink_statustext_message(
+            mavlink.MAV_SEVERITY_INFO, self.status_line().encode()[:STATUSTEXT_CHUNK], 0, 0)
+
+    def requestable(self) -> dict[int, Callable[[], Any]]:
+        """Message id -> builder, for REQUEST_MESSAGE and SET_MESSAGE_INTERVAL."""
+        return {
+            mavlink.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
+            mavlink.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE: self.attitude,
+            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self.local_position_ned,
+            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self.global_position_int,
+            mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission_current,
+            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.autopilot_version,
+            mavlink.MAVLINK_MSG_ID_HOME_POSITION: self.home_position,
+            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.extended_sys_state,
+            mavlink.MAVLINK_MSG_ID_STATUSTEXT: self.counters_text,
+        }
+
+    # -- rates ---------------------------------------------------------------------------------
+
+    def set_interval(self, message_id: int, interval_us: float) -> bool:
+        """SET_MESSAGE_INTERVAL: 0 = default rate, < 0 = off. False for unknown messages."""
+        if message_id not in self.requestable():
+            return False
+        if interval_us == 0:
+            self.intervals.pop(message_id, None)
+        else:
+            self.intervals[message_id] = -1.0 if interval_us < 0 else interval_us / 1e6
+        return True
+
+    def one_hz(self) -> None:
+        """The 1 Hz (wall) messages: HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE, MISSION_CURRENT."""
+        self.outbox.put(self.heartbeat())
+        for mid, make in ((mavlink.MAVLINK_MSG_ID_SYS_STATUS, self.sys_status),
+                          (mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, self.extended_sys_state)):
+            if self.intervals.get(mid, 1.0) >= 0:
+                self.outbox.put(make())
+        if self.server.mission:
+            self.outbox.put(self.server.mission_current_msg(self.state.mission_active,
+                                                            self.state.mission_complete))
+
+    def periodic(self, wall: float) -> None:
+        """Queue the periodic streams that are due at sim time now and wall time ``wall``."""
+        sim = self.state.body.t_s
+        rate = self.state.params["TEL_RATE_HZ"]
+        for name, mid in self.STREAMS:
+            period = self.intervals.get(mid, 1.0 / rate if rate > 0 else -1.0)
+            if period < 0:
+                continue
+            if sim - self._last_sent_sim.get(name, -1e9) < period - 1e-9:
+                continue
+            if wall - self._last_sent_wall.get(name, -1e9) < 1.0 / MAX_STREAM_WALL_HZ:
+                continue
+            if name == "GLOBAL_POSITION_INT" and \
+                    wall - self.outbox.last_sample_wall < 0.5 / MAX_STREAM_WALL_HZ:
+                continue  # sample pairs are flowing; they carry the position already
+            self.outbox.put(self._builders[name]())
+            self._last_sent_sim[name] = sim
+            self._last_sent_wall[name] = wall
+
+    def sample(self, sample: Sample) -> None:
+        """Queue one sample at the vehicle's current position and velocity (after a PHASE
+        message when its phase differs from the previous sample's)."""
+        st = self.state
+        if sample.phase != self.phase:
+            self.phase = sample.phase
+            self.outbox.put(phase_message(int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF,
+                                          sample.phase))
+        self.outbox.put_sample(sample, st.body.x_m, st.body.y_m, st.alt_rel_m, st.vel_enu_mps)

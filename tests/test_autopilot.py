@@ -1,0 +1,112 @@
+"""The vehicle's autopilot as an I/O-free state machine: messages in, outbox out, no sockets."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+from vehicle_helpers import DEMO, item_int
+
+from econdor_gcs.mission import load_mission
+from sim_vehicle.px4 import PX4_MODES, Px4Autopilot
+from sim_vehicle.state import FlightMode, VehicleSettings
+
+GCS = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+DECODER = mavlink.MAVLink(None)
+MISSION = load_mission(DEMO)
+
+
+def rx(msg):
+    """What the vehicle would see: msg packed by the GCS and decoded (sets src ids)."""
+    return DECODER.decode(bytearray(msg.pack(GCS)))
+
+
+def make(**kw) -> Px4Autopilot:
+    settings = VehicleSettings(sysid=1, **kw)
+    o = MISSION.origin
+    return Px4Autopilot(MISSION.build_field(), MISSION.region, o, settings,
+                        (o.lat_deg, o.lon_deg, o.alt_m))
+
+
+def command(ap, cmd, *params):
+    p = list(params) + [0.0] * (7 - len(params))
+    ap.receive(rx(mavlink.MAVLink_command_long_message(1, 1, cmd, 0, *p)), 0.0)
+    out = ap.outbox.drain(0.0)
+    acks = [m for m in out if m.get_type() == "COMMAND_ACK"]
+    assert len(acks) == 1 and acks[0].command == cmd
+    return acks[0].result, out
+
+
+def upload(ap, items):
+    ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, len(items), 0)), 0.0)
+    for it in items:
+        ap.receive(rx(it), 0.0)
+    out = ap.outbox.drain(0.0)
+    assert out[-1].get_type() == "MISSION_ACK" and out[-1].type == mavlink.MAV_MISSION_ACCEPTED
+
+
+def run_until(ap, cond, max_ticks=20000):
+    msgs = []
+    for _ in range(max_ticks):
+        ap.tick()
+        msgs.extend(ap.outbox.drain(0.0))
+        if cond(msgs):
+            return msgs
+    raise AssertionError("condition not reached")
+
+
+def ll(x, y):
+    lat, lon, _ = MISSION.origin.to_global(x, y)
+    return lat, lon
+
+
+def test_px4_boots_landed_in_hold_and_denies_flight_commands_until_armed():
+    ap = make()
+    assert ap.state.mode == FlightMode.HOLD and ap.custom_mode() == PX4_MODES[FlightMode.HOLD]
+    assert ap.parked
+    hb = ap.telemetry.heartbeat()
+    assert hb.autopilot == mavlink.MAV_AUTOPILOT_PX4
+    assert not hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    assert command(ap, mavlink.MAV_CMD_NAV_TAKEOFF)[0] == mavlink.MAV_RESULT_DENIED
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_DENIED
+    result, out = command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert result == mavlink.MAV_RESULT_ACCEPTED and ap.state.armed
+    # the ACK comes before the heartbeat that shows the new state
+    kinds = [m.get_type() for m in out]
+    assert kinds.index("COMMAND_ACK") < kinds.index("HEARTBEAT")
+    assert out[kinds.index("HEARTBEAT")].base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+
+
+def test_mission_flown_by_ticks_alone_reports_samples_and_progress():
+    ap = make(sample_rate_hz=10.0)
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
+                item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 0), 10)])
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
+    assert ap.state.mode == FlightMode.MISSION
+    msgs = run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                        for m in ms))
+    gpi = [m for m in msgs if m.get_type() == "GLOBAL_POSITION_INT"]
+    fields = [m for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"]
+    assert len(gpi) == len(fields) > 20  # only the horizontal leg is sampled, in pairs
+    assert [g.time_boot_ms for g in gpi] == [f.time_boot_ms for f in fields]
+    assert all(g.relative_alt == pytest.approx(10000, abs=50) for g in gpi)
+    x, y, _ = MISSION.origin.to_local(gpi[-1].lat / 1e7, gpi[-1].lon / 1e7)
+    assert math.hypot(x - 30, y) < 1.5
+    assert ap.state.mode == FlightMode.HOLD and ap.state.mission_complete
+
+
+def test_px4_do_set_mode_encoding_and_rtl_lands_and_disarms():
+    ap = make()
+    assert ap.do_set_mode(1, 4, 4) == mavlink.MAV_RESULT_DENIED  # AUTO.MISSION, no mission
+    assert ap.do_set_mode(1, 6, 0) == mavlink.MAV_RESULT_DENIED  # OFFBOARD: not here
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert ap.do_set_mode(1, 4, 2) == mavlink.MAV_RESULT_ACCEPTED  # AUTO.TAKEOFF
+    run_until(ap, lambda ms: ap.state.mode == FlightMode.HOLD)
+    assert ap.state.alt_rel_m == pytest.approx(MISSION.vehicles.altitude_m)
+    assert ap.do_set_mode(1, 4, 5) == mavlink.MAV_RESULT_ACCEPTED  # AUTO.RTL
+    msgs = run_until(ap, lambda ms: not ap.state.armed)
+    assert ap.state.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
+    assert any(m.get_type() == "STATUSTEXT" and m.text.startswith("landed") for m in msgs)
+    assert ap.parked
