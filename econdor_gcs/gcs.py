@@ -80,7 +80,7 @@ from .link.router import Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
 from .mission import Mission
 from .rundir import RunDirMode
-from .signing import SigningKey
+from .signing import SigningKey, load_signing_key
 
 __all__ = [
     "MavlinkExecutor",
@@ -743,13 +743,14 @@ def run_mission(
     mission_path: Path | None = None,
     figures: bool = True,
     mode: RunDirMode = RunDirMode.NEW,
-    signing: SigningKey | None = None,
+    signing_key_file: Path | None = None,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
 
     ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
-    resume a run use :func:`resume_mission`. With ``signing`` every message is signed and
-    unsigned telemetry is dropped (the key is written nowhere).
+    resume a run use :func:`resume_mission`. With ``signing_key_file`` (see
+    :func:`~.signing.load_signing_key`) every message is signed, unsigned telemetry is
+    dropped, and the vehicles this run starts sign too (the key is written nowhere).
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
@@ -759,6 +760,7 @@ def run_mission(
     from .rundir import RunDir, read_checkpoint
 
     wall0 = time.perf_counter()
+    signing = load_signing_key(signing_key_file) if signing_key_file is not None else None
     n = vehicles or mission.vehicles.count
     speed = speedup or mission.vehicles.speedup
     seed = mission.seed if seed is None else seed
@@ -806,11 +808,9 @@ def run_mission(
             if connect is None:
                 if mission_path is None:
                     raise RunError("run_mission: mission_path is needed to start vehicles")
-                if signing is not None:
-                    raise RunError("--signing-key needs --connect for now: the simulated "
-                                   "vehicles this command starts do not sign yet")
                 fleet = Fleet(mission_path, out / "vehicles")
-                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed)
+                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed,
+                            signing_key_file=signing_key_file)
                 sysids = list(range(1, n + 1))
                 try:
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
@@ -876,7 +876,7 @@ def run_mission(
 
 def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
                    connect: str | None = None, timeout_s: float | None = None,
-                   signing: SigningKey | None = None) -> dict[str, Any]:
+                   signing_key_file: Path | None = None) -> dict[str, Any]:
     """Continue the MAVLink run recorded in ``out`` after its last finished flight.
 
     The finished flights are replayed from ``flights.jsonl`` and ``samples.csv`` (the DFC
@@ -891,7 +891,7 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
     config = read_run_config(out)
     if config.get("transport") != "mavlink":
         raise RunError(f"{out}: a {config.get('transport')} run, not a MAVLink one")
-    if config.get("signed") and signing is None:
+    if config.get("signed") and signing_key_file is None:
         raise RunError(f"{out}: the run was signed; resume it with --signing-key")
     copy = out / "mission.yaml"
     original = Path(config["mission_path"]) if config.get("mission_path") else None
@@ -910,7 +910,7 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         connect=connect if connect is not None else config.get("connect"),
         timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
         quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
-        signing=signing)
+        signing_key_file=signing_key_file)
 
 
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
@@ -977,13 +977,11 @@ async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
 def run_mission_cli(args: Any) -> int:
     """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
     from .mission import load_mission
-    from .signing import load_signing_key
 
-    signing = load_signing_key(args.signing_key) if args.signing_key is not None else None
     if args.resume is not None:
         out = args.resume
         summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
-                                 timeout_s=args.timeout, signing=signing)
+                                 timeout_s=args.timeout, signing_key_file=args.signing_key)
     else:
         mission = load_mission(args.mission)
         out = args.out or _default_out(mission)
@@ -991,7 +989,8 @@ def run_mission_cli(args: Any) -> int:
         summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
                               speedup=args.speedup, seed=args.seed, connect=args.connect,
                               timeout_s=args.timeout, quiet=args.quiet,
-                              mission_path=args.mission, mode=mode, signing=signing)
+                              mission_path=args.mission, mode=mode,
+                              signing_key_file=args.signing_key)
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

@@ -12,15 +12,18 @@ logged, or written to a tlog or a run directory. :class:`SigningKey` keeps it ou
 from __future__ import annotations
 
 import hashlib
+import hmac
 import re
 import time
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from .errors import EcondorError
 
-__all__ = ["SigningKey", "load_signing_key", "signing_timestamp"]
+__all__ = ["SigningKey", "check_signature", "load_signing_key", "refusal_counts", "refused",
+           "share_signing", "signing_timestamp"]
 
 _HEX64 = re.compile(r"[0-9a-fA-F]{64}")
 _EPOCH_2015 = 1420070400  # 1 January 2015 GMT, the origin of MAVLink signing timestamps
@@ -82,10 +85,61 @@ class SigningKey:
         mav.signing.sign_outgoing = sign_outgoing
         mav.signing.timestamp = max(mav.signing.timestamp, signing_timestamp())
         mav.signing.allow_unsigned_callback = _refuse_unsigned
+        share_signing(mav, mav.signing)
 
 
 def _refuse_unsigned(mav: Any, msg_id: int) -> bool:
     return False
+
+
+def share_signing(mav: Any, state: Any) -> None:
+    """Check ``mav``'s incoming signatures against ``state`` (a ``MAVLinkSigning`` several
+    parsers may share), with :func:`check_signature`."""
+    mav.signing = state
+    mav.check_signature = types.MethodType(check_signature, mav)
+
+
+def check_signature(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """pymavlink's ``MAVLink.check_signature`` in the order the MAVLink spec gives.
+
+    pymavlink (2.4.x) records a stream's timestamp *before* it compares the signature, so a
+    forged packet with a future timestamp makes every genuine packet after it "old": one
+    unsigned-key packet would cut a signed link. Here the signature is checked first (in
+    constant time); only a genuine packet moves the stream's timestamp on.
+    """
+    sig = mav.signing
+    digest = hashlib.sha256(sig.secret_key + bytes(msgbuf[:-6])).digest()[:6]
+    if not hmac.compare_digest(digest, bytes(msgbuf[-6:])):
+        return False
+    link_id = msgbuf[-13]
+    tlow, thigh = mav.mav_sign_unpacker.unpack(msgbuf[-12:-6])
+    timestamp = tlow + (thigh << 32)
+    stream = (link_id, src_system, src_component)
+    last = sig.stream_timestamps.get(stream)
+    if last is not None:
+        if timestamp <= last:
+            return False  # a replay (or a reordered packet: MAVLink refuses those too)
+    elif timestamp + 6000 * 1000 < sig.timestamp:
+        return False  # a "new" stream more than a minute old
+    sig.stream_timestamps[stream] = timestamp
+    sig.timestamp = max(sig.timestamp, timestamp)
+    return True
+
+
+def refusal_counts(state: Any) -> tuple[int, int]:
+    """pymavlink's counters of a ``MAVLinkSigning`` state, to diff with :func:`refused`."""
+    return state.badsig_count, state.reject_count
+
+
+def refused(state: Any, before: tuple[int, int]) -> tuple[int, int]:
+    """(wrongly signed, unsigned) packets refused since ``before = refusal_counts(state)``.
+
+    pymavlink decodes a refused packet as bad data after counting it: a wrong signature (or
+    a replayed timestamp) in ``badsig_count`` *and* ``reject_count``, a missing one in
+    ``reject_count`` only.
+    """
+    wrong = state.badsig_count - before[0]
+    return wrong, state.reject_count - before[1] - wrong
 
 
 def load_signing_key(path: str | Path, link_id: int = 0) -> SigningKey:

@@ -16,7 +16,7 @@ from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from ..signing import SigningKey
+from ..signing import SigningKey, refusal_counts, refused, share_signing
 
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "Codec", "MAVLinkMessage", "Parser", "mavlink"]
 
@@ -95,14 +95,14 @@ class Parser:
                 self.signing.apply(self._mav, sign_outgoing=False)
                 self._signing_state = self._mav.signing
             else:  # a fresh parser keeps the streams' timestamps: replays stay refused
-                self._mav.signing = self._signing_state
+                share_signing(self._mav, self._signing_state)
 
     def feed(self, data: bytes) -> list[MAVLinkMessage]:
         """Decode every packet in one datagram; never raises."""
         self.bytes += len(data)
         out: list[MAVLinkMessage] = []
         sig = self._mav.signing
-        rejected, badsig = sig.reject_count, sig.badsig_count
+        before = refusal_counts(sig)
         try:
             found = self._mav.parse_buffer(data) or []
         except (mavlink.MAVError, struct.error, IndexError, ValueError, UnboundLocalError):
@@ -110,18 +110,15 @@ class Parser:
             self.bad_packets += 1
             self._new_mav()
             return out
-        # pymavlink refuses a packet that fails signing as BAD_DATA, after counting it: a
-        # wrong signature in badsig_count and reject_count, a missing one in reject_count
-        wrong = sig.badsig_count - badsig
-        unsigned = sig.reject_count - rejected - wrong
+        wrong, unsigned = refused(sig, before)  # these came back as BAD_DATA too
         self.bad_signature_packets += wrong
         self.unsigned_packets += unsigned
-        refused = wrong + unsigned
+        refusals = wrong + unsigned
         for msg in found:
             kind = msg.get_type()
             if kind == "BAD_DATA":
-                if refused > 0:
-                    refused -= 1
+                if refusals > 0:
+                    refusals -= 1
                 else:
                     self.bad_packets += 1
             elif kind.startswith("UNKNOWN"):
