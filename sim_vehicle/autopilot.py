@@ -33,7 +33,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
-from econdor_gcs.core.tasks import Phase
+from econdor_gcs.core.tasks import (
+    SAMPLE_COUNT_COMMAND,
+    SAMPLE_RESEND_COMMAND,
+    SAMPLE_RESEND_MAX,
+    Phase,
+)
 
 from .body import Sample
 from .mission_server import MISSION, MissionServer
@@ -229,8 +234,24 @@ class Autopilot:
                                          msg.param5, msg.param6, msg.param7])
 
     def _on_command_int(self, msg: Any) -> None:
+        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND):
+            self._sample_command(msg)
+            return
         self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
                                          msg.x / 1e7, msg.y / 1e7, msg.z])
+
+    def _sample_command(self, msg: Any) -> None:
+        """The station's sample recovery (COMMAND_INT, x/y = first/last time_boot_ms)."""
+        self.counters["commands"] += 1
+        first, last = int(msg.x) & 0xFFFFFFFF, int(msg.y) & 0xFFFFFFFF
+        n = self.outbox.archive.count(first, last) if first <= last else 0
+        too_many = msg.command == SAMPLE_RESEND_COMMAND and n > SAMPLE_RESEND_MAX
+        result = DENIED if too_many else ACCEPTED
+        # the ACK first: the station learns how many follow before they arrive
+        self.outbox.put(mavlink.MAVLink_command_ack_message(
+            msg.command, result, 0, n, msg.get_srcSystem(), msg.get_srcComponent()))
+        if msg.command == SAMPLE_RESEND_COMMAND and result == ACCEPTED and n:
+            self.outbox.resend(first, last)
 
     def _on_set_mode(self, msg: Any) -> None:
         self.on_set_mode(msg)

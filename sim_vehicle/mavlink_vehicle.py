@@ -221,7 +221,9 @@ class MavlinkVehicle:
         return {"rx_packets": c["rx_packets"], "rx_bad": c["rx_bad"],
                 "rx_other_target": c["rx_other_target"], "rx_flood": c["rx_flood"],
                 "rx_unhandled": ap["rx_unhandled"], "tx_packets": c["tx_packets"],
-                "samples": self.autopilot.outbox.samples_sent, "ticks": ap["ticks"],
+                "rx_unsigned": c["rx_unsigned"], "rx_bad_signature": c["rx_bad_signature"],
+                "samples": len(self.autopilot.outbox.archive),
+                "samples_resent": self.autopilot.outbox.samples_resent, "ticks": ap["ticks"],
                 "commands": ap["commands"]}
 
     @property

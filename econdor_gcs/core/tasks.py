@@ -155,6 +155,25 @@ from ``time_boot_ms`` on (the time of the first sample in the new phase)."""
 TRACE_REPORT_NAME = "TRACE"
 """``DEBUG_FLOAT_ARRAY.name`` of a :class:`TraceReport` (``array_id`` = mission item seq)."""
 
+# Sample recovery (README, "No sample lost"): two commands, sent as COMMAND_INT so the
+# times are exact integers (x = first, y = last time_boot_ms of a range, both included).
+SAMPLE_COUNT_COMMAND = 31010
+"""``MAV_CMD_USER_1``: how many samples did you take in [x, y] ms? COMMAND_ACK ACCEPTED with
+``result_param2`` = the count.
+
+>>> from pymavlink.dialects.v20 import common
+>>> (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND) == (common.MAV_CMD_USER_1,
+...                                                   common.MAV_CMD_USER_2)
+True
+"""
+SAMPLE_RESEND_COMMAND = 31011
+"""``MAV_CMD_USER_2``: send the samples of [x, y] ms again (the same GLOBAL_POSITION_INT +
+NAMED_VALUE_FLOAT pairs, with the PHASE changes of the range). COMMAND_ACK ACCEPTED with
+``result_param2`` = how many will follow, or DENIED if that is more than
+:data:`SAMPLE_RESEND_MAX` (ask for a smaller range)."""
+SAMPLE_RESEND_MAX = 400
+"""Most samples one resend request may ask for."""
+
 
 @dataclass(frozen=True)
 class TraceReport:
