@@ -45,6 +45,7 @@ Conventions and choices (see also DESIGN.md §4):
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import dataclasses
 import json
@@ -62,6 +63,9 @@ from typing import Any, TypeVar
 import numpy as np
 
 from .core.tasks import (
+    SAMPLE_COUNT_COMMAND,
+    SAMPLE_RESEND_COMMAND,
+    SAMPLE_RESEND_MAX,
     FlightReport,
     OutcomeStatus,
     Phase,
@@ -96,6 +100,12 @@ log = logging.getLogger(__name__)
 
 SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
+LATE = -2
+"""Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+RECOVERY_ROUNDS = 12
+"""Rounds of resend requests before the station gives up on a vehicle's missing samples."""
+RECOVERY_SETTLE_S = 0.25
+"""Wall time without a new sample after which a round of resends counts as arrived."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
@@ -148,6 +158,9 @@ class Flight:
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_ms: int | None = None
     rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
+    row_seqs: list[int] = field(default_factory=list)
+    """Mission item of each row (-1 outside items, :data:`LATE` for a sample that arrived
+    after later ones: attributed at the end, by time)."""
     pieces: dict[int, TraceReport] = field(default_factory=dict)
     item_flown_m: dict[int, float] = field(default_factory=dict)
     last_ms: int | None = None
@@ -287,6 +300,25 @@ class VehicleState:
     status: str = "idle"
     raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+    seen_ms: list[int] = field(default_factory=list)
+    """Sorted times of every sample received (a resent one that is already here is a
+    duplicate); with ``_seen`` for the lookups."""
+    _seen: set[int] = field(default_factory=set)
+    newest_ms: int = -1
+    synced_ms: int = -1
+    """Every sample up to this time is here (the vehicle's count says so)."""
+    duplicates: int = 0
+    recovered: int = 0
+    """Samples that came only after a resend request."""
+    recovering: bool = False
+    vehicle_samples: int | None = None
+    """How many samples the vehicle says it took (its count at the last recovery)."""
+    missing: int = 0
+    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost)."""
+
+    def count_seen(self, first_ms: int, last_ms: int) -> int:
+        return bisect.bisect_right(self.seen_ms, last_ms) - \
+            bisect.bisect_left(self.seen_ms, first_ms)
 
 
 #: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
@@ -349,6 +381,19 @@ class MavlinkExecutor:
             return
         seq = v.current_seq if v.current_seq is not None else -1
         with self._raw_lock:
+            t = s.time_boot_ms
+            if t in v._seen:
+                v.duplicates += 1  # a resend of a sample that had arrived
+                return
+            v._seen.add(t)
+            if t > v.newest_ms:
+                v.newest_ms = t
+                v.seen_ms.append(t)
+            else:  # a resent sample: its item and phase are settled at the end, by time
+                bisect.insort(v.seen_ms, t)
+                seq = LATE
+            if v.recovering:
+                v.recovered += 1
             phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
             v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
                           seq))
@@ -373,21 +418,21 @@ class MavlinkExecutor:
             a = np.asarray(raw, dtype=float)
             x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
             f = v.flight
-            if v.last_xy is not None:
-                steps = np.hypot(np.diff(x, prepend=v.last_xy[0]),
-                                 np.diff(y, prepend=v.last_xy[1]))
-            else:
-                steps = np.concatenate(([0.0], np.hypot(np.diff(x), np.diff(y))))
-            v.flown_m += float(steps.sum())
-            if f is not None:
-                seqs = a[:, 5].astype(np.int64)
-                for seq in np.unique(seqs[seqs >= 0]).tolist():
-                    f.item_flown_m[seq] = f.item_flown_m.get(seq, 0.0) + \
-                        float(steps[seqs == seq].sum())
-            v.last_xy = (float(x[-1]), float(y[-1]))
+            seqs = a[:, 5].astype(np.int64)
+            live = seqs != LATE  # the live display's odometer follows the samples in order
+            if live.any():
+                xs, ys = x[live], y[live]
+                start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
+                v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
+                                                   np.diff(ys, prepend=start[1]))))
+                v.last_xy = (float(xs[-1]), float(ys[-1]))
             rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
                             a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
-            (f.rows if f is not None else v.stray).extend(rows)
+            if f is not None:
+                f.rows.extend(rows)
+                f.row_seqs.extend(seqs.tolist())
+            else:
+                v.stray.extend(rows)
 
     def _convert_all(self) -> None:
         for v in self.vehicles.values():
@@ -515,6 +560,7 @@ class MavlinkExecutor:
         start = self._position(v.sysid)
         f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms)
         f.rows.extend(v.stray)  # nothing is ever dropped
+        f.row_seqs.extend([LATE] * len(v.stray))
         v.stray.clear()
         v.flight = f
         return f
@@ -526,7 +572,33 @@ class MavlinkExecutor:
         if f is None:
             return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self._position(v.sysid),
                                 0.0)
+        self._settle(v, f)
         return build_report(f)
+
+    def _settle(self, v: VehicleState, f: Flight) -> None:
+        """Put a flight's samples in time order (resent ones arrive late), give each the
+        phase the vehicle reported for its time, and each late one the mission item of the
+        sample before it; then the distance flown per item, along the ordered path."""
+        if not f.rows:
+            return
+        order = sorted(range(len(f.rows)), key=lambda i: f.rows[i][0])
+        rows = [f.rows[i] for i in order]
+        seqs = [f.row_seqs[i] if i < len(f.row_seqs) else LATE for i in order]
+        if v.phases.known:
+            rows = [(t, x, y, val, int(v.phases.at(round(t * 1000.0))))
+                    for t, x, y, val, _ in rows]
+        prev = -1
+        for k, s in enumerate(seqs):
+            if s == LATE:
+                seqs[k] = prev
+            prev = seqs[k]
+        f.rows, f.row_seqs = rows, seqs
+        xy = np.vstack([np.asarray(f.start_xy)[None, :], np.asarray(rows)[:, 1:3]])
+        steps = np.hypot(*np.diff(xy, axis=0).T)
+        f.item_flown_m = {}
+        for s, step in zip(seqs, steps.tolist(), strict=True):
+            if s >= 0:
+                f.item_flown_m[s] = f.item_flown_m.get(s, 0.0) + step
 
     def pending_samples(self) -> SampleLog:
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
@@ -538,6 +610,7 @@ class MavlinkExecutor:
                 v.stray.clear()
                 if v.flight is not None:
                     v.flight.rows.clear()
+                    v.flight.row_seqs.clear()
                 if rows:
                     a = np.asarray(rows, dtype=float)
                     logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
@@ -617,6 +690,7 @@ class MavlinkExecutor:
             self._check_lost()
             await asyncio.sleep(0.02)
         self.timings["flight_s"] += time.monotonic() - t1
+        await self._recover(flying)
         reports = [self._end(v) if v in flying else self._end_idle(v)
                    for v in self.vehicles.values()]
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
@@ -666,6 +740,7 @@ class MavlinkExecutor:
         for v in going:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
+        await self._recover(going)
         reports = [self._end(v) if v in going else self._end_idle(v)
                    for v in self.vehicles.values()]
         for r, v in zip(reports, self.vehicles.values(), strict=True):
@@ -673,6 +748,92 @@ class MavlinkExecutor:
                 r.end_x_m, r.end_y_m = self._position(v.sysid)
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
         return reports
+
+    # -- sample recovery (README, "No sample lost") ------------------------------------------
+    async def _recover(self, vs: list[VehicleState]) -> None:
+        t0 = time.monotonic()
+        await self._all([self._recover_one(v) for v in vs])
+        self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
+            time.monotonic() - t0
+
+    async def _count(self, v: VehicleState, first_ms: int, last_ms: int) -> int:
+        ack = await self.router.command_int(v.sysid, SAMPLE_COUNT_COMMAND, first_ms, last_ms,
+                                            timeout_s=0.3, retries=20)
+        return int(ack.result_param2)
+
+    def _gaps(self, v: VehicleState, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
+        """Time ranges of [first_ms, last_ms] with no sample here that may hold samples the
+        vehicle took: between two received samples more than 1.5 sensor periods apart,
+        and before the first / after the last. (A range where the vehicle took none, e.g.
+        while it climbed, costs one request and brings nothing.)"""
+        lo = bisect.bisect_left(v.seen_ms, first_ms)
+        hi = bisect.bisect_right(v.seen_ms, last_ms)
+        times = [first_ms - 1, *v.seen_ms[lo:hi], last_ms + 1]
+        period_ms = 1000.0 / self.mission.vehicles.sample_rate_hz
+        # a long gap goes in pieces the vehicle will resend (half its limit at our rate)
+        piece_ms = max(1, int(SAMPLE_RESEND_MAX * period_ms / 2))
+        gaps = []
+        for a, b in zip(times, times[1:], strict=False):
+            if b - a > 1.5 * period_ms or (a == first_ms - 1 and b > first_ms) \
+                    or (b == last_ms + 1 and a < last_ms):
+                gaps += [(s, min(s + piece_ms - 1, b - 1)) for s in range(a + 1, b, piece_ms)]
+        return gaps
+
+    async def _recover_one(self, v: VehicleState) -> None:
+        """Make sure every sample ``v`` took since the last recovery is here: ask for its
+        count, request every gap again, wait for the resends, repeat."""
+        link = self.router.vehicles[v.sysid]
+        first = v.synced_ms + 1
+        last = max(link.time_boot_ms or 0, v.newest_ms)
+        if last < first:
+            return
+        n = have = 0
+        v.recovering = True
+        try:
+            n, have = await self._recover_range(v, first, last)
+        finally:
+            v.recovering = False
+        v.vehicle_samples = (v.vehicle_samples or 0) + n
+        v.missing += max(0, n - have)
+        if n > have:
+            log.error("vehicle %d: %d of its %d samples in %d..%d ms never arrived", v.sysid,
+                      n - have, n, first, last)
+        v.synced_ms = last
+
+    async def _recover_range(self, v: VehicleState, first: int, last: int) -> tuple[int, int]:
+        n = have = 0
+        for _ in range(RECOVERY_ROUNDS):
+            self._check_lost()
+            n = await self._count(v, first, last)
+            with self._raw_lock:
+                have = v.count_seen(first, last)
+                gaps = self._gaps(v, first, last) if have < n else []
+            if have >= n:
+                break
+            for a, b in gaps:  # fire and forget: what arrives is what counts
+                self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
+            await self._quiet(v)
+        return n, have
+
+    async def _quiet(self, v: VehicleState) -> None:
+        """Wait until ``v``'s samples stop arriving (the resends are in, or lost)."""
+        seen = len(v.seen_ms)
+        quiet_since = time.monotonic()
+        deadline = quiet_since + 5.0
+        while time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+            if len(v.seen_ms) != seen:
+                seen, quiet_since = len(v.seen_ms), time.monotonic()
+            elif time.monotonic() - quiet_since >= RECOVERY_SETTLE_S:
+                return
+
+    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
+        """Per vehicle: samples it took (its own count), received, recovered by resends,
+        duplicates dropped, missing (for summary.json)."""
+        return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
+                               "recovered": v.recovered, "duplicates": v.duplicates,
+                               "missing": v.missing}
+                for v in self.vehicles.values()}
 
     # -- for the live display ---------------------------------------------------------------
     def status_rows(self) -> list[dict[str, Any]]:
@@ -842,6 +1003,7 @@ def run_mission(
             extra = {**base, "sysids": sysids, "timings": timings,
                      "samples_dropped_unpaired": station.router.pairer.dropped,
                      "report_errors": executor.report_errors,
+                     "sample_recovery": executor.sample_accounting(),
                      "link": {"bad_packets": parser.bad_packets,
                               "unknown_packets": parser.unknown_packets,
                               "unsigned_dropped": parser.unsigned_packets,

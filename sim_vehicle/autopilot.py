@@ -26,6 +26,7 @@ SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -99,7 +100,11 @@ class Autopilot:
         self.navigator = Navigator(self.state, self.server, self.outbox, tracer_params)
         self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line)
         self.activity: Activity | None = None
-        self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0}
+        self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
+                                         "commands_repeated": 0}
+        self._last_command: tuple[tuple[Any, ...], int] | None = None
+        """The last COMMAND_LONG run (sender, command, params) and its result: a resend of it
+        (``confirmation`` > 0) is answered, not run again."""
         self.unhandled: dict[str, int] = {}
 
     # -- the personality's part ----------------------------------------------------------------
@@ -230,8 +235,21 @@ class Autopilot:
                                                              msg.ts1))
 
     def _on_command_long(self, msg: Any) -> None:
-        self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
-                                         msg.param5, msg.param6, msg.param7])
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
+                  msg.param7]
+        key = (msg.get_srcSystem(), msg.get_srcComponent(), msg.command,
+               tuple(struct.pack("<7f", *params)))
+        last = self._last_command
+        if msg.confirmation > 0 and last is not None and last[0] == key:
+            # a resend because our COMMAND_ACK was lost: answer again, do not run it twice
+            # (a second MISSION_START would restart the mission, a second RTL after landing
+            # would be refused)
+            self.counters["commands_repeated"] += 1
+            self.outbox.put(mavlink.MAVLink_command_ack_message(
+                msg.command, last[1], 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+            return
+        result = self._command(msg, msg.command, params)
+        self._last_command = (key, result)
 
     def _on_command_int(self, msg: Any) -> None:
         if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND):
@@ -256,13 +274,14 @@ class Autopilot:
     def _on_set_mode(self, msg: Any) -> None:
         self.on_set_mode(msg)
 
-    def _command(self, msg: Any, cmd: int, p: list[float]) -> None:
+    def _command(self, msg: Any, cmd: int, p: list[float]) -> int:
         self.counters["commands"] += 1
         result, after = self.execute_command(cmd, p)
         self.outbox.put(mavlink.MAVLink_command_ack_message(
             cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
         for m in after:
             self.outbox.put(m)
+        return result
 
     # -- commands ------------------------------------------------------------------------------
 

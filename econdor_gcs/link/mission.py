@@ -548,17 +548,27 @@ class CommandSender(_Machine):
 
     def __init__(self, target_system: int, target_component: int, command: int,
                  params: Sequence[float] = (), *, timeout_s: float = DEFAULT_TIMEOUT_S,
-                 retries: int = DEFAULT_RETRIES) -> None:
+                 retries: int = DEFAULT_RETRIES,
+                 position: tuple[int, int, float] | None = None) -> None:
         super().__init__(target_system, target_component, timeout_s, retries)
-        if len(params) > 7:
-            raise ValueError(f"COMMAND_LONG takes at most 7 params, got {len(params)}")
+        limit = 4 if position is not None else 7
+        if len(params) > limit:
+            raise ValueError(f"the command takes at most {limit} params, got {len(params)}")
         self.command = command
         self.params = [float(p) for p in params] + [0.0] * (7 - len(params))
+        self.position = position
+        """``(x, y, z)`` sends COMMAND_INT (exact int32 x/y, MAV_FRAME_GLOBAL_INT) instead of
+        COMMAND_LONG."""
         self.confirmation = 0
         self.progress: int | None = None
         self.what = f"command {command_name(command)}"
 
     def _message(self) -> MAVLinkMessage:
+        if self.position is not None:
+            x, y, z = self.position
+            return mavlink.MAVLink_command_int_message(
+                self.target_system, self.target_component, mavlink.MAV_FRAME_GLOBAL_INT,
+                self.command, 0, 0, *self.params[:4], x, y, z)
         return mavlink.MAVLink_command_long_message(
             self.target_system, self.target_component, self.command, self.confirmation % 256,
             *self.params)

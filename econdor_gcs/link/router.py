@@ -608,6 +608,20 @@ class Router:
                                 retries=retries)
         return await self.run_protocol(sysid, machine)
 
+    async def command_int(self, sysid: int, cmd: int, x: int, y: int, z: float = 0.0,
+                          *params: float, timeout_s: float = DEFAULT_TIMEOUT_S,
+                          retries: int = DEFAULT_RETRIES) -> MAVLinkMessage:
+        """COMMAND_INT with exact int32 ``x``/``y``; return the accepting COMMAND_ACK."""
+        machine = CommandSender(sysid, self._compid(sysid), cmd, params, timeout_s=timeout_s,
+                                retries=retries, position=(x, y, z))
+        return await self.run_protocol(sysid, machine)
+
+    def send_command_int(self, sysid: int, cmd: int, x: int, y: int, z: float = 0.0) -> None:
+        """COMMAND_INT without waiting for its answer (requests whose effect is seen)."""
+        self.send(sysid, mavlink.MAVLink_command_int_message(
+            sysid, self._compid(sysid), mavlink.MAV_FRAME_GLOBAL_INT, cmd, 0, 0, 0.0, 0.0, 0.0,
+            0.0, x, y, z))
+
     async def arm(self, sysid: int, *, force: bool = False) -> MAVLinkMessage:
         return await self.command(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1,
                                   21196 if force else 0)
