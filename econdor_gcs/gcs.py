@@ -66,6 +66,7 @@ from .core.tasks import (
     SAMPLE_COUNT_COMMAND,
     SAMPLE_RESEND_COMMAND,
     SAMPLE_RESEND_MAX,
+    TRACE_RESEND_COMMAND,
     FlightReport,
     OutcomeStatus,
     Phase,
@@ -791,6 +792,7 @@ class MavlinkExecutor:
         v.recovering = True
         try:
             n, have = await self._recover_range(v, first, last)
+            await self._recover_reports(v, first, last)
         finally:
             v.recovering = False
         v.vehicle_samples = (v.vehicle_samples or 0) + n
@@ -814,6 +816,25 @@ class MavlinkExecutor:
                 self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
             await self._quiet(v)
         return n, have
+
+    async def _recover_reports(self, v: VehicleState, first: int, last: int) -> None:
+        """Ask again for the TRACE reports of trace items that have none (lost on the way)."""
+        f = v.flight
+        if f is None:
+            return
+        for _ in range(RECOVERY_ROUNDS):
+            missing = [t.piece_id for t in f.tasks
+                       if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
+            if not missing:
+                return
+            await self.router.command_int(v.sysid, TRACE_RESEND_COMMAND, first, last,
+                                          timeout_s=0.3, retries=20)
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline and any(p not in f.pieces for p in missing):
+                await asyncio.sleep(0.02)
+        log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
+                  [t.piece_id for t in f.tasks
+                   if isinstance(t, TraceTask) and t.piece_id not in f.pieces])
 
     async def _quiet(self, v: VehicleState) -> None:
         """Wait until ``v``'s samples stop arriving (the resends are in, or lost)."""

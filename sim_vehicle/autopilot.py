@@ -38,6 +38,7 @@ from econdor_gcs.core.tasks import (
     SAMPLE_COUNT_COMMAND,
     SAMPLE_RESEND_COMMAND,
     SAMPLE_RESEND_MAX,
+    TRACE_RESEND_COMMAND,
     Phase,
 )
 
@@ -252,7 +253,7 @@ class Autopilot:
         self._last_command = (key, result)
 
     def _on_command_int(self, msg: Any) -> None:
-        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND):
+        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND):
             self._sample_command(msg)
             return
         self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
@@ -262,6 +263,14 @@ class Autopilot:
         """The station's sample recovery (COMMAND_INT, x/y = first/last time_boot_ms)."""
         self.counters["commands"] += 1
         first, last = int(msg.x) & 0xFFFFFFFF, int(msg.y) & 0xFFFFFFFF
+        if msg.command == TRACE_RESEND_COMMAND:
+            reports = self.outbox.archive.reports_between(first, last)
+            self.outbox.put(mavlink.MAVLink_command_ack_message(
+                msg.command, ACCEPTED, 0, len(reports), msg.get_srcSystem(),
+                msg.get_srcComponent()))
+            for report in reports:
+                self.outbox.put(report)
+            return
         n = self.outbox.archive.count(first, last) if first <= last else 0
         too_many = msg.command == SAMPLE_RESEND_COMMAND and n > SAMPLE_RESEND_MAX
         result = DENIED if too_many else ACCEPTED

@@ -114,6 +114,8 @@ class SampleArchive:
         self._samples: list[_QueuedSample] = []
         self._phase_ms: list[int] = []
         self._phases: list[int] = []
+        self._report_ms: list[int] = []
+        self._reports: list[Any] = []
 
     def __len__(self) -> int:
         return len(self._ms)
@@ -125,6 +127,15 @@ class SampleArchive:
     def add_phase(self, time_boot_ms: int, phase: int) -> None:
         self._phase_ms.append(time_boot_ms)
         self._phases.append(phase)
+
+    def add_report(self, time_boot_ms: int, msg: Any) -> None:
+        """A TRACE report (its message), kept to be sent again on request."""
+        self._report_ms.append(time_boot_ms)
+        self._reports.append(msg)
+
+    def reports_between(self, first_ms: int, last_ms: int) -> list[Any]:
+        lo = bisect.bisect_left(self._report_ms, first_ms)
+        return self._reports[lo:bisect.bisect_right(self._report_ms, last_ms)]
 
     def count(self, first_ms: int, last_ms: int) -> int:
         """Samples taken at ``first_ms <= time_boot_ms <= last_ms``."""

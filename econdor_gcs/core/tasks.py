@@ -173,6 +173,9 @@ NAMED_VALUE_FLOAT pairs, with the PHASE changes of the range). COMMAND_ACK ACCEP
 :data:`SAMPLE_RESEND_MAX` (ask for a smaller range)."""
 SAMPLE_RESEND_MAX = 400
 """Most samples one resend request may ask for."""
+TRACE_RESEND_COMMAND = 31012
+"""``MAV_CMD_USER_3``: send the TRACE reports of [x, y] ms again (by the report's sim time);
+COMMAND_ACK ACCEPTED with ``result_param2`` = how many follow."""
 
 
 @dataclass(frozen=True)
