@@ -517,6 +517,10 @@ class MavlinkExecutor:
                 raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
                                      f"{self.timeout_s:g} s")
             await asyncio.sleep(0.02)
+        for v in self.vehicles.values():
+            # this run accounts for the samples from now on (a vehicle that flew for an
+            # earlier run, or for this one before a resume, keeps those to itself)
+            v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
 
     async def _slow_streams(self, sysid: int) -> None:

@@ -15,6 +15,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import pytest
 from vehicle_helpers import DEMO, VehicleProcess, free_port
 
 from econdor import cli
@@ -101,3 +102,81 @@ def test_demo_through_a_lossy_signed_link_keeps_every_sample(tmp_path: Path, cap
           f"{summary['timings']['total_wall_s']:.0f} s wall "
           f"(recovery {summary['timings']['recovery_s']:.1f} s); relay: {relay.stats}",
           file=sys.__stderr__)
+
+
+MISSION = """\
+name: killed
+seed: 3
+area: {width_m: 100, height_m: 100}
+origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
+field: {model: paper, n1: 4, n2: 4}
+vehicles: {count: 2, speed_mps: 8, max_speed_mps: 12, sample_rate_hz: 10, altitude_m: 30,
+           speedup: 100}
+initiation: {pattern: diagonals}
+algorithm: {planner: econdor, max_iterations: 3, min_iterations: 3, search_radius_m: 10,
+            grid_spacing_m: 2, max_trace_length_m: 300}
+"""
+
+
+def test_station_killed_mid_run_resumes_to_the_same_result(tmp_path: Path, capsys) -> None:
+    """``econdor run`` killed with SIGKILL after its second flight, while the vehicles fly
+    the third; ``econdor run --resume`` replays the two finished flights and completes the
+    run. Against an in-process run of the same seed, within the transport parity (README):
+    the replayed iterations 0-1 as in the parity test, the same number of iterations and stop
+    reason, and a final MAE that improved on iteration 1 and is within 5 dB (the vehicles
+    fly the third iteration from where they were when the station died)."""
+    import os
+    import signal
+    import time
+
+    from econdor_gcs.mission import load_mission
+    from econdor_lab.study import run_seed
+
+    mission = tmp_path / "killed.yaml"
+    mission.write_text(MISSION)
+    port = free_port()
+    out = tmp_path / "run"
+    with contextlib.ExitStack() as stack:
+        for s in (1, 2):
+            stack.enter_context(VehicleProcess("--speedup", "100", mission=mission, sysid=s,
+                                               connect=f"udpout:127.0.0.1:{port}"))
+        station = subprocess.Popen(
+            [sys.executable, "-m", "econdor", "run", str(mission), "--out", str(out),
+             "--connect", f"udpin:127.0.0.1:{port}", "--quiet", "--timeout", "10"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            flights = out / "flights.jsonl"
+            deadline = time.monotonic() + 180
+            while not (flights.exists() and flights.read_text().count("\n") >= 2):
+                assert station.poll() is None, station.communicate()
+                assert time.monotonic() < deadline, "no second flight"
+                time.sleep(0.05)
+            os.kill(station.pid, signal.SIGKILL)
+        finally:
+            station.wait()
+            assert station.stderr is not None
+            station.stderr.close()
+        assert station.returncode == -signal.SIGKILL
+        assert not (out / "summary.json").exists()
+        code = cli.main(["run", "--resume", str(out), "--quiet"])
+        err = capsys.readouterr().err
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["resumed"]["flights_replayed"] == 2
+    assert all(r["missing"] == 0 for r in summary["sample_recovery"].values())
+    reference = run_seed(load_mission(mission), 3, "econdor", None)
+    ref = reference["summary"]
+    rows = json.loads((out / "iterations.json").read_text())
+    assert rows[0]["samples"] == reference["rows"][0]["samples"]
+    assert rows[0]["mae_db"] == pytest.approx(reference["rows"][0]["mae_db"], abs=0.05)
+    assert rows[1]["kappa"] == reference["kappa"][1]
+    assert rows[1]["mae_db"] == pytest.approx(reference["rows"][1]["mae_db"], abs=1.5)
+    assert summary["iterations"] == ref["iterations"] == 3
+    assert summary["stop_reason"] == ref["stop_reason"]
+    assert summary["final_mae_db"] < rows[1]["mae_db"]
+    assert abs(summary["final_mae_db"] - ref["final_mae_db"]) < 5.0
+    with (out / "samples.csv").open() as f:
+        assert sum(1 for _ in f) - 1 == summary["samples_recorded"]
+    print(f"FAULT station SIGKILL + resume: final MAE {summary['final_mae_db']:.2f} dB "
+          f"(in-process {ref['final_mae_db']:.2f} dB), {summary['samples']} samples, "
+          f"{summary['resumed']}", file=sys.__stderr__)
