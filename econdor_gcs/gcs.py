@@ -105,6 +105,12 @@ LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
 RECOVERY_ROUNDS = 12
 """Rounds of resend requests before the station gives up on a vehicle's missing samples."""
+LOSS_SILENCE_S = 5.0
+"""A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
+ITEM_TIME_FACTOR = 3.0
+ITEM_TIME_MARGIN_S = 60.0
+"""A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
+cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
 RECOVERY_SETTLE_S = 0.25
 """Wall time without a new sample after which a round of resends counts as arrived."""
 
@@ -167,6 +173,8 @@ class Flight:
     last_ms: int | None = None
     done: bool = False
     landed: bool = False
+    reached: set[int] = field(default_factory=set)
+    """Mission items the vehicle reported reached."""
 
     @property
     def last_seq(self) -> int:
@@ -198,7 +206,8 @@ def build_report(flight: Flight) -> FlightReport:
             else:
                 outcomes.append(TaskOutcome(task, rep.status, rep.flown_m, rep.traced_m))
         else:
-            status = OutcomeStatus.REACHED if flight.done else OutcomeStatus.UNREPORTED
+            reached = flight.done or flight.first_seq + k in flight.reached
+            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
             outcomes.append(TaskOutcome(task, status, item_m))
     traced = float(sum(o.traced_m for o in outcomes))
     sim_s = 0.0
@@ -206,6 +215,14 @@ def build_report(flight: Flight) -> FlightReport:
         sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
     return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
                         outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
+
+
+def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
+    """One vehicle's report of two flights in one iteration (b after a)."""
+    return FlightReport(vehicle=a.vehicle, samples=SampleLog.concat([a.samples, b.samples]),
+                        flown_m=a.flown_m + b.flown_m, traced_m=a.traced_m + b.traced_m,
+                        outcomes=a.outcomes + b.outcomes, end_x_m=b.end_x_m, end_y_m=b.end_y_m,
+                        sim_s=a.sim_s + b.sim_s)
 
 
 def mission_items_json(items: Sequence[MissionItemSpec]) -> str:
@@ -312,6 +329,12 @@ class VehicleState:
     recovered: int = 0
     """Samples that came only after a resend request."""
     recovering: bool = False
+    lost: str | None = None
+    """Why the vehicle was given up (None while it serves)."""
+    item_since: float = 0.0
+    """Wall time the current mission item began (for the item time limit)."""
+    item_since_ms: int = 0
+    """The vehicle's own (sim) time when the current mission item began."""
     vehicle_samples: int | None = None
     """How many samples the vehicle says it took (its count at the last recovery)."""
     missing: int = 0
@@ -368,7 +391,9 @@ class MavlinkExecutor:
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
         self.iteration = 0
         self.sim_s = 0.0
-        self._lost: str | None = None
+        self.losses: list[dict[str, Any]] = []
+        """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
+        its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
         self.router.add_sample_handler(self._on_sample)
@@ -452,10 +477,14 @@ class MavlinkExecutor:
                 v.status = "holding"
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
+                v.item_since = time.monotonic()
+                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
                 is_trace = (0 <= msg.seq < len(v.items)
                             and v.items[msg.seq].command == MAV_CMD_WAYPOINT_USER_1)
                 v.item_phase = Phase.SEARCH if is_trace else Phase.TRANSIT
         elif kind == "MISSION_ITEM_REACHED":
+            if f is not None:
+                f.reached.add(msg.seq)
             if f is not None and f.tasks and msg.seq == f.last_seq:
                 f.done = True
                 v.status = "holding"
@@ -494,12 +523,21 @@ class MavlinkExecutor:
 
     def _on_event(self, event: object) -> None:
         if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
-            v = self.vehicles[event.sysid]
-            where = ""
-            if v.flight is not None and v.current_seq is not None:
-                where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
-            self._lost = (f"vehicle {event.sysid} lost: no heartbeat for "
-                          f"{event.silent_s:.0f} s{where}")
+            self._mark_lost(self.vehicles[event.sysid],
+                            f"no heartbeat for {event.silent_s:.0f} s")
+
+    def _mark_lost(self, v: VehicleState, reason: str) -> None:
+        """Give ``v`` up: it gets no more work; its unfinished pieces go to the others."""
+        if v.lost is not None:
+            return
+        where = ""
+        if v.flight is not None and v.current_seq is not None:
+            where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
+        v.lost = reason + where
+        v.status = "lost"
+        log.warning("vehicle %d lost: %s", v.sysid, v.lost)
+        self.losses.append({"sysid": v.sysid, "reason": v.lost, "iteration": self.iteration,
+                            "reassigned": []})
 
     # -- Executor protocol ----------------------------------------------------------------------
     def wait_ready(self) -> None:
@@ -623,11 +661,14 @@ class MavlinkExecutor:
                                           np.full(len(rows), v.index, dtype=np.int16)))
         return SampleLog.concat(logs)
 
-    def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec]) -> None:
+    def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
+                      round_no: int = 0) -> None:
         if self.missions_dir is None:
             return
         self.missions_dir.mkdir(parents=True, exist_ok=True)
-        stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}"
+        # a second round (pieces of a lost vehicle) in the same iteration gets its own file
+        suffix = f"_r{round_no}" if round_no else ""
+        stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}{suffix}"
         try:
             stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
             write_wpl(stem.with_suffix(".waypoints"), items)
@@ -646,6 +687,12 @@ class MavlinkExecutor:
         v.items = items
         v.current_seq = None
         v.status = "uploaded"
+
+    async def _disarm(self, v: VehicleState) -> None:
+        await self.router.disarm(v.sysid)
+
+    async def _return(self, v: VehicleState) -> None:
+        await self.router.return_to_launch(v.sysid)
 
     async def _start(self, v: VehicleState) -> None:
         v.status = "arming"
@@ -667,39 +714,159 @@ class MavlinkExecutor:
             raise
 
     def _check_lost(self) -> None:
-        if self._lost is not None:
-            raise VehicleTimeout(self._lost)
+        """Fail only when no vehicle is left; a single loss is handled."""
+        if self.vehicles and all(v.lost is not None for v in self.vehicles.values()):
+            raise VehicleTimeout("every vehicle lost: " + "; ".join(
+                f"vehicle {v.sysid} lost: {v.lost}" for v in self.vehicles.values()))
+
+    async def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]) -> None:
+        """Run a step with ``v``; if it fails because ``v`` went silent, ``v`` is lost and
+        the run goes on. Any other failure (a refusal from a vehicle that answers) stands."""
+        try:
+            await coro
+        except LinkError as exc:
+            link = self.router.vehicles.get(v.sysid)
+            silent = time.monotonic() - link.last_heartbeat_mono if link else math.inf
+            if v.lost is None and silent <= LOSS_SILENCE_S:
+                raise
+            self._mark_lost(v, f"{exc} (silent for {silent:.0f} s)")
+
+    def _item_limit_s(self, v: VehicleState) -> float:
+        """Sim seconds the current mission item may take (module constants)."""
+        f, seq = v.flight, v.current_seq
+        speed = self.mission.vehicles.speed_mps
+        region = self.mission.region
+        length = 2 * (region.width_m + region.height_m)  # to anywhere in the area
+        if f is not None and seq is not None and f.first_seq <= seq <= f.last_seq:
+            task = f.tasks[seq - f.first_seq]
+            if isinstance(task, TraceTask):
+                # the search, then the trace (up to its limit; a closed one fits the area)
+                length += 2 * math.pi * task.search_radius_m + (
+                    task.max_length_m if task.max_length_m > 0 else 4 * length)
+        return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S
+
+    def _check_progress(self, flying: list[VehicleState]) -> None:
+        """A vehicle whose current item takes longer than its limit is lost. The limit is
+        in the vehicle's own sim time (a vehicle slowed by a busy machine is not late); a
+        vehicle whose clock stops while it heartbeats is caught by wall time (10x)."""
+        now = time.monotonic()
+        for v in flying:
+            f = v.flight
+            if v.lost is not None or f is None or f.done:
+                continue
+            limit_s = self._item_limit_s(v)
+            sim_ms = (self.router.vehicles[v.sysid].time_boot_ms or 0) - v.item_since_ms
+            wall_s = now - v.item_since
+            if sim_ms > 1000 * limit_s or wall_s > 10 * limit_s / self.mission.vehicles.speedup:
+                self._mark_lost(v, f"mission item {v.current_seq} not finished within "
+                                   f"{limit_s:.0f} s of its time")
+                self._spawn(self.router.return_to_launch(v.sysid), v)
+
+    def _spawn(self, coro: Coroutine[Any, Any, Any], v: VehicleState) -> None:
+        """Send a command to a vehicle given up, without waiting (it may not answer)."""
+        task = asyncio.ensure_future(coro)
+
+        def done(t: asyncio.Future[Any]) -> None:
+            if not t.cancelled() and t.exception() is not None:
+                log.warning("vehicle %d (lost): %r", v.sysid, t.exception())
+
+        task.add_done_callback(done)
 
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+        """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
+        during the flight left unfinished, are flown by the others (in further rounds)."""
         self._check_lost()
+        reports = {v.index: self._end_idle(v) for v in self.vehicles.values()}
+        plans = self._reassign([list(p) for p in plans], [])
+        for round_no in range(len(self.sysids)):
+            flown = await self._round(plans, iteration, round_no)
+            leftover: list[tuple[int, list[Task]]] = []
+            for v in flown:
+                r = self._end(v)
+                if v.lost is not None:
+                    left = self._unfinished(r)
+                    if left:
+                        leftover.append((v.sysid, left))
+                    r.outcomes = [o for o in r.outcomes if o.task not in left]
+                reports[v.index] = r if round_no == 0 else _merge(reports[v.index], r)
+            if not leftover:
+                break
+            plans = self._reassign([[] for _ in self.sysids], leftover)
+        out = [reports[v.index] for v in self.vehicles.values()]
+        self.sim_s += max((r.sim_s for r in out), default=0.0)
+        return out
+
+    @staticmethod
+    def _unfinished(report: FlightReport) -> list[Task]:
+        """The tasks of a flight without an outcome (a lost vehicle did not finish them)."""
+        return [o.task for o in report.outcomes if o.status == OutcomeStatus.UNREPORTED]
+
+    def _reassign(self, plans: list[list[Task]],
+                  extra: list[tuple[int, list[Task]]]) -> list[list[Task]]:
+        """Give the plans of lost vehicles, and the ``extra`` (sysid, tasks) they left
+        unfinished, to the vehicles still in service: each batch to the least loaded one,
+        nearest its first task first."""
+        live = [i for i, s in enumerate(self.sysids) if self.vehicles[s].lost is None]
+        if not live:
+            self._check_lost()
+            return plans
+        batches = list(extra)
+        for i, s in enumerate(self.sysids):
+            if self.vehicles[s].lost is not None and plans[i]:
+                batches.append((s, plans[i]))
+                plans[i] = []
+        positions = self.positions()
+        load = {i: len(plans[i]) for i in live}
+        for source, tasks in batches:
+            # split a lost vehicle's tasks over the vehicles left, in order
+            step = max(1, math.ceil(len(tasks) / len(live)))
+            for batch in (tasks[k:k + step] for k in range(0, len(tasks), step)):
+                first = batch[0]
+                i = min(live, key=lambda j: (load[j], math.dist(positions[j],
+                                                                (first.x_m, first.y_m))))
+                plans[i] = plans[i] + batch
+                load[i] += len(batch)
+                pieces = [t.piece_id for t in batch if isinstance(t, TraceTask)]
+                loss = next(x for x in reversed(self.losses) if x["sysid"] == source)
+                loss["reassigned"].append({"iteration": self.iteration, "to": self.sysids[i],
+                                           "tasks": len(batch), "pieces": pieces})
+                log.warning("vehicle %d (lost): %d tasks (pieces %s) go to vehicle %d",
+                            source, len(batch), pieces, self.sysids[i])
+        return plans
+
+    async def _round(self, plans: list[list[Task]], iteration: int, round_no: int
+                     ) -> list[VehicleState]:
+        """Upload, start and fly one set of plans; return the vehicles that flew."""
         flying: list[VehicleState] = []
         t0 = time.monotonic()
         jobs: list[Coroutine[Any, Any, None]] = []
         for sysid, tasks in zip(self.sysids, plans, strict=True):
-            if not tasks:
-                continue
             v = self.vehicles[sysid]
+            if not tasks or v.lost is not None:
+                continue
             items = build_mission(self.origin, tasks, self.altitude_m, home=self.home,
                                   end="none")
-            self._save_mission(iteration, sysid, items)
+            self._save_mission(iteration, sysid, items, round_no)
             self._begin(v, tasks)
             flying.append(v)
-            jobs.append(self._upload(v, items))
+            jobs.append(self._tolerant(v, self._upload(v, items)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await self._all(jobs)
-        await self._all([self._start(v) for v in flying])
+        await self._all([self._tolerant(v, self._start(v)) for v in flying if v.lost is None])
         t1 = time.monotonic()
+        for v in flying:
+            v.item_since = t1
+            v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += t1 - t0
-        while not all(v.flight is not None and v.flight.done for v in flying):
+        while not all(v.lost is not None or (v.flight is not None and v.flight.done)
+                      for v in flying):
             self._check_lost()
+            self._check_progress(flying)
             await asyncio.sleep(0.02)
         self.timings["flight_s"] += time.monotonic() - t1
-        await self._recover(flying)
-        reports = [self._end(v) if v in flying else self._end_idle(v)
-                   for v in self.vehicles.values()]
-        self.sim_s += max((r.sim_s for r in reports), default=0.0)
-        return reports
+        await self._recover([v for v in flying if v.lost is None])
+        return flying
 
     def _end_idle(self, v: VehicleState) -> FlightReport:
         self._convert(v)
@@ -711,18 +878,20 @@ class MavlinkExecutor:
         t0 = time.monotonic()
         going: list[VehicleState] = []
         for v in self.vehicles.values():
+            if v.lost is not None:
+                continue
             link = self.router.vehicles[v.sysid]
             airborne = (link.rel_alt_m or 0.0) > 0.5
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
-                        await self.router.disarm(v.sysid)
+                        await self._tolerant(v, self._disarm(v))
                 continue
             self._begin(v, [])
             going.append(v)
         for v in going:
             v.status = "returning"
-            await self.router.return_to_launch(v.sysid)
+            await self._tolerant(v, self._return(v))
         self.timings["protocol_s"] += time.monotonic() - t0
         t1 = time.monotonic()
         while True:
@@ -733,12 +902,12 @@ class MavlinkExecutor:
                 if f is not None and not f.landed and not link.armed and \
                         (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
                     f.landed = True  # the heartbeat says so (the STATUSTEXT may be lost)
-            if all(v.flight is None or v.flight.landed for v in going):
+            if all(v.flight is None or v.flight.landed or v.lost is not None for v in going):
                 break
             await asyncio.sleep(0.02)
         # the heartbeat (1 Hz) confirms the disarm; a vehicle that never says so is left be
         deadline = time.monotonic() + 2.5
-        while any(self.router.vehicles[v.sysid].armed for v in going):
+        while any(self.router.vehicles[v.sysid].armed for v in going if v.lost is None):
             if time.monotonic() > deadline:
                 break
             await asyncio.sleep(0.02)
@@ -757,7 +926,8 @@ class MavlinkExecutor:
     # -- sample recovery (README, "No sample lost") ------------------------------------------
     async def _recover(self, vs: list[VehicleState]) -> None:
         t0 = time.monotonic()
-        await self._all([self._recover_one(v) for v in vs])
+        await self._all([self._tolerant(v, self._recover_one(v)) for v in vs
+                         if v.lost is None])
         self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
             time.monotonic() - t0
 
@@ -857,7 +1027,7 @@ class MavlinkExecutor:
         duplicates dropped, missing (for summary.json)."""
         return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
                                "recovered": v.recovered, "duplicates": v.duplicates,
-                               "missing": v.missing}
+                               "missing": v.missing, "lost": v.lost is not None}
                 for v in self.vehicles.values()}
 
     # -- for the live display ---------------------------------------------------------------
@@ -965,8 +1135,8 @@ def run_mission(
             "signed": signing is not None,
         }, mission_text)
     tlog = TlogWriter(out / "telemetry.tlog", append=resume)
-    station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s,
-                      signing=signing)
+    station = Station(connect or "udpin:127.0.0.1:0", tlog,
+                      heartbeat_timeout_s=min(timeout_s, LOSS_SILENCE_S), signing=signing)
     fleet: Fleet | None = None
     executor: MavlinkExecutor | None = None
     dfc: Dfc | None = None
@@ -1029,6 +1199,7 @@ def run_mission(
                      "samples_dropped_unpaired": station.router.pairer.dropped,
                      "report_errors": executor.report_errors,
                      "sample_recovery": executor.sample_accounting(),
+                     "lost_vehicles": executor.losses,
                      "link": {"bad_packets": parser.bad_packets,
                               "unknown_packets": parser.unknown_packets,
                               "unsigned_dropped": parser.unsigned_packets,
