@@ -7,7 +7,12 @@ Pieces, from the bottom up:
     (one UDP endpoint, vehicles routed by system id, every message to ``telemetry.tlog``).
     The synchronous world (the :class:`~.dfc.Dfc` loop in the main thread) submits
     coroutines with :meth:`Station.call`; Ctrl-C / SIGTERM interrupt that wait in the main
-    thread and the ``finally`` blocks close everything.
+    thread and the ``finally`` blocks close everything. **That loop thread alone owns the
+    vehicle state**: the router's callbacks update it there, the flights run there, and
+    other threads (the DFC's ``positions()``, the live display's ``status_rows()``, the
+    error path's ``pending_samples()``) get their answers made there
+    (:meth:`Station.run_sync`). Waits wake on what the vehicles send (an event set by every
+    sample, message and router event), not on polling.
 :class:`MavlinkExecutor`
     The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
     :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home, takeoff,
@@ -48,6 +53,7 @@ import asyncio
 import bisect
 import contextlib
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -107,6 +113,8 @@ RECOVERY_ROUNDS = 12
 """Rounds of resend requests before the station gives up on a vehicle's missing samples."""
 LOSS_SILENCE_S = 5.0
 """A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
+DESCENT_RATE_MPS = 1.0
+"""Slowest descent we expect of a vehicle landing (PX4 lands at 0.7-1.5 m/s)."""
 ITEM_TIME_FACTOR = 3.0
 ITEM_TIME_MARGIN_S = 60.0
 """A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
@@ -217,6 +225,10 @@ def build_report(flight: Flight) -> FlightReport:
                         outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
 
 
+def _all_in(keys: Sequence[int], mapping: dict[int, Any]) -> bool:
+    return all(k in mapping for k in keys)
+
+
 def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
     """One vehicle's report of two flights in one iteration (b after a)."""
     return FlightReport(vehicle=a.vehicle, samples=SampleLog.concat([a.samples, b.samples]),
@@ -276,6 +288,19 @@ class Station:
         except BaseException:
             fut.cancel()
             raise
+
+    def run_sync(self, fn: Callable[[], T], timeout_s: float = 10.0) -> T:
+        """Run ``fn()`` on the station's loop thread (the one thread that owns the vehicle
+        state) and return its result; on that thread itself, or when the loop no longer runs
+        (the error path), just call it."""
+        if not self._started or not self.loop.is_running() or \
+                threading.current_thread() is self._thread:
+            return fn()
+
+        async def run() -> T:
+            return fn()
+
+        return asyncio.run_coroutine_threadsafe(run(), self.loop).result(timeout_s)
 
     def close(self) -> None:
         if not self._started:
@@ -383,7 +408,9 @@ class MavlinkExecutor:
         self.missions_dir = missions_dir
         self.timeout_s = timeout_s
         self.origin = mission.origin
-        self._raw_lock = threading.RLock()
+        self._changed = asyncio.Event()
+        """Set by every sample, message and event from the vehicles (on the loop thread, which
+        owns all this state): the waits wake on it instead of polling."""
         self.altitude_m = mission.vehicles.altitude_m
         self.home = (0.0, 0.0)
         self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(self.sysids)}
@@ -406,59 +433,58 @@ class MavlinkExecutor:
         if v is None:
             return
         seq = v.current_seq if v.current_seq is not None else -1
-        with self._raw_lock:
-            t = s.time_boot_ms
-            if t in v._seen:
-                v.duplicates += 1  # a resend of a sample that had arrived
-                return
-            v._seen.add(t)
-            if t > v.newest_ms:
-                v.newest_ms = t
-                v.seen_ms.append(t)
-            else:  # a resent sample: its item and phase are settled at the end, by time
-                bisect.insort(v.seen_ms, t)
-                seq = LATE
-            if v.recovering:
-                v.recovered += 1
-            phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
-            v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
-                          seq))
-            v.samples += 1
-            f = v.flight
-            if f is not None:
-                if f.start_ms is None:
-                    f.start_ms = s.time_boot_ms
-                f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
-            if len(v.raw) >= SAMPLE_BATCH:
-                self._convert(v)
+        self._changed.set()
+        t = s.time_boot_ms
+        if t in v._seen:
+            v.duplicates += 1  # a resend of a sample that had arrived
+            return
+        v._seen.add(t)
+        if t > v.newest_ms:
+            v.newest_ms = t
+            v.seen_ms.append(t)
+        else:  # a resent sample: its item and phase are settled at the end, by time
+            bisect.insort(v.seen_ms, t)
+            seq = LATE
+        if v.recovering:
+            v.recovered += 1
+        phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
+                      seq))
+        v.samples += 1
+        f = v.flight
+        if f is not None:
+            if f.start_ms is None:
+                f.start_ms = s.time_boot_ms
+            f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
+        if len(v.raw) >= SAMPLE_BATCH:
+            self._convert(v)
 
     def _convert(self, v: VehicleState) -> None:
         """Convert ``v``'s raw samples to local rows in one vectorised pymap3d call.
 
         Everything that changes ``v.flight`` calls this first, so one batch always belongs
         to one flight (or to none: stray samples)."""
-        with self._raw_lock:
-            raw, v.raw = v.raw, []
-            if not raw:
-                return
-            a = np.asarray(raw, dtype=float)
-            x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
-            f = v.flight
-            seqs = a[:, 5].astype(np.int64)
-            live = seqs != LATE  # the live display's odometer follows the samples in order
-            if live.any():
-                xs, ys = x[live], y[live]
-                start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
-                v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
-                                                   np.diff(ys, prepend=start[1]))))
-                v.last_xy = (float(xs[-1]), float(ys[-1]))
-            rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
-                            a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
-            if f is not None:
-                f.rows.extend(rows)
-                f.row_seqs.extend(seqs.tolist())
-            else:
-                v.stray.extend(rows)
+        raw, v.raw = v.raw, []
+        if not raw:
+            return
+        a = np.asarray(raw, dtype=float)
+        x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
+        f = v.flight
+        seqs = a[:, 5].astype(np.int64)
+        live = seqs != LATE  # the live display's odometer follows the samples in order
+        if live.any():
+            xs, ys = x[live], y[live]
+            start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
+            v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
+                                               np.diff(ys, prepend=start[1]))))
+            v.last_xy = (float(xs[-1]), float(ys[-1]))
+        rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
+                        a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        if f is not None:
+            f.rows.extend(rows)
+            f.row_seqs.extend(seqs.tolist())
+        else:
+            v.stray.extend(rows)
 
     def _convert_all(self) -> None:
         for v in self.vehicles.values():
@@ -468,6 +494,7 @@ class MavlinkExecutor:
         v = self.vehicles.get(sysid)
         if v is None:
             return
+        self._changed.set()
         kind = msg.get_type()
         f = v.flight
         if kind == "MISSION_CURRENT":
@@ -491,8 +518,7 @@ class MavlinkExecutor:
         elif kind == "NAMED_VALUE_INT":
             change = self._decode(phase_change, msg)
             if change is not None:
-                with self._raw_lock:
-                    v.phases.add(*change)
+                v.phases.add(*change)
         elif kind == "DEBUG_FLOAT_ARRAY":
             rep = self._decode(trace_report, msg)
             if rep is not None and f is not None:
@@ -522,6 +548,7 @@ class MavlinkExecutor:
             return None
 
     def _on_event(self, event: object) -> None:
+        self._changed.set()
         if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
             self._mark_lost(self.vehicles[event.sysid],
                             f"no heartbeat for {event.silent_s:.0f} s")
@@ -549,12 +576,11 @@ class MavlinkExecutor:
             with contextlib.suppress(LinkError):
                 self.router.request_data_streams(sysid)
         deadline = time.monotonic() + self.timeout_s
-        while any(self.router.vehicles[s].lat_deg is None for s in self.sysids):
-            if time.monotonic() > deadline:
-                missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
-                raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
-                                     f"{self.timeout_s:g} s")
-            await asyncio.sleep(0.02)
+        if not await self._until(lambda: all(self.router.vehicles[s].lat_deg is not None
+                                             for s in self.sysids), deadline=deadline):
+            missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
+            raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
+                                 f"{self.timeout_s:g} s")
         for v in self.vehicles.values():
             # this run accounts for the samples from now on (a vehicle that flew for an
             # earlier run, or for this one before a resume, keeps those to itself)
@@ -582,8 +608,13 @@ class MavlinkExecutor:
         x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
         return x, y
 
+    def _owned(self, fn: Callable[[], T]) -> T:
+        """``fn()`` on the thread that owns the vehicle state (the station's loop)."""
+        run_sync = getattr(self.station, "run_sync", None)
+        return run_sync(fn) if run_sync is not None else fn()
+
     def positions(self) -> list[tuple[float, float]]:
-        return [self._position(s) for s in self.sysids]
+        return self._owned(lambda: [self._position(s) for s in self.sysids])
 
     def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         if len(plans) != self.n_vehicles:
@@ -645,20 +676,22 @@ class MavlinkExecutor:
 
     def pending_samples(self) -> SampleLog:
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
+        return self._owned(self._pending_samples)
+
+    def _pending_samples(self) -> SampleLog:
         logs = []
-        with self._raw_lock:
-            self._convert_all()
-            for v in self.vehicles.values():
-                rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
-                v.stray.clear()
-                if v.flight is not None:
-                    v.flight.rows.clear()
-                    v.flight.row_seqs.clear()
-                if rows:
-                    a = np.asarray(rows, dtype=float)
-                    logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
-                                          a[:, 4].astype(np.int8),
-                                          np.full(len(rows), v.index, dtype=np.int16)))
+        self._convert_all()
+        for v in self.vehicles.values():
+            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+            v.stray.clear()
+            if v.flight is not None:
+                v.flight.rows.clear()
+                v.flight.row_seqs.clear()
+            if rows:
+                a = np.asarray(rows, dtype=float)
+                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
+                                      a[:, 4].astype(np.int8),
+                                      np.full(len(rows), v.index, dtype=np.int16)))
         return SampleLog.concat(logs)
 
     def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
@@ -719,6 +752,22 @@ class MavlinkExecutor:
             raise VehicleTimeout("every vehicle lost: " + "; ".join(
                 f"vehicle {v.sysid} lost: {v.lost}" for v in self.vehicles.values()))
 
+    async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
+                     on_tick: Callable[[], object] | None = None,
+                     deadline: float | None = None) -> bool:
+        """Wait until ``cond()`` holds, waking whenever something arrives from a vehicle
+        (and every ``tick_s`` for ``on_tick``, e.g. the time limits); False at ``deadline``."""
+        while True:
+            self._changed.clear()
+            if cond():
+                return True
+            if on_tick is not None:
+                on_tick()
+            if deadline is not None and time.monotonic() > deadline:
+                return False
+            with contextlib.suppress(TimeoutError):  # a tick: look again
+                await asyncio.wait_for(self._changed.wait(), tick_s)
+
     async def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]) -> None:
         """Run a step with ``v``; if it fails because ``v`` went silent, ``v`` is lost and
         the run goes on. Any other failure (a refusal from a vehicle that answers) stands."""
@@ -737,6 +786,9 @@ class MavlinkExecutor:
         speed = self.mission.vehicles.speed_mps
         region = self.mission.region
         length = 2 * (region.width_m + region.height_m)  # to anywhere in the area
+        if f is not None and not f.tasks:  # home, then down
+            return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S + \
+                2 * self.altitude_m / DESCENT_RATE_MPS
         if f is not None and seq is not None and f.first_seq <= seq <= f.last_seq:
             task = f.tasks[seq - f.first_seq]
             if isinstance(task, TraceTask):
@@ -859,11 +911,13 @@ class MavlinkExecutor:
             v.item_since = t1
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += t1 - t0
-        while not all(v.lost is not None or (v.flight is not None and v.flight.done)
-                      for v in flying):
+        def tick() -> None:
             self._check_lost()
             self._check_progress(flying)
-            await asyncio.sleep(0.02)
+
+        await self._until(lambda: all(v.lost is not None or (v.flight is not None
+                                                             and v.flight.done)
+                                      for v in flying), on_tick=tick)
         self.timings["flight_s"] += time.monotonic() - t1
         await self._recover([v for v in flying if v.lost is None])
         return flying
@@ -892,25 +946,31 @@ class MavlinkExecutor:
         for v in going:
             v.status = "returning"
             await self._tolerant(v, self._return(v))
+            # the way home has the time limit of an item anywhere in the area
+            v.item_since = time.monotonic()
+            v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += time.monotonic() - t0
         t1 = time.monotonic()
-        while True:
-            self._check_lost()
+
+        def all_down() -> bool:
             for v in going:
                 link = self.router.vehicles[v.sysid]
                 f = v.flight
                 if f is not None and not f.landed and not link.armed and \
                         (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
-                    f.landed = True  # the heartbeat says so (the STATUSTEXT may be lost)
-            if all(v.flight is None or v.flight.landed or v.lost is not None for v in going):
-                break
-            await asyncio.sleep(0.02)
+                    f.landed = True  # the heartbeat says so (EXTENDED_SYS_STATE may be lost)
+            return all(v.flight is None or v.flight.landed or v.lost is not None
+                       for v in going)
+
+        def tick() -> None:
+            self._check_lost()
+            self._check_progress(going)
+
+        await self._until(all_down, on_tick=tick)
         # the heartbeat (1 Hz) confirms the disarm; a vehicle that never says so is left be
-        deadline = time.monotonic() + 2.5
-        while any(self.router.vehicles[v.sysid].armed for v in going if v.lost is None):
-            if time.monotonic() > deadline:
-                break
-            await asyncio.sleep(0.02)
+        await self._until(lambda: not any(self.router.vehicles[v.sysid].armed
+                                          for v in going if v.lost is None),
+                          deadline=time.monotonic() + 2.5)
         for v in going:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
@@ -981,9 +1041,8 @@ class MavlinkExecutor:
         for _ in range(RECOVERY_ROUNDS):
             self._check_lost()
             n = await self._count(v, first, last)
-            with self._raw_lock:
-                have = v.count_seen(first, last)
-                gaps = self._gaps(v, first, last) if have < n else []
+            have = v.count_seen(first, last)
+            gaps = self._gaps(v, first, last) if have < n else []
             if have >= n:
                 break
             for a, b in gaps:  # fire and forget: what arrives is what counts
@@ -1003,24 +1062,24 @@ class MavlinkExecutor:
                 return
             await self.router.command_int(v.sysid, TRACE_RESEND_COMMAND, first, last,
                                           timeout_s=0.3, retries=20)
-            deadline = time.monotonic() + 1.0
-            while time.monotonic() < deadline and any(p not in f.pieces for p in missing):
-                await asyncio.sleep(0.02)
+            await self._until(functools.partial(_all_in, missing, f.pieces),
+                              deadline=time.monotonic() + 1.0)
         log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
                   [t.piece_id for t in f.tasks
                    if isinstance(t, TraceTask) and t.piece_id not in f.pieces])
 
     async def _quiet(self, v: VehicleState) -> None:
         """Wait until ``v``'s samples stop arriving (the resends are in, or lost)."""
-        seen = len(v.seen_ms)
-        quiet_since = time.monotonic()
-        deadline = quiet_since + 5.0
-        while time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
-            if len(v.seen_ms) != seen:
-                seen, quiet_since = len(v.seen_ms), time.monotonic()
-            elif time.monotonic() - quiet_since >= RECOVERY_SETTLE_S:
-                return
+        start = time.monotonic()
+        seen = [len(v.seen_ms), start]  # samples so far, and when that last changed
+
+        def quiet() -> bool:
+            now = time.monotonic()
+            if len(v.seen_ms) != seen[0]:
+                seen[:] = [len(v.seen_ms), now]
+            return now - seen[1] >= RECOVERY_SETTLE_S
+
+        await self._until(quiet, tick_s=0.05, deadline=start + 5.0)
 
     def sample_accounting(self) -> dict[str, dict[str, int | None]]:
         """Per vehicle: samples it took (its own count), received, recovered by resends,
@@ -1032,6 +1091,11 @@ class MavlinkExecutor:
 
     # -- for the live display ---------------------------------------------------------------
     def status_rows(self) -> list[dict[str, Any]]:
+        """A snapshot of every vehicle for a display (any thread may ask; the rows are made
+        on the thread that owns the state, and are the caller's to keep)."""
+        return self._owned(self._status_rows)
+
+    def _status_rows(self) -> list[dict[str, Any]]:
         rows = []
         self._convert_all()
         for v in self.vehicles.values():

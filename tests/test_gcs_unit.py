@@ -373,3 +373,32 @@ def test_a_vehicle_that_never_finishes_its_item_is_lost() -> None:
     asyncio.run(main())
     assert v.lost is not None and v.lost.startswith("mission item 2 not finished within")
     assert returned == [1]
+
+
+def test_the_station_thread_alone_touches_vehicle_state() -> None:
+    """The display's snapshot and the DFC's positions are made on the station's loop thread,
+    whichever thread asks (the render used to convert samples on its own thread)."""
+    import threading
+
+    from econdor_gcs.gcs import Station
+
+    station = Station("udpin:127.0.0.1:0")
+    station.start()
+    try:
+        ex = MavlinkExecutor(station, _mission(), [])
+        seen: list[threading.Thread] = []
+        real = ex._status_rows
+
+        def spy() -> list[dict[str, Any]]:
+            seen.append(threading.current_thread())
+            return real()
+
+        ex._status_rows = spy  # type: ignore[method-assign]
+        worker = threading.Thread(target=ex.status_rows)
+        worker.start()
+        worker.join(5)
+        ex.status_rows()
+        assert [t.name for t in seen] == ["econdor-gcs", "econdor-gcs"]
+        assert ex.positions() == []
+    finally:
+        station.close()
