@@ -85,7 +85,12 @@ from .core.tasks import (
 from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
 from .export import write_wpl
 from .link.codec import MAVLinkMessage, mavlink
-from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
+from .link.mission import (
+    MAV_CMD_WAYPOINT_USER_1,
+    MissionItemSpec,
+    build_mission,
+    fence_items,
+)
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
@@ -111,6 +116,8 @@ LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
 RECOVERY_ROUNDS = 12
 """Rounds of resend requests before the station gives up on a vehicle's missing samples."""
+FENCE_MARGIN_M = 5.0
+"""The fence uploaded to every vehicle: the mission area plus this margin on every side."""
 LOSS_SILENCE_S = 5.0
 """A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
 DESCENT_RATE_MPS = 1.0
@@ -418,6 +425,8 @@ class MavlinkExecutor:
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
         self.iteration = 0
         self.sim_s = 0.0
+        self.fences_refused: list[int] = []
+        """Vehicles that refused the geofence upload (they fly without one)."""
         self.losses: list[dict[str, Any]] = []
         """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
         its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
@@ -586,6 +595,22 @@ class MavlinkExecutor:
             # earlier run, or for this one before a resume, keeps those to itself)
             v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
+        fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
+        await self._all([self._tolerant(v, self._upload_fence(v, fence))
+                         for v in self.vehicles.values()])
+
+    async def _upload_fence(self, v: VehicleState, fence: list[MissionItemSpec]) -> None:
+        """The area plus :data:`FENCE_MARGIN_M` as the vehicle's inclusion fence (mission
+        type FENCE): an autopilot that enforces fences keeps the vehicle inside."""
+        try:
+            await asyncio.wait_for(self.router.upload_mission(
+                v.sysid, fence, mission_type=mavlink.MAV_MISSION_TYPE_FENCE), self.timeout_s)
+        except TimeoutError:
+            raise VehicleTimeout(f"vehicle {v.sysid}: fence upload did not finish within "
+                                 f"{self.timeout_s:g} s") from None
+        except ProtocolError as exc:  # a vehicle without fences flies without one
+            log.warning("vehicle %d refused the fence: %s", v.sysid, exc)
+            self.fences_refused.append(v.sysid)
 
     async def _slow_streams(self, sysid: int) -> None:
         """Ask for the display-only streams at a few Hz of *wall* time.
@@ -1264,6 +1289,8 @@ def run_mission(
                      "report_errors": executor.report_errors,
                      "sample_recovery": executor.sample_accounting(),
                      "lost_vehicles": executor.losses,
+                     "fence": {"margin_m": FENCE_MARGIN_M,
+                               "refused_by": executor.fences_refused},
                      "link": {"bad_packets": parser.bad_packets,
                               "unknown_packets": parser.unknown_packets,
                               "unsigned_dropped": parser.unsigned_packets,

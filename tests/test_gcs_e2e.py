@@ -91,6 +91,17 @@ def test_run_three_vehicles_end_to_end(full_run: tuple[Path, Path, int, str]) ->
     msgs = read_tlog(out / "telemetry.tlog")
     uploads = [m for m in msgs if m.get_type() == "MISSION_ITEM_INT"]
     assert any(m.command == 31000 for m in uploads)
+    # the area + 5 m as every vehicle's inclusion fence (mission type FENCE), accepted
+    fence = [m for m in uploads if m.mission_type == 1]
+    assert {m.target_system for m in fence} == {1, 2, 3}
+    assert {m.command for m in fence} == {5001} and all(m.param1 == 4 for m in fence)
+    mission_ = load_mission(mission_path)
+    xs, ys = zip(*(mission_.origin.to_local(m.x / 1e7, m.y / 1e7)[:2]
+                   for m in fence if m.target_system == 1), strict=True)
+    assert (min(xs), max(xs), min(ys), max(ys)) == pytest.approx((-5, 105, -5, 105), abs=0.05)
+    acks = [m for m in msgs if m.get_type() == "MISSION_ACK" and m.mission_type == 1]
+    assert {m.get_srcSystem() for m in acks if m.type == 0} == {1, 2, 3}
+    assert summary["fence"] == {"margin_m": 5.0, "refused_by": []}
     fields = [m for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"
               and m.name.rstrip("\x00") == "FIELD"]
     assert len(fields) >= summary["samples"]
