@@ -829,8 +829,8 @@ class MavlinkExecutor:
         now = time.monotonic()
         for v in flying:
             f = v.flight
-            if v.lost is not None or f is None or f.done:
-                continue
+            if v.lost is not None or f is None or f.done or f.landed:
+                continue  # a vehicle that finished (or landed) is not late any more
             limit_s = self._item_limit_s(v)
             sim_ms = (self.router.vehicles[v.sysid].time_boot_ms or 0) - v.item_since_ms
             wall_s = now - v.item_since

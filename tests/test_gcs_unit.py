@@ -402,3 +402,18 @@ def test_the_station_thread_alone_touches_vehicle_state() -> None:
         assert ex.positions() == []
     finally:
         station.close()
+
+
+def test_a_landed_vehicle_is_not_late_while_the_others_come_home() -> None:
+    """On the way home the first vehicle down waits for the others; its clock runs on, but
+    it finished: no time limit applies to it (it was declared lost under load before)."""
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
+    v = ex.vehicles[1]
+    f = ex._begin(v, [])
+    v.item_since_ms = 0
+    f.landed = True
+    router.vehicles[1].time_boot_ms = 10**7  # hours of its time later
+    ex._check_progress([v])
+    assert v.lost is None
