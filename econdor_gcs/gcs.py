@@ -1051,7 +1051,9 @@ class MavlinkExecutor:
         v.recovering = True
         try:
             n, have = await self._recover_range(v, first, last)
-            await self._recover_reports(v, first, last)
+            # a report may be stamped after the last time we know of (the vehicle's last
+            # position report can lag behind its last item): ask up to the end of time
+            await self._recover_reports(v, first, 2**31 - 1)
         finally:
             v.recovering = False
         v.vehicle_samples = (v.vehicle_samples or 0) + n
