@@ -15,7 +15,9 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
   span of the estimate changed by less than 1 % in the last iteration;
 * ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
   redundant or without a contour piece): the run has stalled. An idle iteration still
-  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop.
+  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
+* the ``checkpoint`` asked before each iteration says stop (``stop_reason = "stopped"``,
+  e.g. an operator's stop on the web page); it may also hold the loop there (pause).
 """
 
 from __future__ import annotations
@@ -230,6 +232,10 @@ class RunDone:
 
 DfcEvent = RunStarted | IterationPlanned | IterationDone | RunDone
 Progress = Callable[[DfcEvent], None]
+Checkpoint = Callable[[int], bool]
+"""Asked between iterations with the number of the next one: ``True`` flies it, ``False``
+stops the run (the vehicles are then brought home). It may block, e.g. while an operator
+has paused the run (:class:`econdor_gcs.control.RunControl`)."""
 
 
 def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
@@ -248,8 +254,10 @@ class Dfc:
         truth: Field | None = None,
         seed: int | None = None,
         progress: Progress | None = None,
+        on_samples: Callable[[SampleLog], None] | None = None,
         on_flight: Callable[[FlightRecord], None] | None = None,
         replay: Sequence[FlightRecord] = (),
+        checkpoint: Checkpoint | None = None,
     ) -> None:
         self.mission = mission
         self.executor = executor
@@ -258,10 +266,15 @@ class Dfc:
         self.truth_field = truth
         self.seed = mission.seed if seed is None else seed
         self.progress: Progress = progress or (lambda event: None)
+        self.on_samples = on_samples
+        """Called with the samples of each flight as the DFC takes them in (displays)."""
         self.on_flight = on_flight
+        """Called with each flight the executor flew, before the DFC uses its samples (the
+        run directory records them: samples, then the flight's line)."""
         self._replay = {r.iteration: r for r in replay}
         self.replayed = len(self._replay)
         self._planned_from: list[tuple[float, float]] | None = None
+        self.checkpoint: Checkpoint = checkpoint or (lambda iteration: True)
         self.grid = mission.grid
         self.truth = None
         if truth is not None:
@@ -300,6 +313,8 @@ class Dfc:
         """
         for r in reports:
             self.logs.append(r.samples)
+            if self.on_samples is not None:
+                self.on_samples(r.samples)
         self.flight_m += sum(r.flown_m for r in reports)
         self.contour_m += sum(r.traced_m for r in reports)
         if batch is not None:
@@ -442,6 +457,9 @@ class Dfc:
         span_prev = metrics.span(estimate)
         idle = 0
         for it in range(1, a.max_iterations + 1):
+            if not self.checkpoint(it):
+                reason = "stopped"
+                break
             if a.flight_budget_m > 0 and self.flight_m >= a.flight_budget_m:
                 reason = "flight_budget"
                 break

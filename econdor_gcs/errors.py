@@ -9,7 +9,9 @@
     ├── LinkError                MAVLink transport or protocol failure
     │   ├── VehicleTimeout       a vehicle stopped answering (or never appeared)
     │   └── ProtocolError        a peer answered with an error (e.g. MISSION_ACK != ACCEPTED)
-    └── RunError                 a DFC run that cannot go on (carries the run directory)
+    ├── RunError                 a DFC run that cannot go on (carries the run directory)
+    ├── ControlError             an operator's request that does not apply now (resume while running)
+    └── WebError                 the web page cannot be served (address, run directory)
 
 The CLI turns any ``EcondorError`` into one line on stderr and exit status 1.
 """
@@ -47,3 +49,11 @@ class ProtocolError(LinkError):
 
 class RunError(EcondorError):
     """A DFC run could not continue."""
+
+
+class ControlError(EcondorError):
+    """An operator's pause / resume / stop that does not apply in the run's current state."""
+
+
+class WebError(EcondorError):
+    """The web page cannot be served: a bad or busy address, or a run directory it cannot replay."""
