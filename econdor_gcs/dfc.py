@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .core import metrics
 from .core.assignment import assign_jobs
@@ -299,8 +300,11 @@ class Dfc:
             s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
                           s.vehicle[keep])
         t0 = time.perf_counter()
-        est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
-                          method=self.mission.algorithm.reconstruction)
+        # One BLAS thread: the station shares the cores with the vehicles (and a study
+        # with its other runs); idle BLAS threads spin and slow every process down.
+        with threadpool_limits(limits=1, user_api="blas"):
+            est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
+                              method=self.mission.algorithm.reconstruction)
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         return est
