@@ -121,8 +121,13 @@ SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
 LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
-RECOVERY_ROUNDS = 12
-"""Rounds of resend requests before the station gives up on a vehicle's missing samples."""
+RECOVERY_ROUNDS = 200
+"""At most this many rounds of resend requests for one vehicle's missing samples ..."""
+RECOVERY_STALLED_ROUNDS = 4
+"""... and the station gives up earlier when this many rounds in a row brought nothing."""
+RECOVERY_GAPS_PER_ROUND = 100
+"""Resend requests per round: a vehicle answers them in one burst, and a burst larger than
+its socket's send buffer (~1000 packets) is dropped on the vehicle itself."""
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
 LOSS_SILENCE_S = 5.0
@@ -1076,6 +1081,13 @@ class MavlinkExecutor:
                 gaps += [(s, min(s + piece_ms - 1, b - 1)) for s in range(a + 1, b, piece_ms)]
         return gaps
 
+    def _pieces(self, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
+        """[first_ms, last_ms] in ranges of at most a quarter of a resend's limit at the
+        mission's sample rate."""
+        step = max(1, int(SAMPLE_RESEND_MAX * 1000.0 / self.mission.vehicles.sample_rate_hz
+                          / 4))
+        return [(s, min(s + step - 1, last_ms)) for s in range(first_ms, last_ms + 1, step)]
+
     async def _recover_one(self, v: VehicleState) -> None:
         """Make sure every sample ``v`` took since the last recovery is here: ask for its
         count, request every gap again, wait for the resends, repeat."""
@@ -1102,14 +1114,25 @@ class MavlinkExecutor:
 
     async def _recover_range(self, v: VehicleState, first: int, last: int) -> tuple[int, int]:
         n = have = 0
-        for _ in range(RECOVERY_ROUNDS):
+        stalled, best = 0, -1
+        for round_no in range(RECOVERY_ROUNDS):
             self._check_lost()
             n = await self._count(v, first, last)
             have = v.count_seen(first, last)
-            gaps = self._gaps(v, first, last) if have < n else []
             if have >= n:
                 break
-            for a, b in gaps:  # fire and forget: what arrives is what counts
+            stalled = stalled + 1 if have <= best else 0
+            best = max(best, have)
+            if stalled >= RECOVERY_STALLED_ROUNDS:
+                break
+            # a sample missing where the spacing does not show it (a vehicle sampling faster
+            # than the mission says): the whole range again, in pieces it will resend
+            gaps = self._gaps(v, first, last) or self._pieces(first, last)
+            # fire and forget (what arrives is what counts), a round's worth at a time,
+            # rotating, so gaps where the vehicle took nothing (a climb) cannot crowd out
+            # the others
+            k = round_no * RECOVERY_GAPS_PER_ROUND % len(gaps)
+            for a, b in (gaps[k:] + gaps[:k])[:RECOVERY_GAPS_PER_ROUND]:
                 self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
             await self._quiet(v)
         return n, have
