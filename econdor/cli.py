@@ -139,6 +139,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     planners = list(PLANNERS) if args.planner == "all" else [args.planner]
     total = len(seeds) * len(planners)
     workers = args.workers or default_workers()
+    _warm_up_tracer(args.quiet)
     if args.quiet:
         summary = run_study(mission, seeds, planners, args.out, workers, args.scheduler,
                             figures=not args.no_figures)
@@ -199,7 +200,21 @@ def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -
 def _cmd_run(args: argparse.Namespace) -> int:
     from econdor_gcs.gcs import run_mission_cli
 
+    if not args.connect:
+        # the vehicles we start load the compiled tracer from numba's cache; on a cold
+        # cache compile it here first, before the station starts waiting for them
+        _warm_up_tracer(args.quiet)
     return run_mission_cli(args)
+
+
+def _warm_up_tracer(quiet: bool) -> None:
+    """Load the compiled tracer, compiling it on a cold cache (say so when that took long)."""
+    from sim_vehicle.tracer import warm_up
+
+    took_s = warm_up()
+    if took_s > 3.0 and not quiet:
+        print(f"econdor: compiled the onboard tracer in {took_s:.0f} s (once: it is cached "
+              "for the next runs)", file=sys.stderr, flush=True)
 
 
 def _cmd_view(args: argparse.Namespace) -> int:

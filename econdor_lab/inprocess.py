@@ -65,7 +65,7 @@ class InProcessExecutor:
 
     def state(self) -> dict[str, Any]:
         """The vehicles' state between flights (what a resumed run restores)."""
-        return {"bodies": [b.state() for b in self.bodies]}
+        return {"bodies": [b.checkpoint() for b in self.bodies]}
 
     def restore(self, state: dict[str, Any]) -> None:
         bodies = state["bodies"]

@@ -25,6 +25,7 @@ from econdor_gcs.dfc import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import Mission
 from econdor_gcs.rundir import RunDirMode, write_json
+from sim_vehicle.tracer import warm_up
 
 from .inprocess import InProcessExecutor, run_inprocess
 
@@ -71,9 +72,22 @@ def run_seed(mission: Mission, seed: int, planner: str, out_dir: str | None,
         result = Dfc(mission, executor, planner=planner, truth=field, seed=seed).run()
     rows = [study_row(seed, planner, r) for r in result.records]
     return {"summary": result.summary(), "rows": rows, "run_dir": run_dir,
+            "worker": worker_info(),
             "levels": [r.levels for r in result.records],
             "kappa": [r.kappa for r in result.records],
             "delta": [r.delta for r in result.records]}
+
+
+def worker_info() -> dict[str, int]:
+    """The process a run ran in, and how often numba compiled (``tracer_compilations``) or
+    loaded from its disk cache (``tracer_cache_loads``) the tracer there so far: a worker
+    that reuses its compiled code shows one load (or one compilation) however many runs."""
+    from sim_vehicle import machine
+
+    stats = machine.advance.stats
+    return {"pid": os.getpid(), "tracer_compilations": sum(stats.cache_misses.values()),
+            "tracer_cache_loads": sum(stats.cache_hits.values()),
+            "tracer_signatures": len(machine.advance.signatures)}
 
 
 def _median(values: Iterable[float]) -> float:
@@ -121,6 +135,9 @@ def run_study(
     t0 = time.perf_counter()
     results: list[dict[str, Any]] = []
     notify = progress or (lambda r: None)
+    # load the compiled tracer (compile it, on a cold cache) once, before any run: the runs'
+    # wall times are then the runs', and workers load it from the disk cache
+    warm_up()
     if scheduler:
         results = _run_dask(mission, jobs, str(out), scheduler, notify, connect_timeout_s)
     elif (workers or 1) <= 1 or len(jobs) == 1:

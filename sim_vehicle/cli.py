@@ -92,6 +92,7 @@ def _run_one(args: argparse.Namespace) -> int:
     from econdor_gcs.signing import load_signing_key
 
     from .mavlink_vehicle import MavlinkVehicle
+    from .tracer import warm_up
     from .transport import parse_endpoint
 
     mission = load_mission(args.mission)
@@ -102,6 +103,7 @@ def _run_one(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = {}
     if args.tel_rate is not None:
         overrides["tel_rate_hz"] = args.tel_rate
+    warm_up()  # load (or compile) the tracer before the vehicle shows itself
     try:
         vehicle = MavlinkVehicle.from_mission(mission, sysid=args.sysid, connect=ep,
                                               speedup=args.speedup, seed=args.seed,
@@ -139,6 +141,9 @@ def _run_many(args: argparse.Namespace) -> int:
     base = args.sysid_base if args.sysid_base is not None else args.sysid
     if base + args.count - 1 > 254:
         raise EcondorError(f"system ids {base}..{base + args.count - 1} exceed 254")
+    from .tracer import warm_up
+
+    warm_up()  # compile once here on a cold cache; the children then load it
     children: list[subprocess.Popen[bytes]] = []
     stopping = False
 

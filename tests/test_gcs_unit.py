@@ -68,7 +68,12 @@ def test_trace_report_round_trips_through_mavlink() -> None:
 def test_outcome_status_codes_are_stable_and_unreported_has_none() -> None:
     codes = {s: s.code for s in OutcomeStatus if s is not OutcomeStatus.UNREPORTED}
     assert codes == {"reached": 0, "closed": 1, "boundary": 2, "length_limit": 3,
-                     "not_found": 4, "lost": 5}
+                     "not_found": 4, "lost": 5, "unreachable": 6}
+    # every status the compiled tracer can end a task with is one the station knows
+    from sim_vehicle.machine import STATUS_NAMES
+    for name in STATUS_NAMES.values():
+        if name != "budget":  # the tracer reports a spent trace budget as "lost"
+            assert OutcomeStatus(name).code >= 0
     with pytest.raises(ValueError, match="no wire code"):
         _ = OutcomeStatus.UNREPORTED.code
     assert TaskOutcome(Waypoint(0, 0), "closed", 1.0).status is OutcomeStatus.CLOSED

@@ -89,7 +89,8 @@ class SampleLog:
 class OutcomeStatus(StrEnum):
     """How a task ended.
 
-    ``REACHED`` ends a waypoint; a trace ends ``CLOSED`` (the loop closed), ``BOUNDARY`` (the
+    ``REACHED`` ends a waypoint (``UNREACHABLE`` when its generous time budget ran out
+    first); a trace ends ``CLOSED`` (the loop closed), ``BOUNDARY`` (the
     area boundary was reached on both sides), ``LENGTH_LIMIT``, ``NOT_FOUND`` (the search
     failed) or ``LOST``. ``UNREPORTED`` is the station's word for an outcome that never
     arrived; it has no wire code.
@@ -99,6 +100,7 @@ class OutcomeStatus(StrEnum):
     """
 
     REACHED = "reached"
+    UNREACHABLE = "unreachable"
     CLOSED = "closed"
     BOUNDARY = "boundary"
     LENGTH_LIMIT = "length_limit"
@@ -125,6 +127,7 @@ class OutcomeStatus(StrEnum):
 _STATUS_CODES = {
     OutcomeStatus.REACHED: 0, OutcomeStatus.CLOSED: 1, OutcomeStatus.BOUNDARY: 2,
     OutcomeStatus.LENGTH_LIMIT: 3, OutcomeStatus.NOT_FOUND: 4, OutcomeStatus.LOST: 5,
+    OutcomeStatus.UNREACHABLE: 6,
 }
 
 
