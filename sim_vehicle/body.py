@@ -183,6 +183,21 @@ class SimBody:
             return offset + scale * gaussian_sum_at(self.x_m, self.y_m, cx, cy, inv, w)
         return float(self._field(np.float64(self.x_m), np.float64(self.y_m)))
 
+    def checkpoint(self) -> dict[str, Any]:
+        """Everything that moves (the machine's record: time, position, velocity, heading,
+        odometer), the noise drawn ahead and the noise generator, JSON-safe;
+        :meth:`restore` puts it back exactly."""
+        record = {name: self.state[0][name].item() for name in self.state.dtype.names or ()}
+        return {"record": record, "noise_ahead": self._noise.tolist(),
+                "rng": self._rng.bit_generator.state}
+
+    def restore(self, checkpoint: dict[str, Any]) -> None:
+        """Continue from a :meth:`checkpoint` of a body built with the same parameters."""
+        for name, value in checkpoint["record"].items():
+            self.state[0][name] = value
+        self._noise = np.asarray(checkpoint["noise_ahead"], dtype=float)
+        self._rng.bit_generator.state = checkpoint["rng"]
+
     def sense(self) -> float:
         """Read the sensor at the current position (true value + noise).
 
