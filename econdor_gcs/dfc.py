@@ -372,8 +372,8 @@ class Dfc:
             positions_m=self._positions(iteration),
             budget_left_m=budget - self.flight_m if budget > 0 else math.inf)
 
-    def _pattern_plans(self) -> list[list[Task]]:
-        """The mission's initiation pattern: the two diagonals or a survey."""
+    def _pattern(self) -> tuple[Batch, list[list[Task]]]:
+        """The mission's initiation pattern (the two diagonals or a survey) and its plans."""
         m = self.mission
         n = self.executor.n_vehicles
         if m.initiation.pattern == "lawnmower":
@@ -382,8 +382,9 @@ class Dfc:
         else:
             jobs = diagonal_jobs(m.region, n)
             if len(jobs) == n:  # one diagonal share per vehicle, in order
-                return [list(j.tasks) for j in jobs]
-        return assign_jobs(jobs, self._positions(0), m.algorithm.search_radius_m)
+                return Batch(jobs, levels_planned=0), [list(j.tasks) for j in jobs]
+        batch = Batch(jobs, levels_planned=0)
+        return batch, assign_jobs(jobs, self._positions(0), m.algorithm.search_radius_m)
 
     def _subsample_initiation(self, reports: list[FlightReport]) -> None:
         k = self.mission.initiation.samples_per_diagonal
@@ -447,12 +448,14 @@ class Dfc:
         self.progress(RunStarted(self.planner_name, self.seed, self.executor.n_vehicles))
         first = self.planner.initiation(self._context(0, None))
         if first is None:  # the mission's pattern; the DFC keeps only a few of its samples
-            plans = self._pattern_plans()
+            pattern, plans = self._pattern()
+            self.progress(IterationPlanned(0, pattern, plans))
             reports = self._fly(plans, 0, pattern=True)
             self._subsample_initiation(reports)
             self._account(reports)
         else:
             plans = assign_jobs(first.jobs, self._positions(0), a.search_radius_m)
+            self.progress(IterationPlanned(0, first, plans))
             reports = self._fly(plans, 0)
             self._account(reports, batch=first)
         estimate = self._reconstruct()
