@@ -612,10 +612,16 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
 
 
 def read_samples(path: str | Path) -> SampleLog:
-    """Load ``samples.csv`` back into a SampleLog (empty when it has only its header)."""
+    """Load ``samples.csv`` back into a SampleLog (empty when it has only its header).
+
+    A last line without its newline is a row still being written (a run in progress, or
+    one killed mid-write): it is left out.
+    """
     with Path(path).open(encoding="utf-8") as f:
         f.readline()  # the header
         rows = f.read()
+    if rows and not rows.endswith("\n"):
+        rows = rows[: rows.rfind("\n") + 1]
     if not rows.strip():
         return SampleLog()
     a = np.loadtxt(io.StringIO(rows), delimiter=",", ndmin=2)

@@ -222,3 +222,16 @@ def test_lawnmower_initiation_pattern(tmp_path):
         on = np.abs(x - line_x) < 0.5
         assert y[on].min() < 5 and y[on].max() > 95, line_x
     assert 600 <= r["rows"][0]["flight_distance_m"] <= 1200  # 600 m of lines + transit
+
+
+def test_samples_of_a_run_still_writing_are_read_up_to_the_last_whole_line(tmp_path):
+    from econdor_gcs.rundir import SAMPLE_COLUMNS, read_samples
+
+    path = tmp_path / "samples.csv"
+    values = {"t_s": "1.5", "x_m": "2", "y_m": "3", "value": "4.25", "phase": "2",
+              "vehicle": "0", "iteration": "1"}
+    row = ",".join(values[c] for c in SAMPLE_COLUMNS)
+    path.write_text(",".join(SAMPLE_COLUMNS) + "\n" + row + "\n" + row + "\n" + "3.0,4.",
+                    encoding="utf-8")
+    s = read_samples(path)
+    assert len(s) == 2 and s.phase.tolist() == [2, 2] and s.value.tolist() == [4.25, 4.25]
