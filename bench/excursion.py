@@ -8,7 +8,9 @@ setting (``missions/demo.yaml``: the paper's field model, 3 vehicles, 5 iteratio
 prints, per setting and phase (transit, search, trace, survey), how many samples lie
 outside the area and the largest distance outside it (the *excursion*), plus the samples,
 traced distance and final MAE of the runs (so a change that keeps vehicles inside by
-flying less shows).
+flying less shows), and, where the tree has a geofence guard, how often it braked
+(``guard brakes``: ticks its hard stage stopped a command) and how often the fence itself
+had to stop a vehicle (``fence attempts``, 0 when the fence is never in the way).
 
 ``--against REF`` runs the same measurement on the git revision REF (``git archive`` into a
 temporary directory, a subprocess with that tree first on ``sys.path``), right after this
@@ -70,8 +72,8 @@ def one_run(setting: str, seed: int) -> dict[str, Any]:
     mission = _mission(setting)
     field = mission.build_field(seed)
     t0 = time.perf_counter()
-    result = Dfc(mission, InProcessExecutor(mission, field, seed=seed), planner="econdor",
-                 truth=field, seed=seed).run()
+    executor = InProcessExecutor(mission, field, seed=seed)
+    result = Dfc(mission, executor, planner="econdor", truth=field, seed=seed).run()
     wall = time.perf_counter() - t0
     s = result.samples
     out = excursion_m(np.asarray(s.x_m), np.asarray(s.y_m), mission.region)
@@ -81,7 +83,10 @@ def one_run(setting: str, seed: int) -> dict[str, Any]:
         per_phase[name] = {"samples": int(sel.sum()),
                            "outside": int((out[sel] > 1e-9).sum()),
                            "max_m": float(out[sel].max()) if sel.any() else 0.0}
-    return {"setting": setting, "seed": seed, "wall_s": wall, "samples": len(s),
+    names = executor.bodies[0].state.dtype.names or ()
+    guard = {key: int(sum(b.state[0][key] for b in executor.bodies)) if key in names else None
+             for key in ("guard_brakes", "fence_attempts")}
+    return {"setting": setting, "seed": seed, "wall_s": wall, "samples": len(s), **guard,
             "max_m": float(out.max()), "outside": int((out > 1e-9).sum()),
             "phases": per_phase, "final_mae_db": result.records[-1].mae_db,
             "contour_m": result.contour_distance_m, "flown_m": result.flight_distance_m}
@@ -91,12 +96,18 @@ def measure(settings: list[str], seeds: list[int]) -> dict[str, Any]:
     return {"runs": [one_run(setting, seed) for setting in settings for seed in seeds]}
 
 
+def _total(runs: list[dict[str, Any]], key: str) -> str:
+    values = [r.get(key) for r in runs]
+    return "—" if any(v is None for v in values) else str(sum(values))
+
+
 def _table(title: str, data: dict[str, Any]) -> None:
     print(f"\n## {title}\n")
     print("| setting | runs | samples | outside the area | max excursion m | "
           + " | ".join(f"{p}: outside / max m" for p in PHASES)
-          + " | median final MAE dB | median traced m | median flown m |")
-    print("|---|---|---|---|---|" + "---|" * len(PHASES) + "---|---|---|")
+          + " | median final MAE dB | median traced m | median flown m | guard brakes"
+          " | fence attempts |")
+    print("|---|---|---|---|---|" + "---|" * len(PHASES) + "---|---|---|---|---|")
     for setting in dict.fromkeys(r["setting"] for r in data["runs"]):
         rs = [r for r in data["runs"] if r["setting"] == setting]
         cells = []
@@ -109,7 +120,8 @@ def _table(title: str, data: dict[str, Any]) -> None:
               + " | ".join(cells)
               + f" | {statistics.median(r['final_mae_db'] for r in rs):.1f} | "
               f"{statistics.median(r['contour_m'] for r in rs):.0f} | "
-              f"{statistics.median(r['flown_m'] for r in rs):.0f} |")
+              f"{statistics.median(r['flown_m'] for r in rs):.0f} | "
+              f"{_total(rs, 'guard_brakes')} | {_total(rs, 'fence_attempts')} |")
     worst = max(data["runs"], key=lambda r: r["max_m"])
     print(f"\nlargest excursion: {worst['max_m']:.2f} m ({worst['setting']} seed "
           f"{worst['seed']}); per run (setting:seed=max m): "

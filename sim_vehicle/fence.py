@@ -220,22 +220,23 @@ class Fence:
             object.__setattr__(self, name, value)
             polys.append(value)
         for name in ("inclusion_circles", "exclusion_circles"):
-            value = tuple((float(cx), float(cy), float(r)) for cx, cy, r in getattr(self, name))
-            for _, _, r in value:
+            circles = tuple((float(cx), float(cy), float(r))
+                            for cx, cy, r in getattr(self, name))
+            for _, _, r in circles:
                 if not (math.isfinite(r) and r > 0.0):
                     raise ValueError(f"{name}: radius must be > 0, got {r!r}")
-            object.__setattr__(self, name, value)
+            object.__setattr__(self, name, circles)
         rings = [(p, INCLUSION) for p in polys[0]] + [(p, EXCLUSION) for p in polys[1]]
         verts = (np.concatenate([p for p, _ in rings]) if rings else np.zeros((0, 2)))
         firsts = np.cumsum([0] + [len(p) for p, _ in rings])
         ring_rows = np.array([(firsts[k], len(p), kind) for k, (p, kind) in enumerate(rings)],
                              dtype=np.int64).reshape(-1, 3)
-        circles = np.array([(*c, INCLUSION) for c in self.inclusion_circles]
-                           + [(*c, EXCLUSION) for c in self.exclusion_circles],
-                           dtype=float).reshape(-1, 4)
+        circle_rows = np.array([(*c, INCLUSION) for c in self.inclusion_circles]
+                               + [(*c, EXCLUSION) for c in self.exclusion_circles],
+                               dtype=float).reshape(-1, 4)
         object.__setattr__(self, "_arrays", (np.ascontiguousarray(verts, dtype=float),
                                              np.ascontiguousarray(ring_rows),
-                                             np.ascontiguousarray(circles)))
+                                             np.ascontiguousarray(circle_rows)))
 
     @property
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

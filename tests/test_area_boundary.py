@@ -10,14 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
+from vehicle_helpers import REPO
 
 from econdor_gcs.core.contours import contour_pieces
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.tasks import Phase, TraceTask
 from econdor_gcs.mission import parse_mission
 from econdor_lab.inprocess import InProcessExecutor
-
-from vehicle_helpers import REPO
 
 EXCURSION_LIMIT_M = 1e-3
 """The guard's promise: a trace task never ends up farther than this outside the area."""

@@ -19,9 +19,11 @@ from econdor_lab.inprocess import InProcessExecutor
 from sim_vehicle.body import SimBody
 from sim_vehicle.fence import (
     FENCE_HARD_MARGIN_M,
-    FENCE_MARGIN_M as STOP_MARGIN_M,
     Fence,
     check_fence,
+)
+from sim_vehicle.fence import (
+    FENCE_MARGIN_M as STOP_MARGIN_M,
 )
 from sim_vehicle.kinematics import VehicleLimits
 from sim_vehicle.mission_server import FENCE, MissionServer, StoredItem
