@@ -52,26 +52,64 @@ def _planner_list(text: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def _probability(text: str) -> float:
+    """``0.1`` or ``10%`` -> 0.1."""
+    scale = 100.0 if text.endswith("%") else 1.0
+    try:
+        v = float(text.rstrip("%")) / scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability (0.1 or 10%), got {text!r}"
+                                         ) from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within 0..1 (0..100%), got {text}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="econdor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a mission over MAVLink (starts simulated vehicles "
                                      "unless --connect is given)")
-    run.add_argument("mission", type=Path)
-    run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<name>-<time>)")
+    run.add_argument("mission", type=Path, nargs="?",
+                     help="mission YAML (not with --resume: the run directory has it)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="run directory (default runs/<name>-<time>); a non-empty one is "
+                          "refused unless --force")
+    run.add_argument("--force", action="store_true",
+                     help="replace an earlier run in --out")
+    run.add_argument("--resume", type=Path, default=None, metavar="RUN_DIR",
+                     help="continue an interrupted run after its last finished flight")
     run.add_argument("--planner", choices=PLANNER_NAMES, default=None)
     run.add_argument("--vehicles", type=_positive_int, default=None)
     run.add_argument("--speedup", type=_positive_float, default=None)
     run.add_argument("--seed", type=int, default=None)
     run.add_argument("--connect", default=None,
                      help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
-    run.add_argument("--timeout", type=_positive_float, default=20.0,
+    run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
+    run.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                     help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
+                          "(hashed with SHA-256, as MAVProxy does)")
     run.add_argument("--quiet", action="store_true")
     run.add_argument("--web", nargs="?", const=WEB_DEFAULT, default=None, metavar="[HOST:]PORT",
                      help=f"serve a live page of the run (default {WEB_DEFAULT}; another "
                           "host than loopback needs the token printed at start)")
+
+    rl = sub.add_parser("relay", help="a fault-injecting UDP relay between two loopback "
+                                      "endpoints (for tests and link checks)")
+    rl.add_argument("--listen", required=True, metavar="EP",
+                    help="where the vehicles send, e.g. udpin:127.0.0.1:14560 (port 0: any)")
+    rl.add_argument("--to", required=True, metavar="EP",
+                    help="where to relay to (the GCS), e.g. udpout:127.0.0.1:14550")
+    for name, what in (("drop", "lose"), ("duplicate", "deliver twice"),
+                       ("reorder", "hold back behind the next one"),
+                       ("corrupt", "flip one bit of")):
+        rl.add_argument(f"--{name}", type=_probability, default=0.0, metavar="P",
+                        help=f"probability to {what} each datagram, each way (0.1 or 10%%)")
+    rl.add_argument("--seed", type=int, default=None, help="seed of the fault draws")
+    rl.add_argument("--duration", type=_positive_float, default=None, metavar="S",
+                    help="stop after S seconds (default: at Ctrl-C / SIGTERM)")
 
     st = sub.add_parser("study", help="in-process study over many seeds")
     st.add_argument("mission", type=Path)
@@ -157,6 +195,23 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Usage errors of ``econdor run`` (exit 2): what --resume excludes and needs."""
+    if args.resume is None:
+        if args.mission is None:
+            parser.error("run: a MISSION.yaml is needed (or --resume RUN_DIR)")
+        if args.timeout is None:
+            args.timeout = 20.0
+        return
+    clash = [f"--{name}" for name in ("out", "planner", "vehicles", "speedup", "seed")
+             if getattr(args, name) is not None] + (["--force"] if args.force else [])
+    if args.mission is not None:
+        clash.insert(0, "MISSION.yaml")
+    if clash:
+        parser.error(f"run: --resume continues the recorded run; {', '.join(clash)} cannot "
+                     "change it")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from econdor_gcs.gcs import run_mission_cli
 
@@ -200,12 +255,34 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return export_cli(args)
 
 
-COMMANDS = {"study": _cmd_study, "report": _cmd_report, "run": _cmd_run, "export": _cmd_export,
-            "view": _cmd_view}
+def _cmd_relay(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from econdor_gcs.link.relay import Faults, Relay, parse_relay_endpoint, serve
+
+    listen, to = parse_relay_endpoint(args.listen), parse_relay_endpoint(args.to)
+    relay = Relay(listen, to, Faults(args.drop, args.duplicate, args.reorder, args.corrupt),
+                  seed=args.seed)
+
+    def ready(r: Relay) -> None:
+        host, port = r.listen_address
+        print(f"relay: listening on udpin:{host}:{port} -> udpout:{to[0]}:{to[1]}",
+              file=sys.stderr, flush=True)
+
+    asyncio.run(serve(relay, duration_s=args.duration, ready=ready))
+    print(f"relay: {relay.stats_line()}", file=sys.stderr, flush=True)
+    return 0
+
+
+COMMANDS = {"relay": _cmd_relay, "study": _cmd_study, "report": _cmd_report, "run": _cmd_run,
+            "export": _cmd_export, "view": _cmd_view}
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "run":
+        _check_run_args(parser, args)
     try:
         return COMMANDS[args.command](args)
     except EcondorError as exc:

@@ -37,7 +37,7 @@ import argparse
 import json
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -82,9 +82,6 @@ _FLOAT_TO_INT = {v: k for k, v in _INT_TO_FLOAT.items()}
 _GLOBAL_FRAMES = frozenset((0, 3, 5, 6, 10, 11))
 # QGC's AltitudeMode: 1 relative to home, 2 absolute (AMSL), 4 terrain frame
 _ALTITUDE_MODE = {0: 2, 5: 2, 3: 1, 6: 1, 10: 4, 11: 4}
-_POSITION_COMMANDS = frozenset(
-    (MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LOITER_UNLIM, 18, 19, 21, MAV_CMD_NAV_TAKEOFF,
-     MAV_CMD_WAYPOINT_USER_1))
 
 PathLike = str | Path
 
@@ -141,6 +138,40 @@ def _text_and_name(path_or_text: PathLike) -> tuple[str, str]:
     return path_or_text, "<text>"
 
 
+_FLOAT32_MAX = 3.4028234663852886e38
+_UINT = {"seq": 0xFFFF, "command": 0xFFFF, "frame": 0xFF, "current": 0xFF,
+         "autocontinue": 0xFF}
+
+
+def _checked(item: MissionItemSpec, where: str) -> MissionItemSpec:
+    """``item`` if it fits a MISSION_ITEM_INT (and its position is on the globe), else an
+    :class:`EcondorError` naming the field.
+
+    >>> _checked(MissionItemSpec(0, 6, 16, x=900_000_001), "f line 2")
+    Traceback (most recent call last):
+    ...
+    econdor_gcs.errors.EcondorError: f line 2: latitude 90.0000001 out of range [-90, 90]
+    """
+    for name, top in _UINT.items():
+        v = getattr(item, name)
+        if not 0 <= v <= top:
+            raise EcondorError(f"{where}: {name} {v} out of range [0, {top}]")
+    for name in ("param1", "param2", "param3", "param4", "z"):
+        v = getattr(item, name)
+        if math.isfinite(v) and abs(v) > _FLOAT32_MAX:
+            raise EcondorError(f"{where}: {name} {v:g} does not fit a float32")
+    if _is_global(item.frame):
+        if not -90 * 10**7 <= item.x <= 90 * 10**7:
+            raise EcondorError(f"{where}: latitude {item.x / 1e7} out of range [-90, 90]")
+        if not -180 * 10**7 <= item.y <= 180 * 10**7:
+            raise EcondorError(f"{where}: longitude {item.y / 1e7} out of range [-180, 180]")
+    for name in ("x", "y"):
+        v = getattr(item, name)
+        if not -(2**31) <= v < 2**31:
+            raise EcondorError(f"{where}: {name} {v} does not fit an int32")
+    return item
+
+
 def read_wpl(path_or_text: PathLike, *, int_frames: bool = False) -> list[MissionItemSpec]:
     """Parse QGC WPL 110 (a path, or the text itself if it contains a newline).
 
@@ -180,9 +211,10 @@ def read_wpl(path_or_text: PathLike, *, int_frames: bool = False) -> list[Missio
             xi, yi = round(x) if math.isfinite(x) else 0, round(y) if math.isfinite(y) else 0
         if int_frames:
             frame = _FLOAT_TO_INT.get(frame, frame)
-        items.append(MissionItemSpec(
+        items.append(_checked(MissionItemSpec(
             seq=seq, frame=frame, command=command, current=current, autocontinue=autocontinue,
-            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z))
+            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z),
+            f"{name} line {lineno}"))
     return items
 
 
@@ -293,8 +325,12 @@ def plan_to_items(doc: Any, *, name: str = "<plan>",
             raise EcondorError(f"{name}: mission.plannedHomePosition must be [lat, lon, alt]")
         lat = _float(home[0], f"{name}: plannedHomePosition")
         lon = _float(home[1], f"{name}: plannedHomePosition")
-        items.append(MissionItemSpec(0, frame_of(3), MAV_CMD_NAV_WAYPOINT, current=1,
-                                     x=round(lat * 1e7), y=round(lon * 1e7), z=0.0))
+        if not (math.isfinite(lat) and math.isfinite(lon)):
+            raise EcondorError(f"{name}: mission.plannedHomePosition needs a finite latitude "
+                               "and longitude")
+        items.append(_checked(MissionItemSpec(0, frame_of(3), MAV_CMD_NAV_WAYPOINT, current=1,
+                                              x=round(lat * 1e7), y=round(lon * 1e7), z=0.0),
+                              f"{name}: mission.plannedHomePosition"))
     for i, entry in enumerate(mission["items"]):
         where = f"{name}: mission.items[{i}]"
         if not isinstance(entry, dict):
@@ -307,16 +343,16 @@ def plan_to_items(doc: Any, *, name: str = "<plan>",
             raise EcondorError(f"{where}: params must be a list of 7 values")
         try:
             frame, command = int(entry["frame"]), int(entry["command"])
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise EcondorError(f"{where}: needs integer frame and command") from None
         p = [_float(v, where) for v in params]
         scale = 1e7 if _is_global(frame) else 1.0
         x, y = (round(v * scale) if math.isfinite(v) else 0 for v in p[4:6])
-        items.append(MissionItemSpec(
+        items.append(_checked(MissionItemSpec(
             seq=len(items), frame=frame_of(frame), command=command,
             current=1 if not items else 0, autocontinue=int(bool(entry.get("autoContinue", True))),
             param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=int(x), y=int(y),
-            z=p[6] if math.isfinite(p[6]) else 0.0))
+            z=p[6] if math.isfinite(p[6]) else 0.0), where))
     return items
 
 
@@ -489,6 +525,24 @@ def _load_samples(path: Path) -> np.ndarray:
     return a if a.size else np.zeros((0, 6))
 
 
+def _sysids_of(summary: dict[str, Any]) -> Callable[[int], int]:
+    """Vehicle index (``samples.csv``) -> system id (missions, ``--vehicle``).
+
+    ``summary.json``'s ``sysids`` list is in index order; without it (runs whose vehicles
+    the station started itself number them 1..N) the system id is the index + 1.
+
+    >>> f = _sysids_of({"sysids": [7, 9]})
+    >>> f(0), f(1), _sysids_of({})(0)
+    (7, 9, 1)
+    """
+    sysids = summary.get("sysids")
+    if isinstance(sysids, list) and all(isinstance(s, int) for s in sysids):
+        def lookup(index: int) -> int:
+            return int(sysids[index]) if 0 <= index < len(sysids) else index + 1
+        return lookup
+    return lambda index: index + 1
+
+
 def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
                     vehicle: int | None = None) -> dict[str, Any]:
     """A FeatureCollection of the run: sample paths, mission points, area boundary.
@@ -496,7 +550,9 @@ def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
     Sample paths (``samples.csv`` local ENU) are placed with ``summary.json``'s ``origin``
     ``{lat_deg, lon_deg, alt_m}`` or, failing that, the home item of a saved mission (vehicles
     start at the origin).  ``iteration`` / ``vehicle`` filter the mission points; ``vehicle``
-    also the sample paths.
+    (a system id, as in the mission file names) also the sample paths, whose
+    ``samples.csv`` vehicle index is mapped to the system id with ``summary.json``'s
+    ``sysids``.
     """
     run_dir = Path(run_dir)
     _check_run_dir(run_dir)
@@ -511,10 +567,12 @@ def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
         if len(a) and origin is None:
             raise EcondorError(f"{run_dir}: cannot place the samples on the map: summary.json "
                                "has no origin and no mission with a home item was saved")
-        for sysid in sorted({int(v) for v in a[:, 5]}) if len(a) else []:
+        sysid_of = _sysids_of(summary)
+        for index in sorted({int(v) for v in a[:, 5]}) if len(a) else []:
+            sysid = sysid_of(index)
             if vehicle is not None and sysid != vehicle:
                 continue
-            rows = a[a[:, 5] == sysid]
+            rows = a[a[:, 5] == index]
             rows = rows[np.argsort(rows[:, 0], kind="stable")]
             assert origin is not None
             lon, lat = _lonlat(origin, rows[:, 1], rows[:, 2])

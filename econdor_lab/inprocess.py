@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
 from econdor_gcs.core.fields import Field
 from econdor_gcs.core.tasks import FlightReport, Phase, Task, Waypoint
+from econdor_gcs.dfc import Dfc, Progress, RunResult
+from econdor_gcs.errors import RunError
+from econdor_gcs.gcs import FENCE_MARGIN_M
+from econdor_gcs.link.mission import fence_items
 from econdor_gcs.mission import Mission
+from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
 from sim_vehicle.body import SimBody
 from sim_vehicle.executor import run_plan
+from sim_vehicle.fence import Fence
 from sim_vehicle.kinematics import VehicleLimits
 from sim_vehicle.tracer import TracerParams
 
@@ -27,7 +36,8 @@ class InProcessExecutor:
 
     Vehicles start at the area's origin corner (their home), transit at cruise speed, come
     to rest where their plan ended and keep that position between iterations, and fly home
-    at the end, as the MAVLink vehicles do.
+    at the end, as the MAVLink vehicles do. They fly inside the fence ``econdor run``
+    uploads (the area plus ``FENCE_MARGIN_M``), read from the very items it sends.
     """
 
     def __init__(self, mission: Mission, field: Field, n_vehicles: int | None = None,
@@ -40,10 +50,12 @@ class InProcessExecutor:
         rng = np.random.default_rng(seed + 7919)
         # like the MAVLink vehicle: transits at the cruise speed (its SPEED_MPS), not max speed
         self.params = TracerParams(speed_mps=v.speed_mps, transit_speed_mps=v.speed_mps)
+        self.fence = Fence.from_items(
+            fence_items(mission.origin, mission.region, FENCE_MARGIN_M), mission.origin)
         self.bodies = [
             SimBody(field, mission.region, *self.home, limits=limits,
                     sample_rate_hz=v.sample_rate_hz, noise_std=v.noise_std,
-                    rng=np.random.default_rng(rng.integers(2**32)))
+                    rng=np.random.default_rng(rng.integers(2**32)), fence=self.fence)
             for _ in range(self.n_vehicles)
         ]
 
@@ -57,5 +69,61 @@ class InProcessExecutor:
             _brake(body)
         return reports
 
+    def state(self) -> dict[str, Any]:
+        """The vehicles' state between flights (what a resumed run restores)."""
+        return {"bodies": [b.checkpoint() for b in self.bodies]}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        bodies = state["bodies"]
+        if len(bodies) != len(self.bodies):
+            raise RunError(f"cannot resume: {len(bodies)} vehicles recorded, "
+                           f"{len(self.bodies)} now")
+        for body, b in zip(self.bodies, bodies, strict=True):
+            body.restore(b)
+
     def finish(self) -> list[FlightReport]:
         return self.fly([[Waypoint(*self.home)] for _ in self.bodies], -1)
+
+
+def run_inprocess(mission: Mission, out: str | Path, *, planner: str | None = None,
+                  seed: int | None = None, n_vehicles: int | None = None,
+                  mode: RunDirMode = RunDirMode.NEW, progress: Progress | None = None,
+                  extra: dict[str, Any] | None = None) -> RunResult:
+    """One in-process DFC run into the run directory ``out``.
+
+    With ``mode=RunDirMode.RESUME`` the run recorded in ``out`` (its ``run.json`` gives the
+    planner, seed and fleet size) continues after its last finished flight: the finished
+    flights are replayed from ``flights.jsonl`` and ``samples.csv``, the vehicles restored to
+    where they were, and the run ends with exactly the result an uninterrupted run of the
+    same seed has.
+    """
+    out = Path(out)
+    if mode == RunDirMode.RESUME:
+        config = read_run_config(out)
+        if config.get("transport") != "in-process":
+            raise RunError(f"{out}: a {config.get('transport')} run; resume it with econdor run")
+        for key, given in (("planner", planner), ("seed", seed), ("vehicles", n_vehicles)):
+            if given is not None and given != config[key]:
+                raise RunError(f"{out}: recorded with {key} {config[key]}, not {given}")
+        planner, seed, n_vehicles = config["planner"], config["seed"], config["vehicles"]
+    planner = planner or mission.algorithm.planner
+    seed = mission.seed if seed is None else seed
+    n = n_vehicles or mission.vehicles.count
+    replay = read_checkpoint(out) if mode == RunDirMode.RESUME else []
+    rd = RunDir(out, mode)
+    try:
+        if mode != RunDirMode.RESUME:
+            rd.write_run_config({"transport": "in-process", "mission": mission.name,
+                                 "planner": planner, "seed": seed, "vehicles": n}, None)
+        field = mission.build_field(seed)
+        executor = InProcessExecutor(mission, field, n_vehicles=n, seed=seed)
+        dfc = Dfc(mission, executor, planner=planner, truth=field, seed=seed,
+                  progress=progress, on_flight=rd.record_flight, replay=replay)
+        result = dfc.run()
+        resumed = {"resumed": {"flights_replayed": dfc.replayed,
+                               "samples_interrupted": rd.interrupted_samples}} if replay else {}
+        rd.write_result(result, {"mission": mission.name, "transport": "in-process",
+                                 **resumed, **(extra or {})})
+    finally:
+        rd.close()
+    return result

@@ -24,10 +24,10 @@ from econdor_gcs.core.planners import PLANNER_NAMES as PLANNERS
 from econdor_gcs.dfc import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import Mission
-from econdor_gcs.rundir import RunDir, write_json
+from econdor_gcs.rundir import RunDirMode, write_json
 from sim_vehicle.tracer import warm_up
 
-from .inprocess import InProcessExecutor
+from .inprocess import InProcessExecutor, run_inprocess
 
 _BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels",
@@ -63,22 +63,16 @@ def parse_seeds(text: str) -> list[int]:
 def run_seed(mission: Mission, seed: int, planner: str, out_dir: str | None,
              n_vehicles: int | None = None) -> dict[str, Any]:
     """One in-process run. Returns ``{"summary": ..., "rows": [...], "run_dir": ...}``."""
-    field = mission.build_field(seed)
-    executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed)
     run_dir = None
-    rd = None
     if out_dir is not None:
+        # a study owns its runs/ folder: a re-run of the same study replaces its runs
         run_dir = str(Path(out_dir) / "runs" / f"{planner}-{seed}")
-        rd = RunDir(run_dir)
-    try:
-        dfc = Dfc(mission, executor, planner=planner, truth=field, seed=seed,
-                  on_samples=rd.append_samples if rd else None)
-        result = dfc.run()
-        if rd is not None:
-            rd.write_result(result, {"mission": mission.name, "transport": "in-process"})
-    finally:
-        if rd is not None:
-            rd.close()
+        result = run_inprocess(mission, run_dir, planner=planner, seed=seed,
+                               n_vehicles=n_vehicles, mode=RunDirMode.FORCE)
+    else:
+        field = mission.build_field(seed)
+        executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed)
+        result = Dfc(mission, executor, planner=planner, truth=field, seed=seed).run()
     rows = [study_row(seed, planner, r) for r in result.records]
     return {"summary": result.summary(), "rows": rows, "run_dir": run_dir,
             "worker": worker_info(),

@@ -79,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="first system id with --count (default --sysid)")
     p.add_argument("--tel-rate", type=_positive, default=None,
                    help="position telemetry rate, Hz of sim time (default min(10, sample rate))")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
+                        "(SHA-256, as MAVProxy does); unsigned messages are then ignored")
     p.add_argument("--reject-command", type=int, action="append", default=[],
                    metavar="CMD", help="(testing) refuse mission items with this MAV_CMD")
     return p
@@ -86,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run_one(args: argparse.Namespace) -> int:
     from econdor_gcs.mission import load_mission
+    from econdor_gcs.signing import load_signing_key
 
     from .mavlink_vehicle import MavlinkVehicle
     from .tracer import warm_up
@@ -95,6 +99,7 @@ def _run_one(args: argparse.Namespace) -> int:
     ep = parse_endpoint(args.connect)
     if args.seed is not None and args.seed < 0:
         raise EcondorError(f"--seed must be >= 0, got {args.seed}")
+    signing = load_signing_key(args.signing_key) if args.signing_key is not None else None
     overrides: dict[str, Any] = {}
     if args.tel_rate is not None:
         overrides["tel_rate_hz"] = args.tel_rate
@@ -102,7 +107,7 @@ def _run_one(args: argparse.Namespace) -> int:
     try:
         vehicle = MavlinkVehicle.from_mission(mission, sysid=args.sysid, connect=ep,
                                               speedup=args.speedup, seed=args.seed,
-                                              home=args.home, **overrides)
+                                              home=args.home, signing=signing, **overrides)
     except OSError as exc:
         raise EcondorError(f"cannot open {args.connect}: {exc.strerror or exc}") from exc
 
@@ -162,6 +167,8 @@ def _run_many(args: argparse.Namespace) -> int:
             cmd += ["--tel-rate", repr(args.tel_rate)]
         for c in args.reject_command:
             cmd += ["--reject-command", str(c)]
+        if args.signing_key is not None:
+            cmd += ["--signing-key", args.signing_key]
         children.append(subprocess.Popen(cmd))
     status = 0
     try:

@@ -16,15 +16,20 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
   Count 0 clears.
 * download: MISSION_REQUEST_LIST -> MISSION_COUNT; MISSION_REQUEST_INT -> MISSION_ITEM_INT,
   legacy MISSION_REQUEST -> MISSION_ITEM; items come back exactly as uploaded.
-* MISSION_CLEAR_ALL -> MISSION_ACK; MISSION_SET_CURRENT -> MISSION_CURRENT.
+* MISSION_CLEAR_ALL -> MISSION_ACK (of the upload's type, or of type ALL, it also ends a running
+  upload); MISSION_SET_CURRENT -> MISSION_CURRENT.
+* FENCE uploads are checked item by item and as a whole (:func:`sim_vehicle.fence.check_fence`)
+  and refused with the ``MAV_MISSION_RESULT`` that says why; RALLY items are stored as given.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from .fence import check_fence, check_fence_item
 
 MISSION = mavlink.MAV_MISSION_TYPE_MISSION
 FENCE = mavlink.MAV_MISSION_TYPE_FENCE
@@ -112,8 +117,10 @@ def item_from_msg(msg: Any) -> StoredItem:
 
 def check_item(item: StoredItem) -> int:
     """MAV_MISSION_ACCEPTED, or the MAV_MISSION_RESULT that rejects ``item``."""
+    if item.mission_type == FENCE:
+        return check_fence_item(item)
     if item.mission_type != MISSION:
-        return mavlink.MAV_MISSION_ACCEPTED  # fence / rally: stored as given
+        return mavlink.MAV_MISSION_ACCEPTED  # rally: stored as given
     if item.command not in SUPPORTED_COMMANDS:
         return mavlink.MAV_MISSION_UNSUPPORTED
     if item.command in NAV_COMMANDS:
@@ -255,6 +262,9 @@ class MissionServer:
             up.deadline = now + self.timeout_s
             return [self._request(up)]
         self.upload = None
+        if mtype == FENCE and (result := check_fence(up.items)) != mavlink.MAV_MISSION_ACCEPTED:
+            self.counters["uploads_failed"] += 1
+            return [self._ack(peer, result, mtype)]
         self._store(mtype, up.items)
         self._last_done = (mtype, peer, up.count)
         self.counters["uploads"] += 1
@@ -313,9 +323,10 @@ class MissionServer:
             self.events.append(MissionEvent("cleared", mtype))
         else:
             return [self._ack(peer, mavlink.MAV_MISSION_UNSUPPORTED, mtype)]
-        if self.upload is not None and self.upload.mission_type in (mtype,
-                                                                     mavlink.MAV_MISSION_TYPE_ALL):
-            self.upload = None
+        up = self.upload
+        if up is not None and mtype in (up.mission_type, mavlink.MAV_MISSION_TYPE_ALL):
+            self.upload = None  # what it was uploading is cleared: the transfer ends
+            self.counters["uploads_failed"] += 1
         return [self._ack(peer, mavlink.MAV_MISSION_ACCEPTED, mtype)]
 
     def _on_set_current(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
@@ -351,7 +362,3 @@ class MissionServer:
         "MISSION_SET_CURRENT": _on_set_current,
     }
 
-
-def with_current(items: list[StoredItem], seq: int) -> list[StoredItem]:
-    """``items`` with the current flag set on ``seq`` only (helper for tests/GCS code)."""
-    return [replace(it, current=int(it.seq == seq)) for it in items]

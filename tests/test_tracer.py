@@ -233,19 +233,33 @@ def test_wavy_open_contour(noise_std: float) -> None:
 
 
 @pytest.mark.parametrize(
-    "field, level",
+    "field, level, status, where",
     [
-        (lambda x, y: 0.0 * x + 5.0, 5.0),  # flat field exactly at the level, noisy
-        (lambda x, y: 100.0 * np.exp(-((x - 50) ** 2 + (y - 50) ** 2) / 50.0), 92.0),  # r=2 m
-        (lambda x, y: 10.0 * np.tanh((x - 50.0) / 0.3), 0.0),  # near-discontinuity
+        # flat field exactly at the level, noisy: every point is "on" it; it runs to an edge
+        (lambda x, y: 0.0 * x + 5.0, 5.0, "boundary", None),
+        # a 2 m radius contour on a sharp peak: too tight to follow at 8 m/s, given up
+        (lambda x, y: 100.0 * np.exp(-((x - 50) ** 2 + (y - 50) ** 2) / 50.0), 92.0, "lost",
+         (47.0, 53.0, 47.0, 53.0)),
+        # a near-discontinuity: followed along x = 50 from edge to edge
+        (lambda x, y: 10.0 * np.tanh((x - 50.0) / 0.3), 0.0, "boundary", (49.5, 50.5, 0.0, 100.0)),
     ],
+    ids=["flat", "tight-peak", "step"],
 )
-def test_pathological_fields_terminate(field, level: float) -> None:
+def test_pathological_fields_terminate(field, level: float, status: str,
+                                       where: tuple[float, float, float, float] | None) -> None:
     body = SimBody(field, REGION, 10.0, 10.0, noise_std=0.1, rng=np.random.default_rng(0))
     samples, outcome = drain(trace_contour(body, TraceTask(level, 52.0, 48.0, 10.0, 0.0, 0)))
-    assert outcome.status in {"closed", "boundary", "length_limit", "not_found", "lost"}
+    assert outcome.status == status
     # hard budget: 4 region perimeters at half cruise speed plus transit/search
     assert len(samples) < 5000
+    traced = np.array([(s.x_m, s.y_m) for s in samples if s.phase == Phase.TRACE])
+    assert len(traced) > 0
+    if where is not None:  # the traced samples stay on the feature
+        xmin, xmax, ymin, ymax = where
+        assert xmin <= traced[:, 0].min() and traced[:, 0].max() <= xmax
+        assert ymin <= traced[:, 1].min() and traced[:, 1].max() <= ymax
+    if status == "boundary":  # from one edge of the area to the other
+        assert traced[:, 1].min() < 2.0 and traced[:, 1].max() > 98.0
 
 
 def _gaussian_sum_field():

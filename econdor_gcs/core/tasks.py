@@ -85,14 +85,6 @@ class SampleLog:
             vehicle=np.concatenate([s.vehicle for s in logs]).astype(np.int16),
         )
 
-    @classmethod
-    def from_rows(cls, rows: list[tuple[float, float, float, float, int, int]]) -> SampleLog:
-        if not rows:
-            return cls()
-        a = np.asarray(rows, dtype=float)
-        return cls(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(np.int8),
-                   a[:, 5].astype(np.int16))
-
 
 class OutcomeStatus(StrEnum):
     """How a task ended.
@@ -165,6 +157,28 @@ from ``time_boot_ms`` on (the time of the first sample in the new phase)."""
 
 TRACE_REPORT_NAME = "TRACE"
 """``DEBUG_FLOAT_ARRAY.name`` of a :class:`TraceReport` (``array_id`` = mission item seq)."""
+
+# Sample recovery (README, "No sample lost"): two commands, sent as COMMAND_INT so the
+# times are exact integers (x = first, y = last time_boot_ms of a range, both included).
+SAMPLE_COUNT_COMMAND = 31010
+"""``MAV_CMD_USER_1``: how many samples did you take in [x, y] ms? COMMAND_ACK ACCEPTED with
+``result_param2`` = the count.
+
+>>> from pymavlink.dialects.v20 import common
+>>> (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND) == (common.MAV_CMD_USER_1,
+...                                                   common.MAV_CMD_USER_2)
+True
+"""
+SAMPLE_RESEND_COMMAND = 31011
+"""``MAV_CMD_USER_2``: send the samples of [x, y] ms again (the same GLOBAL_POSITION_INT +
+NAMED_VALUE_FLOAT pairs, with the PHASE changes of the range). COMMAND_ACK ACCEPTED with
+``result_param2`` = how many will follow, or DENIED if that is more than
+:data:`SAMPLE_RESEND_MAX` (ask for a smaller range)."""
+SAMPLE_RESEND_MAX = 400
+"""Most samples one resend request may ask for."""
+TRACE_RESEND_COMMAND = 31012
+"""``MAV_CMD_USER_3``: send the TRACE reports of [x, y] ms again (by the report's sim time);
+COMMAND_ACK ACCEPTED with ``result_param2`` = how many follow."""
 
 
 @dataclass(frozen=True)
