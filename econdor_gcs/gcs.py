@@ -72,6 +72,7 @@ from .core.tasks import (
     TraceTask,
 )
 from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
+from .link.autopilots import start_mission
 from .link.codec import MAVLinkMessage, mavlink
 from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
 from .link.reports import PhaseTrack, phase_change, trace_report
@@ -451,15 +452,22 @@ class MavlinkExecutor:
         self.station.call(self._wait_positions())
 
     async def _wait_positions(self) -> None:
-        for sysid in self.sysids:
-            with contextlib.suppress(LinkError):
-                self.router.request_data_streams(sysid)
+        """Ask for the streams (ArduPilot sends only heartbeats until asked; the request is
+        repeated each second in case it was lost) and wait for a position from everyone."""
         deadline = time.monotonic() + self.timeout_s
-        while any(self.router.vehicles[s].lat_deg is None for s in self.sysids):
-            if time.monotonic() > deadline:
-                missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
+        next_request = 0.0
+        while True:
+            missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
+            if not missing:
+                break
+            now = time.monotonic()
+            if now > deadline:
                 raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
                                      f"{self.timeout_s:g} s")
+            if now >= next_request:
+                for sysid in missing:
+                    self.router.request_data_streams(sysid)
+                next_request = now + 1.0
             await asyncio.sleep(0.02)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
 
@@ -561,10 +569,8 @@ class MavlinkExecutor:
         v.status = "uploaded"
 
     async def _start(self, v: VehicleState) -> None:
-        v.status = "arming"
-        await self.router.arm(v.sysid)
         v.status = "starting"
-        await self.router.start_mission(v.sysid, 1, 0)
+        await start_mission(self.router, v.sysid, 1, self.timeout_s)
         v.status = "flying"
 
     @staticmethod

@@ -157,9 +157,9 @@ def test_connect_serves_vehicles_started_elsewhere(tmp_path: Path,
     mission = write_mission(tmp_path, iterations=1)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "100", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"), \
-            VehicleProcess("--speedup", "100", mission=mission, sysid=2,
+            VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=2,
                            connect=f"udpout:127.0.0.1:{port}"):
         code, stdout, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                                     "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
@@ -176,7 +176,7 @@ def test_vehicle_that_never_appears(tmp_path: Path, capsys: pytest.CaptureFixtur
     mission = write_mission(tmp_path, iterations=1)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "100", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"):
         code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                                "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
@@ -195,9 +195,10 @@ def test_vehicle_rejecting_the_mission(tmp_path: Path,
     mission = write_mission(tmp_path, iterations=2)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "100", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"), \
-            VehicleProcess("--speedup", "100", "--reject-command", "31000", mission=mission,
+            VehicleProcess("--speedup", "100", "--companion", "--reject-command", "31000",
+                           mission=mission,
                            sysid=2, connect=f"udpout:127.0.0.1:{port}"):
         code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                                "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
@@ -224,9 +225,9 @@ def test_vehicle_lost_mid_flight(tmp_path: Path) -> None:
     mission = write_mission(tmp_path, iterations=3)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "20", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "20", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"), \
-            VehicleProcess("--speedup", "20", mission=mission, sysid=2,
+            VehicleProcess("--speedup", "20", "--companion", mission=mission, sysid=2,
                            connect=f"udpout:127.0.0.1:{port}") as doomed:
         gcs = subprocess.Popen(
             [sys.executable, "-m", "econdor", "run", str(mission), "--out", str(out),

@@ -76,7 +76,7 @@ def test_mavproxy_wp_load_and_save_round_trip(tmp_path):
     src = tmp_path / "in.waypoints"
     src.write_text(WPL.format(home_lat=ORIGIN.lat_deg, home_lon=ORIGIN.lon_deg))
     out = tmp_path / "out.waypoints"
-    with VehicleProcess("--speedup", "10", connect="tcpin:127.0.0.1:0") as veh:
+    with VehicleProcess("--speedup", "10", "--companion", connect="tcpin:127.0.0.1:0") as veh:
         # MAVProxy's --non-interactive mode only runs --cmd once at start-up, before the
         # link is up; driving its command line over a pipe lets us wait for each step.
         proc = subprocess.Popen(

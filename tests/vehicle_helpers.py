@@ -270,13 +270,16 @@ class VehicleProcess:
 
 @contextlib.contextmanager
 def inproc_vehicle(mission_path: Path | str = DEMO, sysid: int = 1, speedup: float = 50.0,
-                   connect: str = "udpin:127.0.0.1:0", **overrides: Any) -> Iterator[Any]:
-    """A MavlinkVehicle on a thread, listening on an ephemeral loopback port."""
+                   connect: str = "udpin:127.0.0.1:0", autopilot: str = "px4",
+                   companion: bool = True, **overrides: Any) -> Iterator[Any]:
+    """A MavlinkVehicle on a thread, listening on an ephemeral loopback port (by default
+    PX4 habits with the tracer on board)."""
     from econdor_gcs.mission import load_mission
-    from sim_vehicle.mavlink_vehicle import MavlinkVehicle
+    from sim_vehicle.mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
 
     mission = load_mission(mission_path)
     v = MavlinkVehicle.from_mission(mission, sysid=sysid, connect=connect, speedup=speedup,
+                                    autopilot=AUTOPILOTS[autopilot], companion=companion,
                                     **overrides)
     v.start()
     try:

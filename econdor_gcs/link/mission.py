@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 
 from ..core.geodesy import Origin
 from ..core.tasks import TraceTask, Waypoint
-from ..errors import ProtocolError, VehicleTimeout
+from ..errors import CommandRejected, MissionRejected, ProtocolError, VehicleTimeout
 from .codec import MAVLinkMessage, mavlink
 
 __all__ = [
@@ -50,7 +50,7 @@ __all__ = [
     "waypoint_item",
 ]
 
-MAV_CMD_WAYPOINT_USER_1 = 31000
+MAV_CMD_WAYPOINT_USER_1 = mavlink.MAV_CMD_WAYPOINT_USER_1
 FRAME_REL_INT = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
 _INT_TO_FLOAT_FRAME = {
     mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
@@ -435,13 +435,15 @@ class MissionUploader(_Machine):
                     self._succeed(len(self.items))
                 return
             result = enum_name("MAV_MISSION_RESULT", msg.type)
-            if self._last_seq is None:
+            seq = self._last_seq
+            if seq is None:
                 text = (f"vehicle {self.target_system} rejected the mission "
                         f"({len(self.items)} items): {result}")
             else:
-                text = (f"vehicle {self.target_system} rejected mission item {self._last_seq}: "
+                text = (f"vehicle {self.target_system} rejected mission item {seq}: "
                         f"{result}")
-            self._fail(ProtocolError(text))
+            command = self.items[seq].command if seq is not None else None
+            self._fail(MissionRejected(text, int(msg.type), seq, command))
 
 
 class MissionDownloader(_Machine):
@@ -586,6 +588,6 @@ class CommandSender(_Machine):
             self._deadline = now + self.timeout_s
             self._retries_left = self.retries
         else:
-            self._fail(ProtocolError(
+            self._fail(CommandRejected(
                 f"vehicle {self.target_system} answered {command_name(self.command)} with "
-                f"{enum_name('MAV_RESULT', msg.result)}"))
+                f"{enum_name('MAV_RESULT', msg.result)}", self.command, int(msg.result)))

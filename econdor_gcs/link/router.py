@@ -156,6 +156,9 @@ class VehicleLink:
     lon_deg: float | None = None
     alt_m: float | None = None       # AMSL
     rel_alt_m: float | None = None   # above home
+    # last SYS_STATUS
+    sensors_present: int | None = None
+    sensors_health: int = 0
     # mission progress
     mission_current: int | None = None
     mission_reached: int | None = None
@@ -165,6 +168,14 @@ class VehicleLink:
     @property
     def armed(self) -> bool:
         return bool(self.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def prearm_ok(self) -> bool | None:
+        """The pre-arm checks pass (SYS_STATUS health bit); None if the vehicle does not say."""
+        bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if self.sensors_present is None or not self.sensors_present & bit:
+            return None
+        return bool(self.sensors_health & bit)
 
 
 class SamplePairer:
@@ -462,6 +473,9 @@ class Router:
             link.time_boot_ms = msg.time_boot_ms
             link.lat_deg, link.lon_deg = msg.lat / 1e7, msg.lon / 1e7
             link.alt_m, link.rel_alt_m = msg.alt / 1000.0, msg.relative_alt / 1000.0
+        elif kind == "SYS_STATUS":
+            link.sensors_present = msg.onboard_control_sensors_present
+            link.sensors_health = msg.onboard_control_sensors_health
         elif kind == "MISSION_CURRENT":
             link.mission_current = msg.seq
         elif kind == "MISSION_ITEM_REACHED":
