@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from econdor_gcs.core.planners import PLANNER_NAMES
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import load_mission
 
@@ -43,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "unless --connect is given)")
     run.add_argument("mission", type=Path)
     run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<name>-<time>)")
-    run.add_argument("--planner", choices=("econdor", "no-sg", "lawnmower"), default=None)
+    run.add_argument("--planner", choices=PLANNER_NAMES, default=None)
     run.add_argument("--vehicles", type=_positive_int, default=None)
     run.add_argument("--speedup", type=_positive_float, default=None)
     run.add_argument("--seed", type=int, default=None)
@@ -56,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     st = sub.add_parser("study", help="in-process study over many seeds")
     st.add_argument("mission", type=Path)
     st.add_argument("--seeds", default="0:4", help="A:B (B excluded) or a comma list")
-    st.add_argument("--planner", choices=("econdor", "no-sg", "lawnmower", "all"), default="econdor")
+    st.add_argument("--planner", choices=(*PLANNER_NAMES, "all"), default="econdor")
     st.add_argument("--out", type=Path, required=True)
     st.add_argument("--workers", type=_positive_int, default=None,
                     help="local worker processes (default: number of cores)")

@@ -36,12 +36,14 @@ from .core.planners import (
     Batch,
     ContourPlanner,
     LawnmowerPlanner,
+    PlanContext,
+    Planner,
     diagonal_jobs,
-    make_planner,
     survey_jobs,
 )
 from .core.spline import reconstruct
 from .core.tasks import FlightReport, Phase, SampleLog, Task
+from .errors import MissionError
 from .mission import Mission
 
 
@@ -139,7 +141,73 @@ class RunResult:
         }
 
 
-Progress = Callable[[str, dict[str, Any]], None]
+# -- planners by name -------------------------------------------------------------------------
+
+PlannerFactory = Callable[[Mission], Planner]
+
+
+def _contour_planner(sg: bool) -> PlannerFactory:
+    def build(mission: Mission) -> Planner:
+        a = mission.algorithm
+        return ContourPlanner(
+            m0=a.m0, sg=sg, lloyd_bins=a.lloyd_bins, lloyd_iterations=a.lloyd_iterations,
+            min_piece_length_m=a.min_piece_length_m, search_radius_m=a.search_radius_m,
+            max_trace_length_m=a.max_trace_length_m)
+
+    return build
+
+
+PLANNERS: dict[str, PlannerFactory] = {
+    "econdor": _contour_planner(sg=True),
+    "no-sg": _contour_planner(sg=False),
+    "lawnmower": lambda m: LawnmowerPlanner(m.region, m.lawnmower.spacing_m, m.lawnmower.budget_m),
+}
+"""Every planner a mission may name (``core.planners.PLANNER_NAMES``), built from the mission."""
+
+
+def build_planner(name: str, mission: Mission) -> Planner:
+    """The planner called ``name``, configured from ``mission``."""
+    factory = PLANNERS.get(name)
+    if factory is None:
+        raise MissionError(f"planner: unknown planner {name!r} (one of {', '.join(PLANNERS)})")
+    return factory(mission)
+
+
+
+# -- progress events ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunStarted:
+    planner: str
+    seed: int
+    vehicles: int
+
+
+@dataclass(frozen=True)
+class IterationPlanned:
+    """A batch is about to be flown: its levels, and each vehicle's task list."""
+
+    iteration: int
+    batch: Batch
+    plans: list[list[Task]]
+
+
+@dataclass(frozen=True)
+class IterationDone:
+    """An iteration was flown and re-estimated (row ``record`` of metrics.csv)."""
+
+    record: IterationRecord
+    estimate: FloatArray
+
+
+@dataclass(frozen=True)
+class RunDone:
+    summary: dict[str, Any]
+
+
+DfcEvent = RunStarted | IterationPlanned | IterationDone | RunDone
+Progress = Callable[[DfcEvent], None]
 
 
 def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
@@ -163,10 +231,10 @@ class Dfc:
         self.mission = mission
         self.executor = executor
         self.planner_name = planner or mission.algorithm.planner
-        self.planner: ContourPlanner | LawnmowerPlanner = make_planner(self.planner_name, mission)
+        self.planner: Planner = build_planner(self.planner_name, mission)
         self.truth_field = truth
         self.seed = mission.seed if seed is None else seed
-        self.progress = progress or (lambda event, info: None)
+        self.progress: Progress = progress or (lambda event: None)
         self.on_samples = on_samples
         self.grid = mission.grid
         self.truth = None
@@ -179,7 +247,6 @@ class Dfc:
         self.contour_m = 0.0
         self.sim_s = 0.0
         self.recon_s = 0.0
-        self.contour_m_survey = 0.0
         self._last_recon_s = 0.0
 
     # -- helpers --------------------------------------------------------------------------
@@ -199,27 +266,40 @@ class Dfc:
         self.recon_s += self._last_recon_s
         return est
 
-    def _account(self, reports: list[FlightReport], initiation: bool = False) -> None:
-        """Add a flight's samples and distances to the run's totals."""
+    def _account(self, reports: list[FlightReport], batch: Batch | None = None,
+                 pattern: bool = False) -> None:
+        """Add a flight's samples and distances to the run's totals.
+
+        ``batch`` is the planner's batch that was flown (its survey lines count as
+        productive, 'contour' distance); ``pattern`` marks the mission's initiation
+        pattern, whose samples are tagged ``Phase.SURVEY``.
+        """
         for r in reports:
             log = r.samples
-            if initiation:
+            if pattern:
                 log.phase = np.full(len(log), Phase.SURVEY, dtype=np.int8)
             self.logs.append(log)
             if self.on_samples is not None:
                 self.on_samples(log)
         self.flight_m += sum(r.flown_m for r in reports)
         self.contour_m += sum(r.traced_m for r in reports)
+        if batch is not None:
+            self.contour_m += batch.survey_m
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
 
-    def _initiation_plans(self) -> list[list[Task]]:
+    def _context(self, iteration: int, estimate: FloatArray | None) -> PlanContext:
+        budget = self.mission.algorithm.flight_budget_m
+        return PlanContext(
+            iteration=iteration, region=self.mission.region, n_vehicles=self.executor.n_vehicles,
+            grid=self.grid, estimate=estimate, samples=self._samples(),
+            positions_m=self.executor.positions(),
+            budget_left_m=budget - self.flight_m if budget > 0 else math.inf)
+
+    def _pattern_plans(self) -> list[list[Task]]:
+        """The mission's initiation pattern: the two diagonals or a survey."""
         m = self.mission
         n = self.executor.n_vehicles
-        if isinstance(self.planner, LawnmowerPlanner):
-            batch = self.planner.next_batch()
-            self.contour_m_survey = batch.survey_m
-            jobs = batch.jobs
-        elif m.initiation.pattern == "lawnmower":
+        if m.initiation.pattern == "lawnmower":
             xs = np.arange(m.region.xmin, m.region.xmax + 1e-9, m.initiation.spacing_m)
             jobs = survey_jobs(m.region, xs)
         else:
@@ -256,9 +336,6 @@ class Dfc:
         for r in reports:
             for o in r.outcomes:
                 outcomes[o.status] = outcomes.get(o.status, 0) + 1
-        contour_m = self.contour_m
-        if isinstance(self.planner, LawnmowerPlanner):
-            contour_m = self.contour_m_survey
         rec = IterationRecord(
             iteration=it,
             levels_planned=batch.levels_planned if batch else 0,
@@ -269,7 +346,7 @@ class Dfc:
             mae=mae,
             mae_db=metrics.to_db(mae) if not math.isnan(mae) else math.nan,
             span_ratio=sr,
-            contour_distance_m=contour_m,
+            contour_distance_m=self.contour_m,
             flight_distance_m=self.flight_m,
             samples=sum(len(s) for s in self.logs),
             mae_rel=rec_mae_rel,
@@ -283,22 +360,26 @@ class Dfc:
             forced=batch.forced if batch else 0,
         )
         self.records.append(rec)
-        self.progress("iteration", asdict(rec))
+        self.progress(IterationDone(rec, estimate))
         return rec
 
     # -- the loop -------------------------------------------------------------------------
     def run(self) -> RunResult:
         wall0 = time.perf_counter()
         a = self.mission.algorithm
-        self.progress("start", {"planner": self.planner_name, "seed": self.seed,
-                                "vehicles": self.executor.n_vehicles})
-        plans = self._initiation_plans()
-        reports = self.executor.fly(plans, 0)
-        if not isinstance(self.planner, LawnmowerPlanner):
+        self.progress(RunStarted(self.planner_name, self.seed, self.executor.n_vehicles))
+        first = self.planner.initiation(self._context(0, None))
+        if first is None:  # the mission's pattern; the DFC keeps only a few of its samples
+            plans = self._pattern_plans()
+            reports = self.executor.fly(plans, 0)
             self._subsample_initiation(reports)
-        self._account(reports, initiation=not isinstance(self.planner, LawnmowerPlanner))
+            self._account(reports, pattern=True)
+        else:
+            plans = assign_jobs(first.jobs, self.executor.positions(), a.search_radius_m)
+            reports = self.executor.fly(plans, 0)
+            self._account(reports, batch=first)
         estimate = self._reconstruct()
-        self._record(0, None, estimate, None, reports)
+        self._record(0, first, estimate, None, reports)
         converged, reason = False, "max_iterations"
         span_prev = metrics.span(estimate)
         idle = 0
@@ -306,29 +387,24 @@ class Dfc:
             if a.flight_budget_m > 0 and self.flight_m >= a.flight_budget_m:
                 reason = "flight_budget"
                 break
-            batch = self.planner.next_batch(estimate, self.grid)
+            batch = self.planner.next_batch(self._context(it, estimate))
             idle = 0 if batch.jobs else idle + 1
             if idle > a.max_idle_iterations:
                 reason = "stalled"
                 break
             plans = assign_jobs(batch.jobs, self.executor.positions(), a.search_radius_m,
                                 first_piece_id=1000 * it)
-            self.progress("plan", {"iteration": it, "levels": [float(v) for v in batch.levels],
-                                   "dropped": [float(v) for v in batch.dropped],
-                                   "pieces": len(batch.jobs), "kappa": batch.kappa,
-                                   "delta": batch.delta})
+            self.progress(IterationPlanned(it, batch, plans))
             previous = estimate
             if batch.jobs:
                 reports = self.executor.fly(plans, it)
-                self._account(reports)
-                if isinstance(self.planner, LawnmowerPlanner):
-                    self.contour_m_survey += batch.survey_m
+                self._account(reports, batch=batch)
                 estimate = self._reconstruct()
             else:  # nothing new: the estimate (and so E_n = 0) is unchanged
                 reports = []
                 self._last_recon_s = 0.0
             rec = self._record(it, batch, estimate, previous, reports)
-            self.planner.observe(rec.learning_error)
+            self.planner.observe(rec.learning_error, reports)
             span_now = metrics.span(estimate)
             if it >= a.min_iterations and self._gamma_converged(span_prev, span_now):
                 converged, reason = True, "learning_error_converged"
@@ -341,7 +417,7 @@ class Dfc:
                 self.records[-1].flight_distance_m = self.flight_m
                 self.records[-1].samples = sum(len(s) for s in self.logs)
         result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
-        self.progress("done", result.summary())
+        self.progress(RunDone(result.summary()))
         return result
 
     def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
@@ -370,8 +446,7 @@ class Dfc:
             converged=converged, stop_reason=reason, vehicles=self.executor.n_vehicles,
             sim_s=self.sim_s, wall_s=wall_s, reconstruction_s=self.recon_s,
             flight_distance_m=self.flight_m,
-            contour_distance_m=(self.contour_m_survey
-                                if isinstance(self.planner, LawnmowerPlanner) else self.contour_m),
+            contour_distance_m=self.contour_m,
             isoline_error_m=iso,
             mission={
                 "mission": self.mission.name,

@@ -11,6 +11,8 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from .dfc import DfcEvent, IterationDone, IterationPlanned
+
 
 class LiveDisplay:
     """Iteration, levels, kappa, delta, MAE so far, and one row per vehicle.
@@ -37,13 +39,14 @@ class LiveDisplay:
     def stop(self) -> None:
         self._live.stop()
 
-    def progress(self, event: str, info: dict[str, Any]) -> None:
+    def progress(self, event: DfcEvent) -> None:
         s = self.state
-        if event == "plan":
-            s.update(iteration=info["iteration"], levels=info["levels"], kappa=info["kappa"],
-                     delta=info["delta"], pieces=info["pieces"])
-        elif event == "iteration":
-            s["mae_db"].append(info.get("mae_db"))
+        if isinstance(event, IterationPlanned):
+            b = event.batch
+            s.update(iteration=event.iteration, levels=[float(v) for v in b.levels],
+                     kappa=b.kappa, delta=b.delta, pieces=len(b.jobs))
+        elif isinstance(event, IterationDone):
+            s["mae_db"].append(event.record.mae_db)
 
     def _render(self) -> Group:
         s = self.state

@@ -16,7 +16,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
     initiation: {pattern: diagonals | lawnmower, spacing_m, samples_per_diagonal}
     algorithm: {planner, m0, max_iterations, grid_spacing_m, search_radius_m,
                 max_trace_length_m, stop_lambda, min_iterations, flight_budget_m,
-                lloyd_bins, lloyd_iterations, reconstruction, paper_compatible}
+                lloyd_bins, lloyd_iterations, reconstruction, min_piece_length_m,
+                keep_diagonals, max_idle_iterations}
     lawnmower: {spacing_m, budget_m}
 """
 
@@ -32,6 +33,7 @@ import yaml
 
 from .core.geodesy import Origin
 from .core.geometry import Grid, Region
+from .core.planners import PLANNER_NAMES
 from .errors import MissionError
 
 _REQUIRED = object()
@@ -89,7 +91,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "samples_per_diagonal": (int, 0, _non_negative),
     },
     "algorithm": {
-        "planner": (str, "econdor", _one_of("econdor", "no-sg", "lawnmower")),
+        "planner": (str, "econdor", _one_of(*PLANNER_NAMES)),
         "m0": (int, 3, _range(1, 1000)),
         "max_iterations": (int, 8, _range(1, 1000)),
         "min_iterations": (int, 3, _range(1, 1000)),

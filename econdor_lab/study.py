@@ -20,6 +20,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+from econdor_gcs.core.planners import PLANNER_NAMES as PLANNERS
 from econdor_gcs.dfc import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import Mission
@@ -27,7 +28,6 @@ from econdor_gcs.rundir import RunDir, write_json
 
 from .inprocess import InProcessExecutor
 
-PLANNERS = ("econdor", "no-sg", "lawnmower")
 _BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels")
 STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS, *EXTRA_COLUMNS)

@@ -10,6 +10,7 @@ from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.planners import (
     ContourPlanner,
     LawnmowerPlanner,
+    PlanContext,
     diagonal_jobs,
     lawnmower_lines_for_budget,
 )
@@ -20,6 +21,10 @@ REGION = Region(0, 100, 0, 100)
 GRID = Grid(REGION, 101, 101)
 
 
+def ctx(estimate=None):
+    return PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID, estimate=estimate)
+
+
 def ramp():
     """A field whose values are spread evenly: g = x (0..100)."""
     xx, _ = GRID.mesh
@@ -28,17 +33,17 @@ def ramp():
 
 def test_contour_planner_follows_the_authors_schedule():
     p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
-    b1 = p.next_batch(ramp(), GRID)
+    b1 = p.next_batch(ctx(ramp()))
     assert b1.levels_planned == 3 and len(b1.levels) == 3
     np.testing.assert_allclose(b1.levels, [16.67, 50.0, 83.33], atol=0.6)
     assert p.delta == pytest.approx(np.min(np.diff(b1.levels)))
     assert len(b1.jobs) == 3  # one straight contour line per level
     p.observe(4.0)
-    b2 = p.next_batch(ramp(), GRID)  # kappa stays 1, nothing dropped
+    b2 = p.next_batch(ctx(ramp()))  # kappa stays 1, nothing dropped
     assert b2.levels_planned == 4 and len(b2.dropped) == 0 and b2.kappa == 1
     p.observe(1.6)
     delta_before = p.delta
-    b3 = p.next_batch(ramp(), GRID)
+    b3 = p.next_batch(ctx(ramp()))
     assert b3.kappa == update_kappa(1, 4.0, 1.6) == 3  # eq. (6)
     assert b3.levels_planned == 4 + 3
     assert b3.delta == pytest.approx(update_delta(delta_before, 4.0, 1.6))  # eq. (7)
@@ -52,11 +57,11 @@ def test_contour_planner_follows_the_authors_schedule():
 
 def test_all_levels_redundant_flies_the_kappa_least_redundant():
     p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
-    p.next_batch(ramp(), GRID)
+    p.next_batch(ctx(ramp()))
     p.observe(1.0)
-    p.next_batch(ramp(), GRID)
+    p.next_batch(ctx(ramp()))
     p.observe(3.0)  # the learning error ROSE: eq. (7) grows delta a lot
-    b = p.next_batch(ramp(), GRID)
+    b = p.next_batch(ctx(ramp()))
     assert b.delta > 30  # every new level is within delta of a traced one
     assert b.forced == b.kappa == len(b.levels) > 0
     assert len(b.jobs) > 0
@@ -66,7 +71,7 @@ def test_no_sg_adds_one_level_and_retraces_all():
     p = ContourPlanner(m0=3, sg=False, lloyd_bins=None)
     ms = []
     for e in (5.0, 1.0, 0.5, 0.2):
-        b = p.next_batch(ramp(), GRID)
+        b = p.next_batch(ctx(ramp()))
         ms.append(b.levels_planned)
         assert len(b.levels) == b.levels_planned and len(b.dropped) == 0 and b.kappa == 1
         p.observe(e)
@@ -89,7 +94,7 @@ def test_diagonal_jobs_split_evenly():
 
 def test_assignment_is_balanced_complete_and_transit_aware():
     p = ContourPlanner(m0=9, sg=False, lloyd_bins=None)
-    batch = p.next_batch(ramp(), GRID)
+    batch = p.next_batch(ctx(ramp()))
     plans = assign_jobs(batch.jobs, [(0.0, 0.0), (100.0, 0.0), (50.0, 100.0)])
     tasks = [t for plan in plans for t in plan]
     assert len(tasks) == len(batch.jobs) == 9
@@ -104,13 +109,13 @@ def test_assignment_is_balanced_complete_and_transit_aware():
 
 def test_lawnmower_refines_and_fits_budget():
     lm = LawnmowerPlanner(REGION, spacing_m=25.0)
-    first = lm.next_batch()
+    first = lm.next_batch(ctx())
     assert len(first.jobs) == 5 and first.survey_m == pytest.approx(500.0)
-    second = lm.next_batch()
+    second = lm.next_batch(ctx())
     xs = sorted(j.tasks[0].x_m for j in second.jobs)
     np.testing.assert_allclose(xs, [12.5, 37.5, 62.5, 87.5])  # the lines in between
     assert lawnmower_lines_for_budget(REGION, 1100.0) == 10
     budget = LawnmowerPlanner(REGION, budget_m=1100.0)
-    b = budget.next_batch()
+    b = budget.next_batch(ctx())
     assert len(b.jobs) == 10
-    assert budget.next_batch().jobs == []
+    assert budget.next_batch(ctx()).jobs == []

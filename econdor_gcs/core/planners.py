@@ -1,7 +1,18 @@
 """Planners: what the fleet flies in each iteration.
 
 All planners share the DFC loop, the reconstruction and the cost accounting; they
-differ only in what they ask the vehicles to fly:
+differ only in what they ask the vehicles to fly. Every planner follows one contract
+(:class:`Planner`, after scikit-learn's estimator contract: the loop asks, never checks
+which planner it has):
+
+* ``initiation(context)`` -> the first batch, or ``None`` to fly the mission's
+  initiation pattern (two diagonals, or a survey);
+* ``next_batch(context)`` -> the :class:`Batch` of the next iteration, from a
+  :class:`PlanContext` (the estimate, its grid, every sample so far, where the vehicles
+  are, what is left of the flight budget);
+* ``observe(learning_error, reports)`` -> learn from the iteration just flown.
+
+The planners:
 
 * ``econdor`` — the paper's dual SG: ``M_n = M_{n-1} + kappa_n`` Lloyd-Max levels of the
   current estimate, minus the levels within ``delta_n`` of an already traced level.
@@ -19,7 +30,9 @@ differ only in what they ask the vehicles to fly:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -27,7 +40,10 @@ from .contours import ContourPiece, contour_pieces
 from .geometry import FloatArray, Grid, Region
 from .levels import lloyd_max
 from .sg import drop_redundant, initial_delta, update_delta, update_kappa
-from .tasks import Task, TraceTask, Waypoint
+from .tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
+
+PLANNER_NAMES = ("econdor", "no-sg", "lawnmower")
+"""The planners a mission or the command line may name (built by ``econdor_gcs.dfc``)."""
 
 
 @dataclass
@@ -67,7 +83,36 @@ class Batch:
     kappa: int = 0
     delta: float = 0.0
     survey_m: float = 0.0
+    """Planned length of survey lines in this batch (counted as 'contour' distance: it is
+    the planner's productive flight, as traced length is for contour planners)."""
     forced: int = 0
+
+
+@dataclass(frozen=True)
+class PlanContext:
+    """What a planner may look at when it plans an iteration (never the true field)."""
+
+    iteration: int
+    region: Region
+    n_vehicles: int
+    grid: Grid | None = None
+    estimate: FloatArray | None = None
+    samples: SampleLog = field(default_factory=SampleLog)
+    positions_m: Sequence[tuple[float, float]] = ()
+    budget_left_m: float = math.inf
+    """Flight distance left of ``algorithm.flight_budget_m`` (inf without a budget)."""
+
+
+class Planner(Protocol):
+    """The contract every planner follows (see the module docstring)."""
+
+    name: str
+
+    def initiation(self, context: PlanContext) -> Batch | None: ...
+
+    def next_batch(self, context: PlanContext) -> Batch: ...
+
+    def observe(self, learning_error: float, reports: Sequence[FlightReport]) -> None: ...
 
 
 def diagonal_jobs(region: Region, n_vehicles: int) -> list[Job]:
@@ -137,14 +182,18 @@ class ContourPlanner:
         self.traced: list[float] = []
         self.batches = 0
 
-    def observe(self, learning_error: float) -> None:
+    def initiation(self, context: PlanContext) -> Batch | None:
+        """``None``: E-CONDOR starts from the mission's initiation pattern (the diagonals)."""
+        return None
+
+    def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
         """Record the learning error of the iteration just finished (eq. 3)."""
         self.errors.append(float(learning_error))
 
     def _levels(self, estimate: FloatArray) -> FloatArray:
         return lloyd_max(estimate, self.m, self.lloyd_bins, self.lloyd_iterations)
 
-    def next_batch(self, estimate: FloatArray, grid: Grid) -> Batch:
+    def next_batch(self, context: PlanContext) -> Batch:
         """Levels and contour pieces for the next iteration.
 
         As in the authors' implementation: batch 1 traces ``m0`` levels and sets the
@@ -153,6 +202,9 @@ class ContourPlanner:
         delta follow eqs. (6)-(7) and redundant levels are dropped. Without SG every batch
         adds one level and re-traces all of them.
         """
+        if context.estimate is None or context.grid is None:
+            raise ValueError("context: a contour planner needs the estimate and its grid")
+        estimate, grid = context.estimate, context.grid
         self.batches += 1
         forced = 0
         if self.batches == 1:
@@ -206,8 +258,12 @@ class LawnmowerPlanner:
         self.flown_x: set[float] = set()
         self.iteration = 0
 
-    def observe(self, learning_error: float) -> None:
-        pass
+    def initiation(self, context: PlanContext) -> Batch | None:
+        """The survey starts at once: its first (coarsest) lines are the initiation."""
+        return self.next_batch(context)
+
+    def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
+        """A fixed survey learns nothing from what it measured."""
 
     def lines(self) -> FloatArray:
         r = self.region
@@ -222,23 +278,9 @@ class LawnmowerPlanner:
             xs = np.r_[xs, r.xmax]
         return np.array([x for x in np.round(xs, 6) if x not in self.flown_x])
 
-    def next_batch(self, estimate: FloatArray | None = None, grid: Grid | None = None) -> Batch:
+    def next_batch(self, context: PlanContext | None = None) -> Batch:
         xs = self.lines()
         self.iteration += 1
         self.flown_x.update(float(x) for x in xs)
         jobs = survey_jobs(self.region, xs)
         return Batch(jobs, levels_planned=0, survey_m=sum(j.length_m for j in jobs))
-
-
-def make_planner(name: str, mission) -> ContourPlanner | LawnmowerPlanner:  # noqa: ANN001
-    a = mission.algorithm
-    if name in ("econdor", "no-sg"):
-        return ContourPlanner(
-            m0=a.m0, sg=(name == "econdor"), lloyd_bins=a.lloyd_bins,
-            lloyd_iterations=a.lloyd_iterations, min_piece_length_m=a.min_piece_length_m,
-            search_radius_m=a.search_radius_m, max_trace_length_m=a.max_trace_length_m,
-        )
-    if name == "lawnmower":
-        return LawnmowerPlanner(mission.region, mission.lawnmower.spacing_m,
-                                mission.lawnmower.budget_m)
-    raise ValueError(f"planner: unknown planner {name!r} (econdor, no-sg, lawnmower)")
