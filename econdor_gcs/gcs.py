@@ -57,7 +57,7 @@ import time
 from collections.abc import Callable, Coroutine, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -68,17 +68,28 @@ from .core.tasks import (
     SampleLog,
     Task,
     TaskOutcome,
+    TaskStyle,
     TraceReport,
     TraceTask,
 )
-from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
-from .link.autopilots import start_mission
+from .errors import (
+    EcondorError,
+    LinkError,
+    MissionRejected,
+    ProtocolError,
+    RunError,
+    VehicleTimeout,
+)
+from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import MAVLinkMessage, mavlink
-from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, build_mission
+from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, MissionPlan, plan_mission
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
 from .mission import Mission
+
+if TYPE_CHECKING:
+    from .fleet import VehicleKind
 
 __all__ = [
     "MavlinkExecutor",
@@ -136,12 +147,19 @@ class StatusAssembler:
 
 @dataclass
 class Flight:
-    """What one vehicle did for one mission, as seen from the ground."""
+    """What one vehicle did for one mission, as seen from the ground.
+
+    ``task_seqs[k]`` is the ``(first, last)`` mission seq of task ``k`` (default: one item
+    per task from ``first_seq``); ``style`` how its contour pieces were given (trace items,
+    or waypoint polylines of the estimated contours).
+    """
 
     index: int
     sysid: int
     tasks: list[Task]
     first_seq: int = 2              # mission seq of the first task (0 home, 1 takeoff)
+    task_seqs: list[tuple[int, int]] = field(default_factory=list)
+    style: TaskStyle = TaskStyle.TRACE
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_ms: int | None = None
     rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
@@ -151,9 +169,16 @@ class Flight:
     done: bool = False
     landed: bool = False
 
+    def __post_init__(self) -> None:
+        if not self.task_seqs:
+            self.task_seqs = [(self.first_seq + k, self.first_seq + k)
+                              for k in range(len(self.tasks))]
+        if len(self.task_seqs) != len(self.tasks):
+            raise ValueError(f"{len(self.tasks)} tasks but {len(self.task_seqs)} item ranges")
+
     @property
     def last_seq(self) -> int:
-        return self.first_seq + len(self.tasks) - 1
+        return self.task_seqs[-1][1] if self.task_seqs else -1
 
 
 def build_report(flight: Flight) -> FlightReport:
@@ -172,9 +197,15 @@ def build_report(flight: Flight) -> FlightReport:
         flown = 0.0
         end = flight.start_xy
     outcomes: list[TaskOutcome] = []
-    for k, task in enumerate(flight.tasks):
-        item_m = flight.item_flown_m.get(flight.first_seq + k, 0.0)
-        if isinstance(task, TraceTask):
+    flown_on = flight.item_flown_m
+    for task, (first, last) in zip(flight.tasks, flight.task_seqs, strict=True):
+        item_m = sum(flown_on.get(seq, 0.0) for seq in range(first, last + 1))
+        if isinstance(task, TraceTask) and flight.style == TaskStyle.WAYPOINTS:
+            # the estimated contour, flown as waypoints: along it from the first waypoint on
+            along_m = sum(flown_on.get(seq, 0.0) for seq in range(first + 1, last + 1))
+            status = OutcomeStatus.REACHED if flight.done else OutcomeStatus.UNREPORTED
+            outcomes.append(TaskOutcome(task, status, item_m, along_m if flight.done else 0.0))
+        elif isinstance(task, TraceTask):
             rep = flight.pieces.get(task.piece_id)
             if rep is None:
                 outcomes.append(TaskOutcome(task, OutcomeStatus.UNREPORTED, item_m, 0.0))
@@ -265,8 +296,13 @@ class VehicleState:
     sysid: int
     current_seq: int | None = None
     items: list[MissionItemSpec] = field(default_factory=list)
+    item_phases: dict[int, Phase] = field(default_factory=dict)
+    """The phase each item of the uploaded mission implies (for vehicles that report none)."""
     item_phase: Phase = Phase.TRANSIT
-    """The phase the current mission item implies (for vehicles that report none)."""
+    """The phase the current mission item implies."""
+    style: TaskStyle | None = None
+    """How this vehicle gets contour pieces: trace items until it refuses one (None: it has
+    not been given any yet)."""
     phases: PhaseTrack = field(default_factory=PhaseTrack)
     last_text: str = ""
     """The vehicle's last STATUSTEXT, for people."""
@@ -306,10 +342,18 @@ class MavlinkExecutor:
     timeout_s:
         Per-message timeout of commands / transfers is the link layer's; this bounds a whole
         mission transfer and the wait for the first position.
+    tolerance_m:
+        Douglas-Peucker tolerance of the waypoint polylines given to vehicles that refuse
+        contour items (stock autopilots).
+
+    Each vehicle gets contour pieces as trace items until it refuses one with
+    ``MAV_MISSION_UNSUPPORTED``; from then on (that mission included) it gets the estimated
+    contour of each piece as a waypoint polyline (:attr:`VehicleState.style`).
     """
 
     def __init__(self, station: Station, mission: Mission, sysids: Sequence[int],
-                 missions_dir: Path | None = None, timeout_s: float = 20.0) -> None:
+                 missions_dir: Path | None = None, timeout_s: float = 20.0,
+                 tolerance_m: float = 1.0) -> None:
         self.station = station
         self.router = station.router
         self.mission = mission
@@ -317,6 +361,7 @@ class MavlinkExecutor:
         self.n_vehicles = len(self.sysids)
         self.missions_dir = missions_dir
         self.timeout_s = timeout_s
+        self.tolerance_m = tolerance_m
         self.origin = mission.origin
         self._raw_lock = threading.RLock()
         self.altitude_m = mission.vehicles.altitude_m
@@ -397,9 +442,7 @@ class MavlinkExecutor:
                 v.status = "holding"
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
-                is_trace = (0 <= msg.seq < len(v.items)
-                            and v.items[msg.seq].command == MAV_CMD_WAYPOINT_USER_1)
-                v.item_phase = Phase.SEARCH if is_trace else Phase.TRANSIT
+                v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
         elif kind == "MISSION_ITEM_REACHED":
             if f is not None and f.tasks and msg.seq == f.last_seq:
                 f.done = True
@@ -506,12 +549,15 @@ class MavlinkExecutor:
         return self.station.call(self._finish())
 
     # -- the flights ----------------------------------------------------------------------------
-    def _begin(self, v: VehicleState, tasks: list[Task]) -> Flight:
+    def _begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
+               ) -> Flight:
         self._convert(v)  # samples so far belong to the previous state
         link = self.router.vehicles[v.sysid]
         # where it hovers now (the in-process vehicles also start from rest after braking)
         start = self._position(v.sysid)
-        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms)
+        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
+                   task_seqs=list(plan.task_seqs) if plan else [],
+                   style=plan.style if plan else TaskStyle.TRACE)
         f.rows.extend(v.stray)  # nothing is ever dropped
         v.stray.clear()
         v.flight = f
@@ -543,18 +589,50 @@ class MavlinkExecutor:
                                           np.full(len(rows), v.index, dtype=np.int16)))
         return SampleLog.concat(logs)
 
-    def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec]) -> None:
+    def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
+                      tasks: Sequence[Task]) -> None:
+        """``iter{NN}_v{sysid}.json`` (items), ``.waypoints`` (QGC WPL) and ``.tasks.json``
+        (the tasks, with the estimated contours, for ``econdor export --iteration``)."""
         if self.missions_dir is None:
             return
-        self.missions_dir.mkdir(parents=True, exist_ok=True)
+        from .mission_files import write_wpl
+        from .plans import write_tasks
+
         stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}"
-        stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
         try:
-            from .export import write_wpl
-        except ImportError:
-            return
-        with contextlib.suppress(Exception):
+            self.missions_dir.mkdir(parents=True, exist_ok=True)
+            stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
             write_wpl(stem.with_suffix(".waypoints"), items)
+            write_tasks(stem.with_suffix(".tasks.json"), tasks)
+        except OSError as exc:
+            raise RunError(f"{stem}: cannot save the mission ({exc.strerror or exc})") from exc
+
+    async def _plan_and_upload(self, v: VehicleState, tasks: list[Task],
+                               iteration: int) -> None:
+        """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
+        refused a trace item; then begin the flight."""
+        style = v.style or TaskStyle.TRACE
+        while True:
+            plan = plan_mission(self.origin, tasks, self.altitude_m, style=style,
+                                tolerance_m=self.tolerance_m, home=self.home,
+                                speed_mps=self.mission.vehicles.speed_mps, end="none")
+            self._save_mission(iteration, v.sysid, plan.items, tasks)
+            try:
+                await self._upload(v, plan.items)
+            except MissionRejected as exc:
+                refused_trace = (exc.result == mavlink.MAV_MISSION_UNSUPPORTED
+                                 and exc.command == MAV_CMD_WAYPOINT_USER_1)
+                if not (refused_trace and style == TaskStyle.TRACE):
+                    raise
+                log.info("vehicle %d refused a contour item: its pieces go as waypoints",
+                         v.sysid)
+                style = v.style = TaskStyle.WAYPOINTS
+                continue
+            if any(isinstance(t, TraceTask) for t in tasks):
+                v.style = style
+            v.item_phases = dict(plan.item_phases)
+            self._begin(v, tasks, plan)
+            return
 
     async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
         v.status = "uploading"
@@ -598,12 +676,8 @@ class MavlinkExecutor:
             if not tasks:
                 continue
             v = self.vehicles[sysid]
-            items = build_mission(self.origin, tasks, self.altitude_m, home=self.home,
-                                  end="none")
-            self._save_mission(iteration, sysid, items)
-            self._begin(v, tasks)
             flying.append(v)
-            jobs.append(self._upload(v, items))
+            jobs.append(self._plan_and_upload(v, tasks, iteration))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await self._all(jobs)
@@ -693,6 +767,22 @@ class MavlinkExecutor:
             })
         return rows
 
+    def fleet_summary(self, started: Sequence[VehicleKind] | None = None
+                      ) -> list[dict[str, Any]]:
+        """Per vehicle: system id, autopilot (from its heartbeat), the kind this run started
+        (None for vehicles started elsewhere) and how it was given contour pieces
+        (``trace`` items, ``waypoints`` polylines, or None if it was given none)."""
+        out = []
+        for i, (sysid, v) in enumerate(self.vehicles.items()):
+            link = self.router.vehicles.get(sysid)
+            out.append({
+                "sysid": sysid,
+                "autopilot": AutopilotKind.of(link.autopilot).value if link else None,
+                "started_as": str(started[i]) if started else None,
+                "task_style": v.style.value if v.style else None,
+            })
+        return out
+
     @staticmethod
     def _phase_now(v: VehicleState) -> Phase:
         return v.phases.latest if v.phases.known else v.item_phase
@@ -739,14 +829,20 @@ def run_mission(
     quiet: bool = True,
     mission_path: Path | None = None,
     figures: bool = True,
+    autopilots: Sequence[VehicleKind] | None = None,
+    tolerance_m: float = 1.0,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
+
+    ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
+    PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
+    waypoint polylines for vehicles that refuse contour items.
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
     """
     from .dfc import Dfc
-    from .fleet import Fleet
+    from .fleet import DEFAULT_KIND, Fleet, kinds_for
     from .rundir import RunDir
 
     wall0 = time.perf_counter()
@@ -756,7 +852,10 @@ def run_mission(
     planner = planner or mission.algorithm.planner
     mission = mission.with_vehicles(count=n, speedup=speed)
     out = Path(out)
+    kinds = list(autopilots or [DEFAULT_KIND])
     rd = RunDir(out)
+    if mission_path is not None:
+        _keep_mission_file(mission_path, out)
     tlog = TlogWriter(out / "telemetry.tlog")
     station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
     fleet: Fleet | None = None
@@ -787,7 +886,7 @@ def run_mission(
                 if mission_path is None:
                     raise RunError("run_mission: mission_path is needed to start vehicles")
                 fleet = Fleet(mission_path, out / "vehicles")
-                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed)
+                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed, kinds=kinds)
                 sysids = list(range(1, n + 1))
                 try:
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
@@ -796,7 +895,8 @@ def run_mission(
             else:
                 sysids = station.call(_wait_count(station.router, n, timeout_s))
             t_setup = time.perf_counter() - wall0
-            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s)
+            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
+                                       tolerance_m=tolerance_m)
             executor.wait_ready()
             truth = mission.build_field(seed)
             if not quiet:
@@ -814,7 +914,10 @@ def run_mission(
             timings["setup_s"] = t_setup
             result.wall_s = time.perf_counter() - wall0
             result.sim_s = executor.sim_s
+            _keep_next_batch(out, dfc, result)
+            started = kinds_for(n, kinds) if connect is None else None
             extra = {**base, "sysids": sysids, "timings": timings,
+                     "fleet": executor.fleet_summary(started),
                      "samples_dropped_unpaired": station.router.pairer.dropped,
                      "report_errors": executor.report_errors}
             rd.write_result(result, extra=extra)
@@ -871,6 +974,33 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
         rd.write_partial(records, summary)
 
 
+def _keep_mission_file(mission_path: Path, out: Path) -> None:
+    """A copy of the mission YAML (``econdor export`` re-plans from it)."""
+    try:
+        (out / "mission.yaml").write_bytes(Path(mission_path).read_bytes())
+    except OSError as exc:
+        raise RunError(f"{out}: cannot keep a copy of {mission_path} "
+                       f"({exc.strerror or exc})") from exc
+
+
+def _keep_next_batch(out: Path, dfc: Any, result: Any) -> None:
+    """``next_batch.json``: what the planner would fly next from the final estimate (for
+    ``econdor export RUN_DIR``). The planner is asked once more; nothing is flown."""
+    from .core.planners import PlanContext
+    from .plans import write_next_batch
+
+    iteration = len(result.records)
+    context = PlanContext(iteration=iteration, region=dfc.mission.region,
+                          n_vehicles=dfc.executor.n_vehicles, grid=result.grid,
+                          estimate=result.estimate, samples=result.samples,
+                          positions_m=[(0.0, 0.0)] * dfc.executor.n_vehicles)
+    batch = dfc.planner.next_batch(context)
+    try:
+        write_next_batch(out / "next_batch.json", batch, iteration)
+    except OSError as exc:
+        raise RunError(f"{out}: cannot write next_batch.json ({exc.strerror or exc})") from exc
+
+
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
     try:
         return await router.wait_for_vehicles(n, timeout_s)
@@ -892,9 +1022,17 @@ def run_mission_cli(args: Any) -> int:
 
     mission = load_mission(args.mission)
     out = args.out or _default_out(mission)
+    from .fleet import parse_kinds
+
+    kinds = parse_kinds(args.autopilot) if getattr(args, "autopilot", None) else None
+    if kinds is not None and args.connect:
+        raise EcondorError("--autopilot chooses the vehicles econdor starts; with --connect "
+                           "the vehicles are started elsewhere")
     summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
                           speedup=args.speedup, seed=args.seed, connect=args.connect,
-                          timeout_s=args.timeout, quiet=args.quiet, mission_path=args.mission)
+                          timeout_s=args.timeout, quiet=args.quiet, mission_path=args.mission,
+                          autopilots=kinds,
+                          tolerance_m=getattr(args, "tolerance_m", None) or 1.0)
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

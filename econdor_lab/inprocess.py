@@ -1,14 +1,34 @@
-"""The in-process executor: the same tracer as the MAVLink vehicle, called directly."""
+"""The in-process executor: the same tracer as the MAVLink vehicle, called directly.
+
+With ``style=TaskStyle.WAYPOINTS`` the vehicles fly as stock autopilots do in ``econdor run``:
+each contour piece as the waypoint polyline of its *estimated* contour
+(:func:`econdor_gcs.core.waypoints.task_waypoints`), the first waypoint reached in transit
+and the legs after it counted as traced (``Phase.TRACE``), exactly as the MAVLink station
+accounts for them.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Generator
 
 import numpy as np
 
 from econdor_gcs.core.fields import Field
-from econdor_gcs.core.tasks import FlightReport, Phase, Task, Waypoint
+from econdor_gcs.core.tasks import (
+    FlightReport,
+    OutcomeStatus,
+    Phase,
+    SampleLog,
+    Task,
+    TaskOutcome,
+    TaskStyle,
+    TraceTask,
+    Waypoint,
+)
+from econdor_gcs.core.waypoints import task_waypoints
 from econdor_gcs.mission import Mission
-from sim_vehicle.body import SimBody
-from sim_vehicle.executor import run_plan
+from sim_vehicle.body import Sample, SimBody
+from sim_vehicle.executor import run_plan, run_task
 from sim_vehicle.kinematics import VehicleLimits
 from sim_vehicle.tracer import TracerParams
 
@@ -31,8 +51,11 @@ class InProcessExecutor:
     """
 
     def __init__(self, mission: Mission, field: Field, n_vehicles: int | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, style: TaskStyle = TaskStyle.TRACE,
+                 tolerance_m: float = 1.0) -> None:
         v = mission.vehicles
+        self.style = style
+        self.tolerance_m = tolerance_m
         self.n_vehicles = n_vehicles or v.count
         self.home = (mission.region.xmin, mission.region.ymin)
         limits = VehicleLimits(max_speed_mps=v.max_speed_mps, max_accel_mps2=v.max_accel_mps2,
@@ -53,9 +76,41 @@ class InProcessExecutor:
     def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         reports = []
         for i, (body, tasks) in enumerate(zip(self.bodies, plans, strict=True)):
-            reports.append(run_plan(body, tasks, vehicle=i, params=self.params))
+            if self.style == TaskStyle.WAYPOINTS:
+                reports.append(self._fly_waypoints(body, tasks, i))
+            else:
+                reports.append(run_plan(body, tasks, vehicle=i, params=self.params))
             _brake(body)
         return reports
+
+    def _fly_waypoints(self, body: SimBody, tasks: list[Task], vehicle: int) -> FlightReport:
+        """Each task as waypoints (a trace task: its estimated contour, simplified)."""
+        t0_s, odo0_m = body.t_s, body.odometer_m
+        rows: list[tuple[float, float, float, float, int]] = []
+        outcomes: list[TaskOutcome] = []
+
+        def leg(wp: Waypoint, phase: Phase) -> float:
+            odo = body.odometer_m
+            gen: Generator[Sample, None, TaskOutcome] = run_task(body, wp, self.params)
+            while True:
+                try:
+                    s = next(gen)
+                except StopIteration:
+                    return body.odometer_m - odo
+                rows.append((s.t_s, s.x_m, s.y_m, s.value, int(phase)))
+
+        for task in tasks:
+            wps = task_waypoints(task, self.tolerance_m)
+            along = isinstance(task, TraceTask)
+            flown = [leg(wp, Phase.TRACE if along and k > 0 else Phase.TRANSIT)
+                     for k, wp in enumerate(wps)]
+            outcomes.append(TaskOutcome(task, OutcomeStatus.REACHED, sum(flown),
+                                        sum(flown[1:]) if along else 0.0))
+        log = SampleLog.from_rows([(*r, vehicle) for r in rows])
+        return FlightReport(vehicle=vehicle, samples=log, flown_m=body.odometer_m - odo0_m,
+                            traced_m=float(sum(o.traced_m for o in outcomes)),
+                            outcomes=outcomes, end_x_m=body.x_m, end_y_m=body.y_m,
+                            sim_s=body.t_s - t0_s)
 
     def finish(self) -> list[FlightReport]:
         return self.fly([[Waypoint(*self.home)] for _ in self.bodies], -1)

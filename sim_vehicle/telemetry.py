@@ -15,9 +15,11 @@ Samples: every sensor reading taken while the vehicle executes a horizontal moti
 out as ``GLOBAL_POSITION_INT`` immediately followed by ``NAMED_VALUE_FLOAT("FIELD")`` with the
 same ``time_boot_ms``, regardless of the stream rates. Samples wait in the outbox as local
 positions; :meth:`Outbox.drain` converts all of them to latitude/longitude in one vectorised
-pymap3d call and keeps the order of everything queued. Whenever the phase of the sampled ticks
-changes (transit, search, trace), ``NAMED_VALUE_INT("PHASE")`` goes out just before the first
-sample of the new phase, with that sample's ``time_boot_ms``; the end of a trace item is a
+pymap3d call and keeps the order of everything queued. With the companion computer (the
+tracer on board), whenever the phase of the sampled ticks changes (transit, search, trace),
+``NAMED_VALUE_INT("PHASE")`` goes out just before the first sample of the new phase, with that
+sample's ``time_boot_ms`` (a stock autopilot's payload knows no phases); the end of a trace item
+is a
 ``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
 :mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
 """
@@ -263,6 +265,7 @@ class Telemetry:
     def sys_status(self) -> Any:
         health = SENSORS if self.modes.prearm_ok() else \
             SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        health |= mavlink.MAV_SYS_STATUS_GEOFENCE  # no fence, so no breach
         return mavlink.MAVLink_sys_status_message(
             SENSORS, SENSORS, health, 100, 16000, 1000, 90, 0, 0, 0, 0, 0, 0)
 
@@ -393,7 +396,7 @@ class Telemetry:
         """Queue one sample at the vehicle's current position and velocity (after a PHASE
         message when its phase differs from the previous sample's)."""
         st = self.state
-        if sample.phase != self.phase:
+        if sample.phase != self.phase and st.settings.companion:
             self.phase = sample.phase
             self.outbox.put(phase_message(int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF,
                                           sample.phase))

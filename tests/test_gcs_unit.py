@@ -15,6 +15,7 @@ from econdor_gcs.core.tasks import (
     OutcomeStatus,
     Phase,
     TaskOutcome,
+    TaskStyle,
     TraceReport,
     TraceTask,
     Waypoint,
@@ -28,7 +29,7 @@ from econdor_gcs.gcs import (
     mission_items_json,
 )
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.mission import build_mission
+from econdor_gcs.link.mission import build_mission, plan_mission
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost
 from econdor_gcs.mission import parse_mission
@@ -281,19 +282,34 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
 
 
 def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
+    """A stock autopilot flies a contour as waypoints: the first is reached in transit, the
+    legs after it are along the (estimated) contour; its outcome is accounted by item."""
     m = _mission()
     router = FakeRouter()
     ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
-    tr = TraceTask(50.0, 10.0, 10.0, 10.0, 0.0, 1000)
+    route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
+    tasks = [Waypoint(5.0, 0.0), TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route)]
+    plan = plan_mission(m.origin, tasks, 30.0, style=TaskStyle.WAYPOINTS, tolerance_m=0.1,
+                        end="none")
+    assert plan.task_seqs == [(2, 2), (3, 5)]
     v = ex.vehicles[1]
-    v.items = build_mission(m.origin, [Waypoint(5.0, 5.0), tr], 30.0, end="none")
-    ex._begin(v, [Waypoint(5.0, 5.0), tr])
+    v.items, v.item_phases = plan.items, dict(plan.item_phases)
+    f = ex._begin(v, tasks, plan)
+    v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
-    on_msg(1, mavlink.MAVLink_mission_current_message(2, 4, 2, 1))
-    on_sample(_sample(m.origin, 1, 1000, 1.0, 0.0, 10.0))
-    on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, 2, 1))
-    on_sample(_sample(m.origin, 1, 1100, 2.0, 0.0, 11.0))
-    assert list(ex._end(v).samples.phase) == [Phase.TRANSIT, Phase.SEARCH]
+    for seq, ms, x, y in ((2, 1000, 5.0, 0.0), (3, 1100, 10.0, 0.0), (4, 1200, 20.0, 0.0),
+                          (5, 1300, 20.0, 10.0)):
+        on_msg(1, mavlink.MAVLink_mission_current_message(seq, 6, 2, 1))
+        on_sample(_sample(m.origin, 1, ms, x, y, 1.0))
+        on_msg(1, mavlink.MAVLink_mission_item_reached_message(seq))
+    assert f.done
+    r = ex._end(v)
+    assert list(r.samples.phase) == [Phase.TRANSIT, Phase.TRANSIT, Phase.TRACE, Phase.TRACE]
+    assert [o.status for o in r.outcomes] == ["reached", "reached"]
+    # flown along the contour: the legs to items 4 and 5 (10 m each)
+    assert r.outcomes[1].traced_m == pytest.approx(20.0, abs=0.05)
+    assert r.outcomes[1].flown_m == pytest.approx(25.0, abs=0.05)
+    assert r.traced_m == pytest.approx(20.0, abs=0.05)
 
 
 def test_returning_vehicle_has_landed_when_its_state_says_so() -> None:

@@ -29,7 +29,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from ..core.geodesy import Origin
-from ..core.tasks import TraceTask, Waypoint
+from ..core.tasks import Phase, Task, TaskStyle, TraceTask, Waypoint
+from ..core.waypoints import task_waypoints
 from ..errors import CommandRejected, MissionRejected, ProtocolError, VehicleTimeout
 from .codec import MAVLinkMessage, mavlink
 
@@ -38,12 +39,15 @@ __all__ = [
     "MissionClear",
     "MissionDownloader",
     "MissionItemSpec",
+    "MissionPlan",
     "MissionUploader",
     "build_mission",
+    "change_speed_item",
     "command_name",
     "enum_name",
     "home_item",
     "loiter_item",
+    "plan_mission",
     "rtl_item",
     "takeoff_item",
     "trace_item",
@@ -184,6 +188,13 @@ def takeoff_item(seq: int, lat_deg: float, lon_deg: float, alt_m: float) -> Miss
     )
 
 
+def change_speed_item(seq: int, speed_mps: float) -> MissionItemSpec:
+    """``MAV_CMD_DO_CHANGE_SPEED`` to a ground speed (param1 1 = ground speed, param3 -1 =
+    throttle unchanged), in ``MAV_FRAME_MISSION`` as QGroundControl writes it."""
+    return MissionItemSpec(seq, mavlink.MAV_FRAME_MISSION, mavlink.MAV_CMD_DO_CHANGE_SPEED,
+                           param1=1.0, param2=float(speed_mps), param3=-1.0)
+
+
 def rtl_item(seq: int) -> MissionItemSpec:
     """``MAV_CMD_NAV_RETURN_TO_LAUNCH`` (no position)."""
     return MissionItemSpec(seq, FRAME_REL_INT, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
@@ -214,14 +225,38 @@ def home_item(seq: int, lat_deg: float, lon_deg: float, alt_m: float = 0.0, *,
     )
 
 
-def build_mission(
+@dataclass(frozen=True)
+class MissionPlan:
+    """A vehicle's mission and where each task sits in it.
+
+    ``task_seqs[k]`` is the ``(first, last)`` item seq of task ``k`` (one item, or a trace
+    task's waypoint polyline); ``item_phases`` the sample phase each item implies, for
+    vehicles that report none (a polyline's first waypoint is reached in transit, the rest
+    flies along the estimated contour).
+    """
+
+    items: list[MissionItemSpec]
+    task_seqs: list[tuple[int, int]]
+    item_phases: dict[int, Phase]
+    style: TaskStyle
+
+    @property
+    def last_task_seq(self) -> int | None:
+        return self.task_seqs[-1][1] if self.task_seqs else None
+
+
+def plan_mission(
     origin: Origin,
-    tasks: Sequence[Waypoint | TraceTask],
+    tasks: Sequence[Task],
     altitude_m: float,
+    *,
+    style: TaskStyle = TaskStyle.TRACE,
+    tolerance_m: float = 1.0,
     home: tuple[float, float] = (0.0, 0.0),
+    speed_mps: float | None = None,
     end: str = "rtl",
-) -> list[MissionItemSpec]:
-    """A vehicle's mission: item 0 home, takeoff, one item per task, then the end item.
+) -> MissionPlan:
+    """A vehicle's mission: item 0 home, takeoff, [DO_CHANGE_SPEED], the tasks, the end item.
 
     Parameters
     ----------
@@ -229,11 +264,15 @@ def build_mission(
         The ENU frame of the task coordinates.
     tasks:
         :class:`Waypoint` -> ``MAV_CMD_NAV_WAYPOINT``; :class:`TraceTask` ->
-        ``MAV_CMD_WAYPOINT_USER_1`` (see :func:`trace_item`).
+        ``MAV_CMD_WAYPOINT_USER_1`` (:func:`trace_item`) with ``style=TRACE``, or its
+        estimated contour as ``NAV_WAYPOINT`` items (Douglas-Peucker to ``tolerance_m``,
+        :func:`~econdor_gcs.core.waypoints.task_waypoints`) with ``style=WAYPOINTS``.
     altitude_m:
         Flight altitude above home (frame ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``).
     home:
         Home / takeoff point, local ENU metres.
+    speed_mps:
+        If given, a ``DO_CHANGE_SPEED`` follows the takeoff.
     end:
         ``"rtl"`` (return to launch), ``"loiter"`` (hold, unlimited, at the last task's point or
         home) or ``"none"``.
@@ -244,26 +283,49 @@ def build_mission(
         raise ValueError(f"end must be 'rtl', 'loiter' or 'none', not {end!r}")
     if not altitude_m > 0:
         raise ValueError(f"altitude_m must be positive, got {altitude_m}")
+    if speed_mps is not None and not speed_mps > 0:
+        raise ValueError(f"speed_mps must be positive, got {speed_mps}")
     home_lat, home_lon, _ = origin.to_global(home[0], home[1])
     items = [home_item(0, home_lat, home_lon, 0.0),
              takeoff_item(1, home_lat, home_lon, altitude_m)]
+    phases: dict[int, Phase] = {}
+    if speed_mps is not None:
+        items.append(change_speed_item(len(items), speed_mps))
+    task_seqs: list[tuple[int, int]] = []
     last = (home_lat, home_lon)
     for task in tasks:
-        seq = len(items)
-        lat, lon, _ = origin.to_global(task.x_m, task.y_m)
-        if isinstance(task, TraceTask):
-            items.append(trace_item(seq, lat, lon, altitude_m, task.level, task.search_radius_m,
-                                    task.max_length_m, task.piece_id))
-        elif isinstance(task, Waypoint):
-            items.append(waypoint_item(seq, lat, lon, altitude_m))
+        first = len(items)
+        if isinstance(task, TraceTask) and style == TaskStyle.TRACE:
+            lat, lon, _ = origin.to_global(task.x_m, task.y_m)
+            items.append(trace_item(first, lat, lon, altitude_m, task.level,
+                                    task.search_radius_m, task.max_length_m, task.piece_id))
+            phases[first] = Phase.SEARCH
+        elif isinstance(task, TraceTask | Waypoint):
+            along = isinstance(task, TraceTask)
+            for k, wp in enumerate(task_waypoints(task, tolerance_m)):
+                lat, lon, _ = origin.to_global(wp.x_m, wp.y_m)
+                phases[len(items)] = Phase.TRACE if along and k > 0 else Phase.TRANSIT
+                items.append(waypoint_item(len(items), lat, lon, altitude_m))
         else:
             raise TypeError(f"tasks must be Waypoint or TraceTask, got {type(task).__name__}")
-        last = (lat, lon)
+        last = (items[-1].lat_deg, items[-1].lon_deg)
+        task_seqs.append((first, len(items) - 1))
     if end == "rtl":
         items.append(rtl_item(len(items)))
     elif end == "loiter":
         items.append(loiter_item(len(items), last[0], last[1], altitude_m))
-    return items
+    return MissionPlan(items, task_seqs, phases, style)
+
+
+def build_mission(
+    origin: Origin,
+    tasks: Sequence[Waypoint | TraceTask],
+    altitude_m: float,
+    home: tuple[float, float] = (0.0, 0.0),
+    end: str = "rtl",
+) -> list[MissionItemSpec]:
+    """The items of :func:`plan_mission` with contour items (``style=TRACE``)."""
+    return plan_mission(origin, tasks, altitude_m, home=home, end=end).items
 
 
 # --------------------------------------------------------------------------------------------
