@@ -76,6 +76,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "board); a vehicle without companion gets contours as waypoints")
     run.add_argument("--tolerance-m", type=_positive_float, default=1.0,
                      help="Douglas-Peucker tolerance of the waypoint polylines (default 1)")
+    run.add_argument("--forward", default=None, metavar="udpout:HOST:PORT",
+                     help="send every vehicle message to a watcher (QGroundControl, "
+                          "MAVProxy --master=udpin:HOST:PORT)")
+    run.add_argument("--forward-commands", action="store_true",
+                     help="relay what the watcher sends to the vehicles (dropped otherwise)")
     run.add_argument("--quiet", action="store_true")
 
     st = sub.add_parser("study", help="in-process study over many seeds")

@@ -82,6 +82,7 @@ from .errors import (
 )
 from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import MAVLinkMessage, mavlink
+from .link.forward import Forwarder
 from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, MissionPlan, plan_mission
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import Router, Sample, VehicleLost
@@ -831,12 +832,16 @@ def run_mission(
     figures: bool = True,
     autopilots: Sequence[VehicleKind] | None = None,
     tolerance_m: float = 1.0,
+    forward: str | None = None,
+    forward_commands: bool = False,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
 
     ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
     PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
-    waypoint polylines for vehicles that refuse contour items.
+    waypoint polylines for vehicles that refuse contour items. ``forward`` is a watcher's
+    ``udpout:HOST:PORT`` that gets every vehicle message (:mod:`.link.forward`); what it sends
+    back reaches the vehicles only with ``forward_commands``.
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
@@ -858,6 +863,7 @@ def run_mission(
         _keep_mission_file(mission_path, out)
     tlog = TlogWriter(out / "telemetry.tlog")
     station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
+    forwarder: Forwarder | None = None
     fleet: Fleet | None = None
     executor: MavlinkExecutor | None = None
     dfc: Dfc | None = None
@@ -882,6 +888,9 @@ def run_mission(
     try:
         with _sigterm_as_interrupt():
             host, port = station.start()
+            if forward is not None:
+                forwarder = station.call(
+                    Forwarder(station.router, forward, forward_commands).start())
             if connect is None:
                 if mission_path is None:
                     raise RunError("run_mission: mission_path is needed to start vehicles")
@@ -918,6 +927,8 @@ def run_mission(
             started = kinds_for(n, kinds) if connect is None else None
             extra = {**base, "sysids": sysids, "timings": timings,
                      "fleet": executor.fleet_summary(started),
+                     "forward": ({"to": forward, "commands": forward_commands,
+                                  **forwarder.stats} if forwarder is not None else None),
                      "samples_dropped_unpaired": station.router.pairer.dropped,
                      "report_errors": executor.report_errors}
             rd.write_result(result, extra=extra)
@@ -932,6 +943,8 @@ def run_mission(
     finally:
         if live is not None:
             live.stop()
+        if forwarder is not None:
+            station.loop.call_soon_threadsafe(forwarder.close)
         station.close()
         if fleet is not None:
             fleet.stop()
@@ -1025,6 +1038,8 @@ def run_mission_cli(args: Any) -> int:
     from .fleet import parse_kinds
 
     kinds = parse_kinds(args.autopilot) if getattr(args, "autopilot", None) else None
+    if getattr(args, "forward_commands", False) and not getattr(args, "forward", None):
+        raise EcondorError("--forward-commands needs --forward udpout:HOST:PORT")
     if kinds is not None and args.connect:
         raise EcondorError("--autopilot chooses the vehicles econdor starts; with --connect "
                            "the vehicles are started elsewhere")
@@ -1032,7 +1047,9 @@ def run_mission_cli(args: Any) -> int:
                           speedup=args.speedup, seed=args.seed, connect=args.connect,
                           timeout_s=args.timeout, quiet=args.quiet, mission_path=args.mission,
                           autopilots=kinds,
-                          tolerance_m=getattr(args, "tolerance_m", None) or 1.0)
+                          tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
+                          forward=getattr(args, "forward", None),
+                          forward_commands=bool(getattr(args, "forward_commands", False)))
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

@@ -412,6 +412,18 @@ class Router:
             raise LinkError(f"vehicle {sysid} has never been heard from")
         self._send_to(link.address, msg)
 
+    def send_raw(self, sysid: int, data: bytes) -> None:
+        """Send already encoded MAVLink bytes (another sender's message) to ``sysid``."""
+        link = self.vehicles.get(sysid)
+        if link is None:
+            raise LinkError(f"vehicle {sysid} has never been heard from")
+        if self._transport is None:
+            raise LinkError("the GCS endpoint is not started")
+        self._transport.sendto(data, link.address)
+        self.stats["messages_out"] += 1
+        if self.tlog is not None:
+            self.tlog.write(data)
+
     def _send_to(self, address: Address, msg: MAVLinkMessage) -> None:
         if self._transport is None:
             raise LinkError("the GCS endpoint is not started")
