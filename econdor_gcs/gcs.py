@@ -848,6 +848,7 @@ def run_mission(
     """
     from .dfc import Dfc
     from .fleet import DEFAULT_KIND, Fleet, kinds_for
+    from .plans import keep_mission_file, save_next_batch
     from .rundir import RunDir
 
     wall0 = time.perf_counter()
@@ -860,7 +861,7 @@ def run_mission(
     kinds = list(autopilots or [DEFAULT_KIND])
     rd = RunDir(out)
     if mission_path is not None:
-        _keep_mission_file(mission_path, out)
+        keep_mission_file(mission_path, out)
     tlog = TlogWriter(out / "telemetry.tlog")
     station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
     forwarder: Forwarder | None = None
@@ -923,7 +924,7 @@ def run_mission(
             timings["setup_s"] = t_setup
             result.wall_s = time.perf_counter() - wall0
             result.sim_s = executor.sim_s
-            _keep_next_batch(out, dfc, result)
+            save_next_batch(out, dfc.planner, mission, result)
             started = kinds_for(n, kinds) if connect is None else None
             extra = {**base, "sysids": sysids, "timings": timings,
                      "fleet": executor.fleet_summary(started),
@@ -985,33 +986,6 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
     }
     with contextlib.suppress(Exception):
         rd.write_partial(records, summary)
-
-
-def _keep_mission_file(mission_path: Path, out: Path) -> None:
-    """A copy of the mission YAML (``econdor export`` re-plans from it)."""
-    try:
-        (out / "mission.yaml").write_bytes(Path(mission_path).read_bytes())
-    except OSError as exc:
-        raise RunError(f"{out}: cannot keep a copy of {mission_path} "
-                       f"({exc.strerror or exc})") from exc
-
-
-def _keep_next_batch(out: Path, dfc: Any, result: Any) -> None:
-    """``next_batch.json``: what the planner would fly next from the final estimate (for
-    ``econdor export RUN_DIR``). The planner is asked once more; nothing is flown."""
-    from .core.planners import PlanContext
-    from .plans import write_next_batch
-
-    iteration = len(result.records)
-    context = PlanContext(iteration=iteration, region=dfc.mission.region,
-                          n_vehicles=dfc.executor.n_vehicles, grid=result.grid,
-                          estimate=result.estimate, samples=result.samples,
-                          positions_m=[(0.0, 0.0)] * dfc.executor.n_vehicles)
-    batch = dfc.planner.next_batch(context)
-    try:
-        write_next_batch(out / "next_batch.json", batch, iteration)
-    except OSError as exc:
-        raise RunError(f"{out}: cannot write next_batch.json ({exc.strerror or exc})") from exc
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:

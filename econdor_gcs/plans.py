@@ -21,17 +21,21 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .core.contours import ContourPiece
-from .core.planners import Batch, Job
+from .core.planners import Batch, Job, PlanContext, Planner
 from .core.tasks import Task, TraceTask, Waypoint
-from .errors import EcondorError
+from .errors import EcondorError, RunError
+from .mission import Mission
 
-__all__ = ["read_next_batch", "read_tasks", "task_from_json", "task_to_json", "write_next_batch",
-           "write_tasks"]
+if TYPE_CHECKING:
+    from .dfc import RunResult
+
+__all__ = ["keep_mission_file", "read_next_batch", "read_tasks", "save_next_batch",
+           "task_from_json", "task_to_json", "write_next_batch", "write_tasks"]
 
 FORMAT_VERSION = 1
 
@@ -161,3 +165,32 @@ def read_next_batch(path: str | Path) -> tuple[int, list[Job]]:
     if not isinstance(it, int) or isinstance(it, bool):
         raise EcondorError(f"{path}: iteration must be an integer")
     return it, [_job_from_json(j, f"{path}: jobs[{i}]") for i, j in enumerate(jobs)]
+
+
+def keep_mission_file(mission_path: str | Path, run_dir: Path) -> None:
+    """A copy of the mission YAML in the run directory (``econdor export`` re-plans from it)."""
+    try:
+        (run_dir / "mission.yaml").write_bytes(Path(mission_path).read_bytes())
+    except OSError as exc:
+        raise RunError(f"{run_dir}: cannot keep a copy of {mission_path} "
+                       f"({exc.strerror or exc})") from exc
+
+
+def save_next_batch(run_dir: Path, planner: Planner, mission: Mission,
+                    result: RunResult) -> Path:
+    """``next_batch.json``: what ``planner`` would fly next from the run's final estimate.
+
+    The planner is asked once more, as the DFC would ask it (vehicles at home); nothing is
+    flown.
+    """
+    iteration = len(result.records)
+    context = PlanContext(iteration=iteration, region=mission.region,
+                          n_vehicles=result.vehicles, grid=result.grid,
+                          estimate=result.estimate, samples=result.samples,
+                          positions_m=[(0.0, 0.0)] * result.vehicles)
+    batch = planner.next_batch(context)
+    try:
+        return write_next_batch(run_dir / "next_batch.json", batch, iteration)
+    except OSError as exc:
+        raise RunError(f"{run_dir}: cannot write next_batch.json ({exc.strerror or exc})"
+                       ) from exc
