@@ -10,9 +10,11 @@ Pieces, from the bottom up:
     thread and the ``finally`` blocks close everything.
 :class:`MavlinkExecutor`
     The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
-    :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home, takeoff,
-    one item per task" is uploaded, the vehicle armed and started with
-    ``MAV_CMD_MISSION_START`` from item 1, and its samples collected until it reports
+    :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home,
+    takeoff, DO_CHANGE_SPEED, the tasks" is uploaded (:func:`~.link.mission.plan_mission`;
+    a contour piece as a trace item, or as the waypoint polyline of the estimated contour for
+    a vehicle that refused trace items), the vehicle started the autopilot's way
+    (:func:`~.link.autopilots.start_mission`), and its samples collected until it reports
     ``MISSION_ITEM_REACHED`` for its last task item.
 :func:`run_mission_cli`
     The ``econdor run`` command: run directory, simulated fleet (or ``--connect``), live
@@ -20,7 +22,7 @@ Pieces, from the bottom up:
 
 Conventions and choices (see also DESIGN.md §4):
 
-* **No end item.** The missions end with the last task (``build_mission(end="none")``):
+* **No end item.** The missions end with the last task (``plan_mission(end="none")``):
   a vehicle that completes its mission holds where it is (AUTO.LOITER), exactly like the
   in-process vehicles keep their position between iterations. A ``LOITER_UNLIM`` at the
   last task's *point* would send a tracer back to the start of its contour piece (traces
@@ -30,7 +32,9 @@ Conventions and choices (see also DESIGN.md §4):
   reports no phases (a stock autopilot) gets the phase its mission item implies.
 * **Distances.** ``traced_m`` and trace outcomes come from the vehicle's
   ``DEBUG_FLOAT_ARRAY("TRACE")`` reports (:class:`~.core.tasks.TraceReport`); STATUSTEXT is
-  for people only (the live display shows the last one). ``flown_m`` is the path
+  for people only (the live display shows the last one). A contour flown as waypoints is
+  ``reached`` when its last waypoint is, and its traced distance is the path flown after its
+  first waypoint. ``flown_m`` is the path
   length of the reported sample positions, starting at the vehicle's position when the
   flight began (the vehicle reports no odometer; samples come every sensor tick of
   horizontal motion, so this misses only the braking drift while hovering).

@@ -30,7 +30,7 @@ from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import mavlink
 from .link.mission import MissionItemSpec
 from .link.router import Router
-from .mission_files import MissionFile, is_global_frame, read_mission_file
+from .mission_files import MissionFile, is_global_frame, is_home_item, read_mission_file
 
 __all__ = ["Mismatch", "compare_items", "upload_cli", "upload_verified"]
 
@@ -131,6 +131,11 @@ async def upload_verified(router: Router, sysid: int, mfile: MissionFile,
     """
     link = router.vehicles[sysid]
     kind = AutopilotKind.of(link.autopilot)
+    if kind == AutopilotKind.ARDUPILOT and mfile.items and not is_home_item(mfile.items):
+        first = mfile.items[0]
+        raise EcondorError(f"vehicle {sysid} is an ArduPilot: it replaces item 0 with its home, "
+                           f"and item 0 of this mission is command {first.command}, not a home "
+                           "waypoint (put a home item first, as econdor export does)")
     counts: dict[str, int] = {}
     home_replaced = False
     for mtype, items in ((mavlink.MAV_MISSION_TYPE_MISSION, mfile.items),

@@ -92,8 +92,6 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
         assert "vehicle 1: the mission read back differs from the file: item 3 z: sent 15.0, " \
                "got back 16.0" in err
     # a stock autopilot refuses contour items: the error says what to do
-    src = tmp_path / "run"
-    src.mkdir()
     with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
                         companion=False):
         contour = tmp_path / "c.waypoints"
@@ -107,3 +105,11 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
         assert err == ("econdor: error: vehicle 1 rejected mission item 2: "
                        "MAV_MISSION_UNSUPPORTED (a stock autopilot flies contours as "
                        "waypoints: export with --style waypoints)")
+        # a mission without a home item would lose its first item on ArduPilot
+        headless = tmp_path / "h.waypoints"
+        headless.write_text("QGC WPL 110\n"
+                            "0\t1\t3\t22\t0\t0\t0\t0\t47.397742\t8.545594\t20\t1\n")
+        assert main(["upload", str(headless), "--connect", f"udpin:127.0.0.1:{port}",
+                     "--timeout", "10"]) == 1
+        assert "replaces item 0 with its home, and item 0 of this mission is command 22" in \
+            capsys.readouterr().err
