@@ -1,12 +1,14 @@
 """What flying contours as waypoints (stock autopilots) costs against onboard tracing.
 
-For the demo and the paper missions and each seed, the whole in-process DFC loop runs twice
-with the same field, planner, reconstruction and cost accounting: once with the tracer on
-board (``trace``: search near the start point, follow the iso-line with the vehicle's own
-samples), once as a stock autopilot flies it in ``econdor run`` (``waypoints``: the estimated
-contour of each piece, Douglas-Peucker-simplified to ``--tolerance-m``, flown as waypoints).
-Printed per mission and style (median over the seeds, and the median of the per-seed
-differences waypoints - trace, with how many seeds waypoints was worse):
+For the demo and the paper missions (and ``plume``: the paper's setting over the
+narrow-plume field of ``bench/efficiency.py``, where the first estimates miss the sources)
+and each seed, the whole in-process DFC loop runs twice with the same field, planner,
+reconstruction and cost accounting: once with the tracer on board (``trace``: search near
+the start point, follow the iso-line with the vehicle's own samples), once as a stock
+autopilot flies it in ``econdor run`` (``waypoints``: the estimated contour of each piece,
+Douglas-Peucker-simplified to ``--tolerance-m``, flown as waypoints). Printed per mission
+and style (median over the seeds, and the median of the per-seed differences
+waypoints - trace, with how many seeds waypoints was worse):
 
 * final MAE (dB), total flown distance (km), contour distance (km: traced, or flown along the
   estimated contours), levels traced, iterations;
@@ -15,12 +17,13 @@ differences waypoints - trace, with how many seeds waypoints was worse):
 
     python bench/waypoint_mode.py                  # 10 seeds, demo and paper
     python bench/waypoint_mode.py --quick          # 3 seeds, a smoke run
-    python bench/waypoint_mode.py --seeds 0:20 --workers 2 --markdown
+    python bench/waypoint_mode.py --seeds 0:20 --workers 2 --markdown --json runs.json
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing
 import os
@@ -34,16 +37,30 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from econdor_gcs.core.tasks import TaskStyle  # noqa: E402
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.mission import Mission, load_mission, parse_mission  # noqa: E402
 from econdor_lab.study import parse_seeds, run_seed  # noqa: E402
 
 MISSIONS = ("demo", "paper")
+PLUME = {"model": "plume", "sources": 3, "sigma_min_m": 3.0, "sigma_max_m": 6.0,
+         "background": 10.0}
+
+
+def mission_named(name: str) -> Mission:
+    """``demo`` / ``paper`` from missions/, or ``plume``: the paper's setting, plume field."""
+    if name != "plume":
+        return load_mission(ROOT / "missions" / f"{name}.yaml")
+    base = load_mission(ROOT / "missions" / "paper.yaml")
+    return parse_mission({"name": "plume", "field": PLUME, "vehicles": {"count": 1},
+                          "algorithm": {"max_iterations": base.algorithm.max_iterations,
+                                        "min_iterations": base.algorithm.min_iterations,
+                                        "lloyd_bins": base.algorithm.lloyd_bins}},
+                         base_dir=ROOT / "missions")
 STYLES = (TaskStyle.TRACE, TaskStyle.WAYPOINTS)
 
 
 def one(args: tuple[str, int, str, float]) -> dict:
     name, seed, style, tolerance_m = args
-    mission = load_mission(ROOT / "missions" / f"{name}.yaml")
+    mission = mission_named(name)
     t0 = time.perf_counter()
     r = run_seed(mission, seed, mission.algorithm.planner, None, style=TaskStyle(style),
                  tolerance_m=tolerance_m)
@@ -74,6 +91,7 @@ def main() -> None:
     ap.add_argument("--tolerance-m", type=float, default=1.0)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--markdown", action="store_true")
+    ap.add_argument("--json", default=None, help="also write every run's numbers here")
     a = ap.parse_args()
     seeds = parse_seeds(a.seeds or ("0:3" if a.quick else "0:10"))
     missions = [m for m in a.missions.split(",") if m]
@@ -86,6 +104,8 @@ def main() -> None:
     else:
         results = [one(j) for j in jobs]
     wall = time.perf_counter() - t0
+    if a.json:
+        Path(a.json).write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
     by = {(r["mission"], r["seed"], r["style"]): r for r in results}
     print(f"waypoint mode vs onboard tracing: {len(seeds)} seeds x {len(missions)} missions x "
           f"2 styles, tolerance {a.tolerance_m:g} m, {len(results)} runs in {wall:.0f} s wall "

@@ -195,7 +195,7 @@ def test_mixed_fleet_started_elsewhere(tmp_path: Path,
                                       capsys: pytest.CaptureFixture[str]) -> None:
     """A companion vehicle traces on board; a stock ArduPilot refuses contour items and gets
     the estimated contours as waypoint polylines; summary.json says who flew which way."""
-    mission = write_mission(tmp_path, iterations=2)
+    mission = write_mission(tmp_path, iterations=1)
     port = free_port()
     out = tmp_path / "run"
     with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import time
@@ -95,8 +96,9 @@ def test_exported_wpl_in_mavwp_and_mavproxy_flown_by_ardupilot(tmp_path):
             proc.stdout.close()
             if proc.stdin is not None and not proc.stdin.closed:
                 proc.stdin.close()
-    reached = [int(line.split()[-1]) for line in reader.lines
-               if line.strip().startswith("waypoint ")]
+    # MAVProxy's "waypoint N" lines (a prompt like "AUTO> " may come first)
+    reached = [int(m[1]) for line in reader.lines
+               if (m := re.search(r"(?:^|> )waypoint (\d+)$", line.strip()))]
     assert reached == sorted(reached) and reached[-1] == last
 
 
