@@ -28,6 +28,16 @@ from econdor_gcs.gcs import run_mission  # noqa: E402
 from econdor_gcs.mission import load_mission  # noqa: E402
 
 
+def quick_mission(mission_path: Path, folder: Path, iterations: int = 2) -> Path:
+    """A copy of the mission in ``folder`` capped at ``iterations`` (``--quick``)."""
+    raw = yaml.safe_load(mission_path.read_text(encoding="utf-8"))
+    raw.setdefault("algorithm", {})["max_iterations"] = iterations
+    raw["algorithm"]["min_iterations"] = 1
+    path = folder / "mission.yaml"
+    path.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--mission", type=Path, default=REPO / "missions" / "demo.yaml")
@@ -39,13 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     fleets = [int(v) for v in args.vehicles.split(",")]
     with tempfile.TemporaryDirectory(prefix="econdor-bench-") as tmp:
         root = args.keep or Path(tmp)
-        mission_path = args.mission
-        if args.quick:
-            raw = yaml.safe_load(args.mission.read_text(encoding="utf-8"))
-            raw.setdefault("algorithm", {})["max_iterations"] = 2
-            raw["algorithm"]["min_iterations"] = 1
-            mission_path = Path(tmp) / "mission.yaml"
-            mission_path.write_text(yaml.safe_dump(raw), encoding="utf-8")
+        mission_path = quick_mission(args.mission, Path(tmp)) if args.quick else args.mission
         mission = load_mission(mission_path)
         header = (f"{'vehicles':>8} {'iters':>5} {'MAE dB':>7} {'wall s':>7} {'sim s':>7} "
                   f"{'speedup':>13} {'flying':>7} {'return':>7} {'recon':>7} {'proto':>6} "

@@ -1,254 +1,239 @@
-"""Benchmark the biharmonic-spline reconstructions (exact vs fast candidates).
+"""Benchmark the reconstructions on samples recorded from real runs.
 
 Usage::
 
-    python bench/reconstruction.py [--quick] [--seed N]
+    python bench/reconstruction.py [--quick] [--sizes 2000,5000,20000,50000]
+                                   [--exact-max 5000] [--baseline REV] [--no-stream]
+                                   [--libraries] [DATA.npz ...]
 
-Test fields are smooth random fields (a sum of 30 signed 2-D Gaussians with
-sigma 10 m or 15 m) over 100 m x 100 m. Two kinds of sample sets:
+Data: ``bench/data/*.npz`` (written by ``bench/record_samples.py``): every sample of a
+real run in the order the station received it, the sample count of each of its
+reconstructions, and the true field on the mission grid. ``paper-s0`` is an in-process
+run of ``missions/paper.yaml`` (seed 0, one vehicle), cut after its sixth reconstruction;
+``demo-mavlink`` is an ``econdor run missions/demo.yaml`` over MAVLink (three vehicles).
 
-* ``contour``: points along contour lines of the true field (scikit-image
-  ``find_contours`` on a 0.25 m grid at several levels) plus both diagonals,
-  resampled at a uniform spacing chosen to give the requested N;
-* ``uniform``: uniformly random positions.
+1. **Sizes**: the first N samples of each run (the station's state at that moment) for
+   each N in ``--sizes``. Methods: the exact dense solve (the reference, computed where
+   N <= ``--exact-max``, else taken from the file if it stores one, ``exact_<N>``);
+   the fast spline of this checkout (``reconstruct(method="fast")``); the fast spline of
+   git revision ``--baseline`` (the method this work replaces, loaded from git history);
+   with ``--libraries`` also scipy's ``RBFInterpolator`` (thin-plate kernel, linear
+   term, 64 nearest neighbours, on the same 0.5 m thinning). Columns: wall and CPU
+   seconds (fit and prediction on the 101 x 101 grid), MAE against the true field, the
+   ratios against the exact solve (MAE, and the mean distance between the surfaces in
+   units of the exact MAE) and against the baseline (MAE, time).
+2. **Stream**: each reconstruction the run made, as the DFC makes it
+   (``reconstruct(method="auto")``): this checkout against the baseline, and the fast
+   estimator warm-started on the stream against fresh fits (time, and how many tiles
+   were factorised, re-solved from kept factors, or kept).
 
-For each N the table gives fit+predict wall time, MAE against the true field on
-the evaluation grid, and MAE / time ratios against the exact dense solve (only
-where the exact solve is feasible: N <= 6000).
+One core: run with ``OMP_NUM_THREADS=1`` (the estimators limit BLAS to one thread
+themselves). Timings are noisy on a shared machine; compare ratios from one run.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import json
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
-from scipy.interpolate import RBFInterpolator
-from skimage.measure import find_contours
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
 
 from econdor_gcs.core.geometry import Grid, Region  # noqa: E402
 from econdor_gcs.core.spline import (  # noqa: E402
-    BiharmonicSpline,
     FastBiharmonicSpline,
-    _block_mean,
-    _merge_duplicates,
+    _thin_pick,
     reconstruct,
 )
 
-REGION = Region(0.0, 100.0, 0.0, 100.0)
-EXACT_MAX_N = 6000
+DATA = sorted((REPO / "bench" / "data").glob("*.npz"))
+BASELINE_REV = "6c88af8"  # the fast spline before issue 7 (thinning, coarse spline, 10 m tiles)
+
+Method = Callable[[np.ndarray, np.ndarray, np.ndarray, Grid], np.ndarray]
 
 
-# --------------------------------------------------------------------------- #
-# Test fields and sample sets
-# --------------------------------------------------------------------------- #
-class GaussianField:
-    """Sum of signed isotropic 2-D Gaussians."""
+class Run:
+    """One recorded run: samples in arrival order, reconstruction counts, truth."""
 
-    def __init__(self, rng: np.random.Generator, n_bumps: int = 30) -> None:
-        self.cx = rng.uniform(0, 100, n_bumps)
-        self.cy = rng.uniform(0, 100, n_bumps)
-        self.sigma = rng.choice([10.0, 15.0], n_bumps)
-        self.amp = rng.uniform(0.5, 1.0, n_bumps) * rng.choice([-1.0, 1.0], n_bumps)
+    def __init__(self, path: Path) -> None:
+        with np.load(path) as d:
+            self.name = path.stem
+            self.x, self.y, self.v = d["x_m"], d["y_m"], d["value"]
+            self.counts = [int(c) for c in d["recon_counts"]]
+            self.truth = d["truth"]
+            xmin, xmax, ymin, ymax = (float(t) for t in d["region"])
+            ny, nx = (int(t) for t in d["grid_shape"])
+            self.grid = Grid(Region(xmin, xmax, ymin, ymax), nx, ny)
+            self.stored_exact = {int(k.split("_")[1]): d[k] for k in d.files
+                                 if k.startswith("exact_")}
+            self.meta = json.loads(str(d["meta"]))
 
-    def __call__(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        out = np.zeros(x.shape)
-        for cx, cy, s, a in zip(self.cx, self.cy, self.sigma, self.amp, strict=True):
-            out += a * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s * s))
-        return out
+    def prefix(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.x[:n], self.y[:n], self.v[:n]
 
-
-def _resample(px: np.ndarray, py: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    s = np.concatenate(([0.0], np.cumsum(np.hypot(np.diff(px), np.diff(py)))))
-    if s[-1] <= 0:
-        return px[:1], py[:1]
-    t = np.arange(0.0, s[-1], spacing)
-    return np.interp(t, s, px), np.interp(t, s, py)
+    def mae(self, z: np.ndarray) -> float:
+        return float(np.mean(np.abs(z - self.truth)))
 
 
-def contour_lines(field: GaussianField, n_levels: int = 8) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Contour polylines of the true field at evenly spread quantile levels, plus diagonals."""
-    fine = Grid.with_spacing(REGION, 0.25)
-    xx, yy = fine.mesh
-    z = field(xx, yy)
-    levels = np.quantile(z, np.linspace(0.1, 0.9, n_levels))
-    lines = []
-    for lev in levels:
-        for c in find_contours(z, lev):
-            px, py = fine.index_to_xy(c[:, 0], c[:, 1])
-            lines.append((px, py))
-    t = np.array([0.0, 100.0])
-    lines.append((t, t))
-    lines.append((t, t[::-1]))
-    return lines
-
-
-def contour_samples(
-    field: GaussianField, lines: list, n: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    total = sum(float(np.sum(np.hypot(np.diff(px), np.diff(py)))) for px, py in lines)
-    spacing = total / n
-    xs, ys = [], []
-    for px, py in lines:
-        rx, ry = _resample(px, py, spacing)
-        xs.append(rx)
-        ys.append(ry)
-    x = np.concatenate(xs)
-    y = np.concatenate(ys)
-    return x, y, field(x, y)
-
-
-def uniform_samples(
-    field: GaussianField, rng: np.random.Generator, n: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    x = rng.uniform(0, 100, n)
-    y = rng.uniform(0, 100, n)
-    return x, y, field(x, y)
-
-
-# --------------------------------------------------------------------------- #
-# Candidate methods: each maps (x, y, v, grid) -> grid array, or None if infeasible
-# --------------------------------------------------------------------------- #
-Method = Callable[[np.ndarray, np.ndarray, np.ndarray, Grid], "np.ndarray | None"]
-
-
-def m_exact(x, y, v, grid):
-    """Exact dense solve on all samples (the reference)."""
-    if x.size > EXACT_MAX_N:
+def load_baseline(rev: str) -> ModuleType | None:
+    """``econdor_gcs/core/spline.py`` as it was at ``rev`` (None without git history)."""
+    out = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:econdor_gcs/core/spline.py"],
+                         capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        print(f"(no baseline: git show {rev} failed: {out.stderr.strip()})")
         return None
-    return reconstruct(x, y, v, grid, method="exact")
+    path = Path(tempfile.mkdtemp(prefix="econdor-baseline-")) / f"spline_{rev}.py"
+    path.write_text(out.stdout, encoding="utf-8")
+    spec = importlib.util.spec_from_file_location(f"spline_{rev}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def m_thin_exact(cell: float) -> Method:
-    """(a) Block-average in cell x cell squares, then the exact dense solve."""
+def rbf_local(x: np.ndarray, y: np.ndarray, v: np.ndarray, grid: Grid) -> np.ndarray:
+    """scipy RBFInterpolator: thin-plate spline + linear term, 64 neighbours, 0.5 m thinning."""
+    from scipy.interpolate import RBFInterpolator
 
-    def run(x, y, v, grid):
-        xm, ym, vm = _merge_duplicates(x, y, v)
-        xb, yb, vb = _block_mean(xm, ym, vm, cell)
-        if xb.size > EXACT_MAX_N:
-            return None
-        xx, yy = grid.mesh
-        return BiharmonicSpline().fit(xb, yb, vb).predict(xx, yy)
-
-    return run
+    xb, yb, vb = _thin_pick(x, y, v, 0.5)
+    xx, yy = grid.mesh
+    rbf = RBFInterpolator(np.column_stack((xb, yb)), vb, kernel="thin_plate_spline",
+                          neighbors=min(64, xb.size))
+    return rbf(np.column_stack((xx.ravel(), yy.ravel()))).reshape(grid.shape)
 
 
-def m_est(**kw) -> Method:
-    """FastBiharmonicSpline with the given parameters, evaluated directly on the grid."""
-
-    def run(x, y, v, grid):
-        xx, yy = grid.mesh
-        return FastBiharmonicSpline(**kw).fit(x, y, v).predict(xx, yy)
-
-    return run
+def timed(fn: Method, x: np.ndarray, y: np.ndarray, v: np.ndarray, grid: Grid
+          ) -> tuple[np.ndarray, float, float]:
+    w0, c0 = time.perf_counter(), time.process_time()
+    z = fn(x, y, v, grid)
+    return z, time.perf_counter() - w0, time.process_time() - c0
 
 
-def m_fast_reconstruct(x, y, v, grid):
-    """The chosen default through reconstruct() (1 m evaluation + bicubic upsampling)."""
-    return reconstruct(x, y, v, grid, method="fast")
+def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
+                baseline: ModuleType | None, rev: str, libraries: bool) -> None:
+    methods: dict[str, Method] = {}
+    if baseline is not None:  # first, so the ratios of this checkout's method are to hand
+        methods[f"fast ({rev})"] = (
+            lambda x, y, v, g: baseline.reconstruct(x, y, v, g, method="fast"))
+    methods["fast (this)"] = lambda x, y, v, g: reconstruct(x, y, v, g, method="fast")
+    if libraries:
+        methods["scipy RBF k=64"] = rbf_local
+    head = (f"{'run':13} {'N':>6} {'method':16} {'wall_s':>7} {'cpu_s':>7} {'MAE':>10} "
+            f"{'MAE/exact':>9} {'|f-ex|/MAEex':>12} {'MAE/base':>8} {'cpu/base':>8}")
+    print(head)
+    print("-" * len(head))
+    for run in runs:
+        for n_asked in sizes:
+            n = min(n_asked, run.x.size)
+            if n < n_asked and n_asked != max(sizes):
+                continue
+            x, y, v = run.prefix(n)
+            label = f"{run.name:13} {n:6d}"
+            exact = None
+            if n <= exact_max:
+                exact, wall, cpu = timed(
+                    lambda x, y, v, g: reconstruct(x, y, v, g, method="exact"), x, y, v,
+                    run.grid)
+                print(f"{label} {'exact':16} {wall:7.2f} {cpu:7.2f} {run.mae(exact):10.3e}",
+                      flush=True)
+            elif n in run.stored_exact:
+                exact = run.stored_exact[n]
+                print(f"{label} {'exact (stored)':16} {'':>7} {'':>7} {run.mae(exact):10.3e}",
+                      flush=True)
+            base_mae = base_cpu = None
+            for name, fn in methods.items():
+                try:
+                    z, wall, cpu = timed(fn, x, y, v, run.grid)
+                except np.linalg.LinAlgError as exc:
+                    print(f"{label} {name:16} failed: {str(exc).splitlines()[0]}", flush=True)
+                    continue
+                mae = run.mae(z)
+                cols = f"{label} {name:16} {wall:7.2f} {cpu:7.2f} {mae:10.3e}"
+                if exact is not None:
+                    ex_mae = run.mae(exact)
+                    dev = float(np.mean(np.abs(z - exact))) / ex_mae
+                    cols += f" {mae / ex_mae:9.3f} {dev:12.3f}"
+                else:
+                    cols += f" {'n/a':>9} {'n/a':>12}"
+                if name == f"fast ({rev})":
+                    base_mae, base_cpu = mae, cpu
+                elif base_mae is not None and base_cpu:
+                    cols += f" {mae / base_mae:8.3f} {cpu / base_cpu:8.3f}"
+                print(cols, flush=True)
 
 
-def m_rbf_local(neighbors: int, cell: float = 1.0) -> Method:
-    """(c) scipy RBFInterpolator, thin-plate kernel + linear term, k nearest neighbours."""
-
-    def run(x, y, v, grid):
-        xm, ym, vm = _merge_duplicates(x, y, v)
-        xb, yb, vb = _block_mean(xm, ym, vm, cell)
-        xx, yy = grid.mesh
-        rbf = RBFInterpolator(
-            np.column_stack((xb, yb)), vb, kernel="thin_plate_spline",
-            neighbors=min(neighbors, xb.size),
-        )
-        return rbf(np.column_stack((xx.ravel(), yy.ravel()))).reshape(grid.shape)
-
-    return run
-
-
-def candidates(quick: bool) -> dict[str, Method]:
-    c: dict[str, Method] = {
-        "exact": m_exact,
-        "(a) thin1m+exact": m_thin_exact(1.0),
-        "(b) PU 1-level": m_est(
-            cell_size=1.0, coarse_cell=None, tile_size=20.0, margin=20.0, overlap=10.0
-        ),
-        "(d) FAST 2-level": m_est(),
-        "(d) FAST reconstruct()": m_fast_reconstruct,
-    }
-    if not quick:
-        c["(c) rbf-local k=64"] = m_rbf_local(64)
-    return c
-
-
-# --------------------------------------------------------------------------- #
-def timed(fn: Method, x, y, v, grid):
-    t0 = time.perf_counter()
-    out = fn(x, y, v, grid)
-    return out, time.perf_counter() - t0
+def stream_table(runs: list[Run], baseline: ModuleType | None) -> None:
+    print()
+    print("stream: every reconstruction of the recorded run, reconstruct(method='auto'); "
+          "cpu seconds / MAE")
+    for run in runs:
+        warm = FastBiharmonicSpline(warm_start=True)
+        totals = {"this": 0.0, "base": 0.0, "cold": 0.0, "warm": 0.0}
+        print(f"{run.name} ({run.meta.get('transport')}, {run.meta.get('vehicles')} vehicle(s))")
+        print(f"  {'samples':>8} {'this cpu_s':>10} {'MAE':>10} {'base cpu_s':>10} {'MAE':>10}"
+              f" {'fast cold':>9} {'fast warm':>9} {'factored/resolved/kept':>24}")
+        for n in run.counts:
+            x, y, v = run.prefix(n)
+            z, _, cpu = timed(lambda x, y, v, g: reconstruct(x, y, v, g), x, y, v, run.grid)
+            totals["this"] += cpu
+            row = f"  {n:8d} {cpu:10.3f} {run.mae(z):10.3e}"
+            if baseline is not None:
+                zb, _, cpub = timed(lambda x, y, v, g: baseline.reconstruct(x, y, v, g),
+                                    x, y, v, run.grid)
+                totals["base"] += cpub
+                row += f" {cpub:10.3f} {run.mae(zb):10.3e}"
+            else:
+                row += f" {'n/a':>10} {'n/a':>10}"
+            xx, yy = run.grid.mesh
+            c0 = time.process_time()
+            zc = FastBiharmonicSpline().fit(x, y, v).predict(xx, yy)
+            c1 = time.process_time()
+            zw = warm.fit(x, y, v).predict(xx, yy)
+            c2 = time.process_time()
+            totals["cold"] += c1 - c0
+            totals["warm"] += c2 - c1
+            same = "" if np.array_equal(zc, zw) else "  WARM != COLD"
+            row += (f" {c1 - c0:9.3f} {c2 - c1:9.3f} "
+                    f"{warm.n_factored_:>10}/{warm.n_resolved_}/{warm.n_kept_}{same}")
+            print(row, flush=True)
+        ratio = (f", ratio {totals['this'] / totals['base']:.3f}" if totals["base"] else "")
+        print(f"  total cpu: this {totals['this']:.2f} s, baseline {totals['base']:.2f} s{ratio};"
+              f" fast cold {totals['cold']:.2f} s, warm-started {totals['warm']:.2f} s")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small sizes only (< ~1 min)")
-    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("data", nargs="*", type=Path, default=DATA)
+    ap.add_argument("--quick", action="store_true", help="2000 and 5000 samples, no stream")
+    ap.add_argument("--sizes", default="2000,5000,20000,50000")
+    ap.add_argument("--exact-max", type=int, default=5000,
+                    help="compute the exact solve up to this many samples (20000: ~10 min)")
+    ap.add_argument("--baseline", default=BASELINE_REV,
+                    help="git revision whose fast spline to compare with")
+    ap.add_argument("--no-baseline", action="store_true")
+    ap.add_argument("--no-stream", action="store_true")
+    ap.add_argument("--libraries", action="store_true", help="also scipy's RBFInterpolator")
     args = ap.parse_args(argv)
-
-    rng = np.random.default_rng(args.seed)
-    field = GaussianField(rng)
-    lines = contour_lines(field)
-    sizes = [500, 2000] if args.quick else [500, 2000, 5000, 20_000, 50_000]
-    grids = [Grid(REGION, 101, 101)]
-    if not args.quick:
-        grids.append(Grid(REGION, 401, 401))
-    methods = candidates(args.quick)
-
-    head = (f"{'samples':8} {'grid':8} {'method':24} {'N':>6} {'time_s':>8} {'MAE':>10}"
-            f" {'MAE/exact':>9} {'t/exact':>8} {'|f-exact|/MAE_ex':>16}")
-    print(head)
-    print("-" * len(head))
-    worst: dict[str, float] = {}
-    for kind in ("contour", "uniform"):
-        for n in sizes:
-            if kind == "contour":
-                x, y, v = contour_samples(field, lines, n)
-            else:
-                x, y, v = uniform_samples(field, rng, n)
-            for grid in grids:
-                if grid.nx > 101 and n not in (5000, 50_000):
-                    continue  # the larger grid only at a feasible and the largest N
-                truth = field(*grid.mesh)
-                ref = ref_mae = ref_t = None
-                for name, fn in methods.items():
-                    if grid.nx > 101 and name[:3] in ("(a)", "(b)", "(c)"):
-                        continue  # the big grid only compares exact with the chosen method
-                    est, dt = timed(fn, x, y, v, grid)
-                    row = f"{kind:8} {grid.nx:>3}x{grid.ny:<4} {name:24} {x.size:6d}"
-                    if est is None:
-                        print(row + f" {'n/a':>8} {'n/a':>10} {'n/a':>9} {'n/a':>8} {'n/a':>16}")
-                        continue
-                    mae = float(np.mean(np.abs(est - truth)))
-                    if name == "exact":
-                        ref, ref_mae, ref_t = est, mae, dt
-                    if ref is not None:
-                        r = mae / ref_mae
-                        worst[name] = max(worst.get(name, 0.0), r)
-                        dev = float(np.mean(np.abs(est - ref))) / ref_mae
-                        cols = f" {r:9.3f} {dt / ref_t:8.3f} {dev:16.3f}"
-                    else:
-                        cols = f" {'n/a':>9} {'n/a':>8} {'n/a':>16}"
-                    print(row + f" {dt:8.3f} {mae:10.2e}" + cols, flush=True)
-    print()
-    print("worst MAE/exact where exact was feasible: "
-          + ", ".join(f"{k} {w:.3f}" for k, w in worst.items() if k != "exact"))
-    print("conclusion: chosen method = FastBiharmonicSpline (d: 0.5 m thinning keeping the "
-          "sample nearest each cell centre + coarse global exact spline + "
-          "partition-of-unity tiles on the residual), "
-          "the default of reconstruct() above AUTO_EXACT_MAX_SAMPLES")
+    if not args.data:
+        print("error: no data (bench/data/*.npz; record with bench/record_samples.py)",
+              file=sys.stderr)
+        return 1
+    runs = [Run(p) for p in args.data]
+    sizes = [2000, 5000] if args.quick else [int(s) for s in args.sizes.split(",")]
+    baseline = None if args.no_baseline else load_baseline(args.baseline)
+    sizes_table(runs, sizes, args.exact_max, baseline, args.baseline, args.libraries)
+    if not (args.quick or args.no_stream):
+        stream_table(runs, baseline)
     return 0
 
 

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from econdor_gcs.core.planners import PLANNER_NAMES
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import load_mission
+
+WEB_DEFAULT = "127.0.0.1:8765"
 
 
 def _positive_float(text: str) -> float:
@@ -82,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--forward-commands", action="store_true",
                      help="relay what the watcher sends to the vehicles (dropped otherwise)")
     run.add_argument("--quiet", action="store_true")
+    run.add_argument("--web", nargs="?", const=WEB_DEFAULT, default=None, metavar="[HOST:]PORT",
+                     help=f"serve a live page of the run (default {WEB_DEFAULT}; another "
+                          "host than loopback needs the token printed at start)")
 
     st = sub.add_parser("study", help="in-process study over many seeds")
     st.add_argument("mission", type=Path)
@@ -97,6 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("report", help="redraw the figures of a run directory")
     rep.add_argument("run_dir", type=Path)
+
+    vw = sub.add_parser("view", help="the web page of a finished or partial run, with an "
+                                     "iteration slider")
+    vw.add_argument("run_dir", type=Path)
+    vw.add_argument("--web", default=WEB_DEFAULT, metavar="[HOST:]PORT",
+                    help=f"where to serve it (default {WEB_DEFAULT})")
 
     ex = sub.add_parser("export", help="missions for real aircraft from a run directory or a "
                                        "mission YAML (or a run's flown paths as GeoJSON)")
@@ -202,6 +214,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return run_mission_cli(args)
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from econdor_gcs.web.replay import ReplayFeed
+    from econdor_gcs.web.server import WebServer, parse_web_address
+
+    host, port = parse_web_address(args.web)
+    server = WebServer(ReplayFeed(args.run_dir), host, port)
+    url = server.start()
+    print(f"web: {url} (Ctrl-C stops)", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        server.stop(flush_s=0.5)
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from econdor_gcs.export import export_cli
 
@@ -233,7 +262,7 @@ def _cmd_upload(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"study": _cmd_study, "report": _cmd_report, "run": _cmd_run, "export": _cmd_export,
-            "import": _cmd_import, "upload": _cmd_upload}
+            "view": _cmd_view, "import": _cmd_import, "upload": _cmd_upload}
 
 
 def main(argv: list[str] | None = None) -> int:

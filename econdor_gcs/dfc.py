@@ -15,7 +15,9 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
   span of the estimate changed by less than 1 % in the last iteration;
 * ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
   redundant or without a contour piece): the run has stalled. An idle iteration still
-  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop.
+  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
+* the ``checkpoint`` asked before each iteration says stop (``stop_reason = "stopped"``,
+  e.g. an operator's stop on the web page); it may also hold the loop there (pause).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .core import metrics
 from .core.assignment import assign_jobs
@@ -208,6 +211,10 @@ class RunDone:
 
 DfcEvent = RunStarted | IterationPlanned | IterationDone | RunDone
 Progress = Callable[[DfcEvent], None]
+Checkpoint = Callable[[int], bool]
+"""Asked between iterations with the number of the next one: ``True`` flies it, ``False``
+stops the run (the vehicles are then brought home). It may block, e.g. while an operator
+has paused the run (:class:`econdor_gcs.control.RunControl`)."""
 
 
 def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
@@ -227,6 +234,7 @@ class Dfc:
         seed: int | None = None,
         progress: Progress | None = None,
         on_samples: Callable[[SampleLog], None] | None = None,
+        checkpoint: Checkpoint | None = None,
     ) -> None:
         self.mission = mission
         self.executor = executor
@@ -236,6 +244,7 @@ class Dfc:
         self.seed = mission.seed if seed is None else seed
         self.progress: Progress = progress or (lambda event: None)
         self.on_samples = on_samples
+        self.checkpoint: Checkpoint = checkpoint or (lambda iteration: True)
         self.grid = mission.grid
         self.truth = None
         if truth is not None:
@@ -260,8 +269,11 @@ class Dfc:
             s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
                           s.vehicle[keep])
         t0 = time.perf_counter()
-        est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
-                          method=self.mission.algorithm.reconstruction)
+        # One BLAS thread: the station shares the cores with the vehicles (and a study
+        # with its other runs); idle BLAS threads spin and slow every process down.
+        with threadpool_limits(limits=1, user_api="blas"):
+            est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
+                              method=self.mission.algorithm.reconstruction)
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         return est
@@ -384,6 +396,9 @@ class Dfc:
         span_prev = metrics.span(estimate)
         idle = 0
         for it in range(1, a.max_iterations + 1):
+            if not self.checkpoint(it):
+                reason = "stopped"
+                break
             if a.flight_budget_m > 0 and self.flight_m >= a.flight_budget_m:
                 reason = "flight_budget"
                 break

@@ -11,7 +11,9 @@
     │   └── ProtocolError        a peer answered with an error (e.g. MISSION_ACK != ACCEPTED)
     │       ├── MissionRejected  a mission (item) refused: ``result``, ``seq``, ``command``
     │       └── CommandRejected  a command refused: ``command``, ``result``
-    └── RunError                 a DFC run that cannot go on (carries the run directory)
+    ├── RunError                 a DFC run that cannot go on (carries the run directory)
+    ├── ControlError             an operator's request that does not apply now (resume while running)
+    └── WebError                 the web page cannot be served (address, run directory)
 
 The CLI turns any ``EcondorError`` into one line on stderr and exit status 1.
 """
@@ -76,3 +78,11 @@ class CommandRejected(ProtocolError):
 
 class RunError(EcondorError):
     """A DFC run could not continue."""
+
+
+class ControlError(EcondorError):
+    """An operator's pause / resume / stop that does not apply in the run's current state."""
+
+
+class WebError(EcondorError):
+    """The web page cannot be served: a bad or busy address, or a run directory it cannot replay."""

@@ -89,9 +89,16 @@ from .link.codec import MAVLinkMessage, mavlink
 from .link.forward import Forwarder
 from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, MissionPlan, plan_mission
 from .link.reports import PhaseTrack, phase_change, trace_report
-from .link.router import Router, Sample, VehicleLost
+from .link.router import (
+    Router,
+    Sample,
+    VehicleDiscovered,
+    VehicleLost,
+    VehicleRecovered,
+)
 from .link.tlog import TlogWriter
 from .mission import Mission
+from .rundir import RunLog, Severity
 
 if TYPE_CHECKING:
     from .fleet import VehicleKind
@@ -100,6 +107,7 @@ __all__ = [
     "MavlinkExecutor",
     "Station",
     "StatusAssembler",
+    "VehicleStatus",
     "build_report",
     "run_mission",
     "run_mission_cli",
@@ -319,6 +327,35 @@ class VehicleState:
     status: str = "idle"
     raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+
+
+@dataclass(frozen=True)
+class VehicleStatus:
+    """One vehicle as the ground station sees it at one moment (:meth:`MavlinkExecutor.status_rows`)."""
+
+    sysid: int
+    index: int
+    x_m: float | None
+    """Local ENU position (m); ``None`` before the first position report."""
+    y_m: float | None
+    alt_rel_m: float
+    heading_deg: float | None
+    """Course over ground, degrees from north (``None`` until the vehicle has moved)."""
+    flight_time_s: float
+    """Vehicle (sim) time spent airborne over the whole run."""
+    armed: bool
+    lost: bool
+    item: int
+    """Current mission item (0 before a mission)."""
+    items: int
+    """Mission items after home (takeoff + tasks)."""
+    phase: Phase
+    flown_m: float
+    samples: int
+    status: str
+    """The executor's word: idle, uploading, arming, flying, holding, returning, landed, ..."""
+    message: str = ""
+    """The vehicle's last STATUSTEXT (for people)."""
 
 
 #: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
@@ -750,26 +787,35 @@ class MavlinkExecutor:
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
         return reports
 
-    # -- for the live display ---------------------------------------------------------------
-    def status_rows(self) -> list[dict[str, Any]]:
+    # -- for the live displays (terminal, web page) ------------------------------------------
+    def status_rows(self) -> list[VehicleStatus]:
+        """A snapshot of every vehicle, in vehicle-index order: the one way displays read
+        vehicle state (safe to call from another thread; nothing returned is live)."""
         rows = []
         self._convert_all()
         for v in self.vehicles.values():
             link = self.router.vehicles.get(v.sysid)
-            n = len(v.items) - 1 if v.items else 0
-            rows.append({
-                "sysid": v.sysid,
-                "armed": bool(link.armed) if link else False,
-                "lost": bool(link.lost) if link else False,
-                "item": v.current_seq if v.current_seq is not None else 0,
-                "items": n,
-                "phase": self._phase_now(v).name.lower(),
-                "flown_m": v.flown_m,
-                "samples": v.samples,
-                "status": v.status,
-                "alt_m": (link.rel_alt_m or 0.0) if link else 0.0,
-                "message": v.last_text,
-            })
+            x_m = y_m = None
+            if link is not None and link.lat_deg is not None and link.lon_deg is not None:
+                x_m, y_m, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
+            rows.append(VehicleStatus(
+                sysid=v.sysid,
+                index=v.index,
+                x_m=x_m,
+                y_m=y_m,
+                alt_rel_m=(link.rel_alt_m or 0.0) if link else 0.0,
+                heading_deg=link.heading_deg if link else None,
+                flight_time_s=link.airborne_s if link else 0.0,
+                armed=bool(link.armed) if link else False,
+                lost=bool(link.lost) if link else False,
+                item=v.current_seq if v.current_seq is not None else 0,
+                items=len(v.items) - 1 if v.items else 0,
+                phase=self._phase_now(v),
+                flown_m=v.flown_m,
+                samples=v.samples,
+                status=v.status,
+                message=v.last_text,
+            ))
         return rows
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
@@ -838,6 +884,8 @@ def run_mission(
     tolerance_m: float = 1.0,
     forward: str | None = None,
     forward_commands: bool = False,
+    web: str | None = None,
+    announce: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
 
@@ -846,6 +894,8 @@ def run_mission(
     waypoint polylines for vehicles that refuse contour items. ``forward`` is a watcher's
     ``udpout:HOST:PORT`` that gets every vehicle message (:mod:`.link.forward`); what it sends
     back reaches the vehicles only with ``forward_commands``.
+    ``web`` (``[HOST:]PORT``) serves the run's page (:mod:`econdor_gcs.web`) with pause /
+    resume / stop; ``announce`` is told its address as soon as it listens.
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
@@ -863,16 +913,19 @@ def run_mission(
     mission = mission.with_vehicles(count=n, speedup=speed)
     out = Path(out)
     kinds = list(autopilots or [DEFAULT_KIND])
-    rd = RunDir(out)
+    rd = RunDir(out, grid=mission.grid)
     if mission_path is not None:
         keep_mission_file(mission_path, out)
+    runlog = RunLog(out / "log.jsonl")
     tlog = TlogWriter(out / "telemetry.tlog")
     station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
+    _log_station(station.router, runlog)
     forwarder: Forwarder | None = None
     fleet: Fleet | None = None
     executor: MavlinkExecutor | None = None
     dfc: Dfc | None = None
     live = None
+    page: Any = None  # web.session.LiveWeb (aiohttp is imported only with --web)
     base: dict[str, Any] = {"transport": "mavlink", "truth_known": True,
                             "mission": mission.name, "planner": planner, "seed": seed,
                             "vehicles": n, "speedup": speed,
@@ -891,7 +944,16 @@ def run_mission(
         timings["requested_speedup"] = speed
 
     try:
-        with _sigterm_as_interrupt():
+        with _sigterm_as_interrupt(), _logging_to(runlog):
+            if web is not None:
+                from .web.session import LiveWeb
+
+                page = LiveWeb(web, mission=mission, planner=planner, run_dir=str(out),
+                               runlog=runlog)
+                url = page.start()
+                runlog.add("station", f"web page at {url}")
+                if announce is not None:
+                    announce(url)
             host, port = station.start()
             if forward is not None:
                 forwarder = station.call(
@@ -913,13 +975,21 @@ def run_mission(
                                        tolerance_m=tolerance_m)
             executor.wait_ready()
             truth = mission.build_field(seed)
+            progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
+            on_samples: list[Callable[[SampleLog], None]] = [rd.append_samples]
             if not quiet:
                 from .live import LiveDisplay
 
                 live = LiveDisplay(executor, planner=planner, mission=mission.name)
                 live.start()
+                progress.append(live.progress)
+            if page is not None:
+                page.attach(executor.status_rows, sysids, station.router)
+                progress.append(page.progress)
+                on_samples.append(page.add_samples)
             dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
-                      progress=live.progress if live else None, on_samples=rd.append_samples)
+                      progress=_all_of(progress), on_samples=_all_of(on_samples),
+                      checkpoint=page.checkpoint if page is not None else None)
             result = dfc.run()
             if live is not None:
                 live.stop()
@@ -936,30 +1006,109 @@ def run_mission(
                                   **forwarder.stats} if forwarder is not None else None),
                      "samples_dropped_unpaired": station.router.pairer.dropped,
                      "report_errors": executor.report_errors}
+            timings["rundir_s"] = rd.write_s
             rd.write_result(result, extra=extra)
             summary = {**result.summary(), **extra}
+            if page is not None:
+                page.close(summary)
+                page = None
     except (EcondorError, KeyboardInterrupt) as exc:
         if live is not None:
             live.stop()
             live = None
         msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)
+        runlog.add("station", f"run failed: {msg}", Severity.ERROR)
         _write_partial(rd, dfc, executor, base, timings, fill_timings, msg)
+        if page is not None:
+            page.close({**base, "error": msg})
+            page = None
         raise
     finally:
         if live is not None:
             live.stop()
         if forwarder is not None:
             station.loop.call_soon_threadsafe(forwarder.close)
+        if page is not None:
+            page.close(None)
         station.close()
         if fleet is not None:
             fleet.stop()
         tlog.close()
         rd.close()
+        runlog.close()
     if figures:
         from .figures import plot_run
 
         plot_run(out)
     return summary
+
+
+def _all_of(callbacks: Sequence[Callable[[T], None]]) -> Callable[[T], None]:
+    """One callback that calls each of ``callbacks`` in turn."""
+    def call(arg: T) -> None:
+        for cb in callbacks:
+            cb(arg)
+
+    return call
+
+
+def _log_station(router: Router, runlog: RunLog) -> None:
+    """Vehicles' STATUSTEXT (chunks joined), discoveries, losses and recoveries into the
+    run's log."""
+
+    assembler = StatusAssembler()
+
+    def on_message(sysid: int, msg: MAVLinkMessage) -> None:
+        if msg.get_type() != "STATUSTEXT":
+            return
+        raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
+            msg.text.encode("utf-8", "replace")
+        text = assembler.add(sysid, raw, getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0))
+        if text is None:
+            return
+        sev = (Severity.ERROR if msg.severity <= mavlink.MAV_SEVERITY_ERROR else
+               Severity.WARNING if msg.severity == mavlink.MAV_SEVERITY_WARNING else
+               Severity.INFO)
+        runlog.add(f"vehicle {sysid}", text, sev)
+
+    def on_event(event: object) -> None:
+        if isinstance(event, VehicleLost):
+            runlog.add(f"vehicle {event.sysid}", f"lost: no heartbeat for {event.silent_s:.0f} s",
+                       Severity.ERROR)
+        elif isinstance(event, VehicleRecovered):
+            runlog.add(f"vehicle {event.sysid}", "heard again", Severity.WARNING)
+        elif isinstance(event, VehicleDiscovered):
+            runlog.add(f"vehicle {event.sysid}", f"discovered at {event.address[0]}:"
+                                                 f"{event.address[1]}")
+
+    router.add_message_handler(on_message)
+    router.add_event_handler(on_event)
+
+
+class _RunLogHandler(logging.Handler):
+    """Station warnings (``logging``, ``econdor_gcs.*``) into the run's log."""
+
+    def __init__(self, runlog: RunLog) -> None:
+        super().__init__(logging.WARNING)
+        self.runlog = runlog
+
+    def emit(self, record: logging.LogRecord) -> None:
+        sev = Severity.ERROR if record.levelno >= logging.ERROR else Severity.WARNING
+        try:
+            self.runlog.add("station", record.getMessage(), sev)
+        except (OSError, ValueError):  # the log file is gone or closed: say so, on stderr
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def _logging_to(runlog: RunLog) -> Iterator[None]:
+    logger = logging.getLogger("econdor_gcs")
+    handler = _RunLogHandler(runlog)
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
 
 
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
@@ -1015,6 +1164,7 @@ def run_mission_cli(args: Any) -> int:
     out = args.out or _default_out(mission)
     from .fleet import parse_kinds
 
+    web = getattr(args, "web", None)
     kinds = parse_kinds(args.autopilot) if getattr(args, "autopilot", None) else None
     if getattr(args, "forward_commands", False) and not getattr(args, "forward", None):
         raise EcondorError("--forward-commands needs --forward udpout:HOST:PORT")
@@ -1027,7 +1177,8 @@ def run_mission_cli(args: Any) -> int:
                           autopilots=kinds,
                           tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
                           forward=getattr(args, "forward", None),
-                          forward_commands=bool(getattr(args, "forward_commands", False)))
+                          forward_commands=bool(getattr(args, "forward_commands", False)),
+                          web=web, announce=lambda url: print(f"web: {url}", flush=True))
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "
@@ -1036,5 +1187,7 @@ def run_mission_cli(args: Any) -> int:
           f"{summary['samples']} samples, {t.get('total_wall_s', 0):.1f} s wall "
           f"({t.get('achieved_speedup', math.nan):.0f}x sim)")
     print(f"run directory: {out}")
+    if web is not None:
+        print(f"replay it in the browser: econdor view {out}")
     sys.stdout.flush()
     return 0

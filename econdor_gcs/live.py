@@ -69,8 +69,8 @@ class LiveDisplay:
                     "message"):
             table.add_column(col, justify="right" if col in ("flown m", "samples") else "left")
         for r in self.executor.status_rows():
-            state = "[red]LOST[/]" if r["lost"] else r["status"]
-            table.add_row(str(r["sysid"]), "yes" if r["armed"] else "no",
-                          f"{r['item']}/{r['items']}", r["phase"], f"{r['flown_m']:.0f}",
-                          str(r["samples"]), state, r.get("message", "")[:40])
+            state = "[red]LOST[/]" if r.lost else r.status
+            table.add_row(str(r.sysid), "yes" if r.armed else "no", f"{r.item}/{r.items}",
+                          r.phase.name.lower(), f"{r.flown_m:.0f}", str(r.samples), state,
+                          r.message[:40])
         return Group(head, lv, mae, table)

@@ -3,27 +3,51 @@
 Layout::
 
     summary.json      planner, iterations, final_mae, ..., vehicles (see RunResult.summary)
-    metrics.csv       one row per iteration (IterationRecord.CSV_COLUMNS)
-    iterations.json   the full per-iteration records (levels, dropped levels, outcomes)
+    metrics.csv       one row per iteration (IterationRecord.CSV_COLUMNS); rewritten after
+                      every iteration, so a partial run has the rows it finished
+    iterations.json   the full per-iteration records (levels, dropped levels, outcomes;
+                      ``samples`` = rows of samples.csv up to the end of that iteration)
+    iterations/       iter_NNN.npz per iteration (MAVLink runs; see ITERATION_ARRAYS)
     samples.csv       every sample: t_s, x_m, y_m, value, phase, vehicle (appended live)
     fields.npz        grid_x, grid_y, estimate, truth (if known)
+    log.jsonl         the run's log lines (DFC progress, vehicles' STATUSTEXT, station
+                      warnings, operator actions), one JSON object per line (LogLine)
     telemetry.tlog    MAVLink runs only
     missions/         missions sent (MAVLink runs), exports
     figures/          PNG figures (econdor report RUN_DIR redraws them)
+
+``iterations/`` and ``log.jsonl`` are what ``econdor view RUN_DIR`` replays, iteration by
+iteration, without anything else; they are small (the estimate as float32, compressed:
+about 40 kB per iteration on a 101 x 101 grid).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
+import threading
+import time
+from dataclasses import asdict, dataclass
+from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
-from .core.tasks import SampleLog
-from .dfc import IterationRecord, RunResult
+from .core.geometry import FloatArray, Grid
+from .core.planners import Batch
+from .core.tasks import SampleLog, Task, TraceTask, Waypoint
+from .dfc import (
+    DfcEvent,
+    IterationDone,
+    IterationPlanned,
+    IterationRecord,
+    RunDone,
+    RunResult,
+    RunStarted,
+)
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle")
 
@@ -47,11 +71,250 @@ def write_json(path: Path, data: Any) -> None:
     tmp.replace(path)
 
 
-class RunDir:
-    """Creates and fills a run directory. Samples are appended as they arrive."""
+# -- what each iteration planned -----------------------------------------------------------
 
-    def __init__(self, path: str | Path) -> None:
+
+@dataclass(frozen=True)
+class PlannedPiece:
+    """What one vehicle was sent to fly in an iteration.
+
+    A contour piece (``piece_id >= 0``): the estimated iso-line at ``level`` the tracer
+    was sent to, as a polyline. A survey or pattern leg (``piece_id == -1``, ``level`` NaN):
+    the vehicle's consecutive waypoints.
+    """
+
+    vehicle: int
+    """Vehicle index (0-based, the order of ``summary.json`` ``sysids``)."""
+    piece_id: int
+    level: float
+    points_m: FloatArray
+    """Shape (k, 2): x, y in local metres."""
+
+
+def planned_pieces(batch: Batch, plans: list[list[Task]]) -> list[PlannedPiece]:
+    """Each vehicle's contour pieces and waypoint legs from an iteration's batch and plans.
+
+    >>> from econdor_gcs.core.planners import Batch
+    >>> from econdor_gcs.core.tasks import Waypoint
+    >>> [p.points_m.tolist() for p in planned_pieces(
+    ...     Batch([], 0), [[Waypoint(0, 0), Waypoint(0, 10)], []])]
+    [[[0.0, 0.0], [0.0, 10.0]]]
+    """
+    outline = {j.tasks[0].piece_id: j.piece.points_m for j in batch.jobs
+               if j.piece is not None and j.tasks and isinstance(j.tasks[0], TraceTask)}
+    out: list[PlannedPiece] = []
+    for vehicle, tasks in enumerate(plans):
+        legs: list[tuple[float, float]] = []
+        for task in [*tasks, None]:
+            if isinstance(task, Waypoint):
+                legs.append((task.x_m, task.y_m))
+                continue
+            if legs:
+                out.append(PlannedPiece(vehicle, -1, math.nan, np.asarray(legs, dtype=float)))
+                legs = []
+            if isinstance(task, TraceTask):
+                pts = outline.get(task.piece_id, np.array([[task.x_m, task.y_m]]))
+                out.append(PlannedPiece(vehicle, task.piece_id, task.level,
+                                        np.asarray(pts, dtype=float)))
+    return out
+
+
+ITERATION_ARRAYS = {
+    "iteration": "int, the iteration (0 = the initiation)",
+    "grid_x": "float64 (nx,), grid node eastings (m)",
+    "grid_y": "float64 (ny,), grid node northings (m)",
+    "estimate": "float32 (ny, nx), the estimate after the iteration",
+    "piece_vehicle": "int16 (k,), vehicle index of each planned piece",
+    "piece_id": "int32 (k,), piece id (-1: waypoint legs)",
+    "piece_level": "float32 (k,), contour level (NaN: waypoint legs)",
+    "piece_offsets": "int32 (k + 1,), piece i is piece_xy[offsets[i]:offsets[i + 1]]",
+    "piece_xy": "float32 (n, 2), the pieces' points (m)",
+}
+"""The arrays of ``iterations/iter_NNN.npz`` (compressed)."""
+
+
+@dataclass(frozen=True)
+class IterationFrame:
+    """One iteration as stored in ``iterations/iter_NNN.npz``."""
+
+    iteration: int
+    grid_x: FloatArray
+    grid_y: FloatArray
+    estimate: FloatArray
+    pieces: list[PlannedPiece]
+
+
+def write_iteration(path: Path, frame: IterationFrame) -> None:
+    """Write one frame (atomically: a reader never sees half a file)."""
+    offsets = np.cumsum([0] + [len(p.points_m) for p in frame.pieces]).astype(np.int32)
+    xy = (np.concatenate([p.points_m for p in frame.pieces]) if frame.pieces
+          else np.zeros((0, 2)))
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("wb") as f:
+        np.savez_compressed(
+            f, iteration=np.int64(frame.iteration),
+            grid_x=np.asarray(frame.grid_x, dtype=float),
+            grid_y=np.asarray(frame.grid_y, dtype=float),
+            estimate=np.asarray(frame.estimate, dtype=np.float32),
+            piece_vehicle=np.array([p.vehicle for p in frame.pieces], dtype=np.int16),
+            piece_id=np.array([p.piece_id for p in frame.pieces], dtype=np.int32),
+            piece_level=np.array([p.level for p in frame.pieces], dtype=np.float32),
+            piece_offsets=offsets, piece_xy=xy.astype(np.float32))
+    tmp.replace(path)
+
+
+def read_iteration(path: str | Path) -> IterationFrame:
+    """Load one ``iterations/iter_NNN.npz``."""
+    with np.load(path) as z:
+        off = z["piece_offsets"]
+        xy = z["piece_xy"].astype(float)
+        pieces = [PlannedPiece(int(v), int(i), float(lv), xy[off[k]:off[k + 1]])
+                  for k, (v, i, lv) in enumerate(zip(z["piece_vehicle"], z["piece_id"],
+                                                     z["piece_level"], strict=True))]
+        return IterationFrame(int(z["iteration"]), z["grid_x"], z["grid_y"],
+                              z["estimate"].astype(float), pieces)
+
+
+def iteration_paths(run_dir: str | Path) -> dict[int, Path]:
+    """``iterations/iter_NNN.npz`` of a run directory by iteration number."""
+    folder = Path(run_dir) / "iterations"
+    out: dict[int, Path] = {}
+    for p in sorted(folder.glob("iter_*.npz")):
+        try:
+            out[int(p.stem.removeprefix("iter_"))] = p
+        except ValueError:
+            continue  # not one of ours
+    return out
+
+
+# -- log lines ---------------------------------------------------------------------------------
+
+
+class Severity(StrEnum):
+    INFO = "info"
+    WARNING = "warning"
+    ERROR = "error"
+
+
+@dataclass(frozen=True)
+class LogLine:
+    """One line of ``log.jsonl``."""
+
+    wall_s: float
+    """Seconds since the run started (wall clock)."""
+    iteration: int
+    """The iteration running (or planned) when the line was written."""
+    source: str
+    """``dfc``, ``station``, ``operator`` or ``vehicle N`` (N: system id)."""
+    severity: Severity
+    text: str
+
+
+def _describe(event: DfcEvent) -> str:
+    """One log line for a DFC progress event."""
+    if isinstance(event, RunStarted):
+        return (f"run started: planner {event.planner}, seed {event.seed}, "
+                f"{event.vehicles} vehicles")
+    if isinstance(event, IterationPlanned):
+        b = event.batch
+        flying = sum(1 for p in event.plans if p)
+        levels = f"{len(b.levels)} levels (κ {b.kappa}, δ {b.delta:.3g}), " if len(b.levels) else ""
+        return (f"iteration {event.iteration} planned: {levels}{len(b.jobs)} jobs for "
+                f"{flying} vehicles")
+    if isinstance(event, IterationDone):
+        r = event.record
+        mae = f"MAE {r.mae_db:.1f} dB, " if math.isfinite(r.mae_db) else ""
+        le = f"learning error {r.learning_error:.3g}, " if math.isfinite(r.learning_error) else ""
+        return (f"iteration {r.iteration} done: {mae}{le}flown {r.flight_distance_m:.0f} m, "
+                f"{r.samples} samples")
+    assert isinstance(event, RunDone)
+    s = event.summary
+    return (f"run finished ({s.get('stop_reason')}): {s.get('iterations')} iterations, "
+            f"flown {s.get('flight_distance_m', 0.0):.0f} m")
+
+
+class RunLog:
+    """The run's log lines: kept in memory for the live page and appended to ``log.jsonl``.
+
+    Thread-safe: lines come from the DFC thread (progress), the station's loop (vehicle
+    STATUSTEXT), the web server (operator actions) and ``logging``.
+    """
+
+    def __init__(self, path: str | Path | None = None) -> None:
+        self._lock = threading.Lock()
+        self._t0 = time.monotonic()
+        self._lines: list[LogLine] = []
+        self.path = None if path is None else Path(path)
+        self._file: IO[str] | None = None
+        if self.path is not None:
+            self._file = self.path.open("w", encoding="utf-8")
+        self.iteration = 0
+
+    def add(self, source: str, text: str, severity: Severity = Severity.INFO) -> LogLine:
+        with self._lock:
+            line = LogLine(round(time.monotonic() - self._t0, 3), self.iteration, source,
+                           severity, text)
+            self._lines.append(line)
+            if self._file is not None and not self._file.closed:
+                self._file.write(json.dumps(asdict(line), ensure_ascii=False) + "\n")
+                self._file.flush()
+        return line
+
+    def progress(self, event: DfcEvent) -> None:
+        """A DFC progress callback: one line per event."""
+        if isinstance(event, IterationPlanned):
+            self.iteration = event.iteration
+        self.add("dfc", _describe(event))
+
+    def since(self, n: int) -> list[LogLine]:
+        """Lines from the ``n``-th on (a reader's cursor is the count it has seen)."""
+        with self._lock:
+            return self._lines[n:]
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._lines)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._file is not None:
+                self._file.close()
+
+
+def read_log(path: str | Path) -> list[LogLine]:
+    """Load ``log.jsonl`` (a torn last line of a killed run is skipped)."""
+    out: list[LogLine] = []
+    p = Path(path)
+    if not p.exists():
+        return out
+    for text in p.read_text(encoding="utf-8").splitlines():
+        try:
+            d = json.loads(text)
+            out.append(LogLine(float(d["wall_s"]), int(d["iteration"]), str(d["source"]),
+                               Severity(d["severity"]), str(d["text"])))
+        except (json.JSONDecodeError, KeyError, ValueError, TypeError):
+            continue
+    return out
+
+
+# -- the directory -----------------------------------------------------------------------------
+
+
+class RunDir:
+    """Creates and fills a run directory. Samples are appended as they arrive.
+
+    With a ``grid``, :meth:`progress` (a DFC progress callback) also keeps
+    ``metrics.csv`` / ``iterations.json`` current after every iteration and writes
+    ``iterations/iter_NNN.npz``.
+    """
+
+    def __init__(self, path: str | Path, grid: Grid | None = None) -> None:
         self.path = Path(path)
+        self.grid = grid
+        self._records: list[IterationRecord] = []
+        self._pieces: dict[int, list[PlannedPiece]] = {}
+        self.write_s = 0.0
+        """Wall time spent in :meth:`progress` (on the DFC thread)."""
         self.path.mkdir(parents=True, exist_ok=True)
         (self.path / "figures").mkdir(exist_ok=True)
         (self.path / "missions").mkdir(exist_ok=True)
@@ -70,14 +333,28 @@ class RunDir:
         self.n_samples += len(log)
         self._samples_file.flush()
 
+    def progress(self, event: DfcEvent) -> None:
+        """DFC progress callback: per-iteration files as soon as an iteration is done."""
+        t0 = time.perf_counter()
+        if isinstance(event, IterationPlanned):
+            self._pieces[event.iteration] = planned_pieces(event.batch, event.plans)
+        elif isinstance(event, IterationDone):
+            it = event.record.iteration
+            self._records.append(event.record)
+            self.write_metrics(self._records)
+            if self.grid is not None:
+                folder = self.path / "iterations"
+                folder.mkdir(exist_ok=True)
+                write_iteration(folder / f"iter_{it:03d}.npz", IterationFrame(
+                    it, self.grid.x, self.grid.y, event.estimate, self._pieces.pop(it, [])))
+        self.write_s += time.perf_counter() - t0
+
     def write_metrics(self, records: list[IterationRecord]) -> None:
         with (self.path / "metrics.csv").open("w", newline="", encoding="utf-8") as f:
             w = csv.DictWriter(f, fieldnames=IterationRecord.CSV_COLUMNS)
             w.writeheader()
             for r in records:
                 w.writerow(r.csv_row())
-        from dataclasses import asdict
-
         write_json(self.path / "iterations.json", [asdict(r) for r in records])
 
     def write_result(self, result: RunResult, extra: dict[str, Any] | None = None) -> None:
@@ -103,10 +380,13 @@ class RunDir:
 
 
 def read_samples(path: str | Path) -> SampleLog:
-    """Load ``samples.csv`` back into a SampleLog."""
-    a = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if a.size == 0:
+    """Load ``samples.csv`` back into a SampleLog (empty when it has only its header)."""
+    with Path(path).open(encoding="utf-8") as f:
+        f.readline()  # the header
+        rows = f.read()
+    if not rows.strip():
         return SampleLog()
+    a = np.loadtxt(io.StringIO(rows), delimiter=",", ndmin=2)
     return SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(np.int8),
                      a[:, 5].astype(np.int16))
 

@@ -155,7 +155,7 @@ def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
     v = ex.vehicles[1]
     assert len(v.raw) == 10 and len(v.stray) == SAMPLE_BATCH
     # the path length runs across batch boundaries without a gap or a double count
-    assert ex.status_rows()[0]["flown_m"] == pytest.approx(n - 1, abs=1e-3)
+    assert ex.status_rows()[0].flown_m == pytest.approx(n - 1, abs=1e-3)
     assert len(ex.pending_samples()) == n
 
 
@@ -258,7 +258,7 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     on_sample(_sample(m.origin, 1, 1100, 50.0, 50.0, 99.0))  # another vehicle, not flying
     on_msg(2, mavlink.MAVLink_statustext_message(
         6, b"piece 1000: closed traced 999.0 m flown 999.0 m", 0, 0))
-    assert not f.pieces and ex.status_rows()[1]["message"].endswith("flown 999.0 m")
+    assert not f.pieces and ex.status_rows()[1].message.endswith("flown 999.0 m")
     on_msg(2, _trace_msg(2, TraceReport(2, 1000, OutcomeStatus.BOUNDARY, 123.4, 150.5)))
     on_msg(2, _trace_msg(2, data=[1000, 99, 1.0, 1.0, 0.0]))  # malformed: counted, ignored
     assert ex.report_errors == 1 and f.pieces[1000].traced_m == pytest.approx(123.4)

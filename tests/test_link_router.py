@@ -413,3 +413,36 @@ def test_pairer_drops_stale_halves():
     assert p.dropped == 1
     assert p.add(1, _val(10, 9.0), 1.3) is None  # its partner is gone: it waits in turn
     assert p.expire(5.0) == 3 and p.pending == 0 and p.dropped == 4
+
+
+def test_heading_and_airborne_time_from_positions():
+    """GLOBAL_POSITION_INT: the last known heading, and vehicle time between airborne fixes."""
+
+    async def main():
+        async with Router(ENDPOINT) as router:
+            v = await FakeUdpVehicle(1).start(router.local_address)
+            v.heartbeat()
+            await router.wait_for_vehicles(1, timeout_s=3.0)
+
+            def pos(t_ms, rel_alt_mm, hdg_cdeg):
+                return mavlink.MAVLink_global_position_int_message(
+                    t_ms, 473977420, 85455940, 518_000, rel_alt_mm, 0, 0, 0, hdg_cdeg)
+
+            for msg in (pos(1000, 0, 65535),        # on the ground, heading unknown
+                        pos(2000, 10_000, 9000),    # took off: 90 degrees
+                        pos(4000, 10_000, 65535),   # still flying, heading unknown: keep 90
+                        pos(3500, 10_000, 18000),   # late, out of order: no time counted
+                        pos(5000, 10_000, 18000),   # 4000 -> 5000 counts, not 3500 -> 5000
+                        pos(6000, 200, 27000)):     # landed
+                v.send(msg)
+            async with asyncio.timeout(3.0):
+                while router.vehicles[1].time_boot_ms != 6000:
+                    await asyncio.sleep(0.01)
+            link = router.vehicles[1]
+            v.close()
+            return link.heading_deg, link.airborne_s
+
+    heading, airborne = run(main())
+    assert heading == pytest.approx(270.0)
+    # 2000 -> 4000 -> 5000 ms airborne at both ends; 1000 -> 2000 took off, 5000 -> 6000 landed
+    assert airborne == pytest.approx(3.0)

@@ -90,7 +90,7 @@ def test_study_on_a_dask_cluster(demo, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     mission = demo.with_overrides(max_iterations=1, min_iterations=1)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         summary = run_study(mission, [5, 6], ["econdor"], tmp_path,
                             scheduler=cluster.scheduler_address, figures=False)
     assert [r["seed"] for r in summary["runs"]] == [5, 6]

@@ -57,6 +57,12 @@ RCVBUF_BYTES = 4 << 20
 """Requested UDP receive buffer (the kernel caps it at net.core.rmem_max)."""
 log = logging.getLogger(__name__)
 SAMPLE_NAME = "FIELD"
+HDG_UNKNOWN = 0xFFFF
+"""``GLOBAL_POSITION_INT.hdg`` when the heading is unknown (UINT16_MAX, MAVLink common)."""
+AIRBORNE_ALT_M = 0.5
+"""Above home by more than this, a vehicle counts as flying (for ``VehicleLink.airborne_s``)."""
+REBOOT_MS = 10_000
+"""A ``time_boot_ms`` this far behind the last one means the vehicle restarted."""
 Address = tuple[str, int]
 
 
@@ -156,6 +162,13 @@ class VehicleLink:
     lon_deg: float | None = None
     alt_m: float | None = None       # AMSL
     rel_alt_m: float | None = None   # above home
+    heading_deg: float | None = None  # last known (GLOBAL_POSITION_INT.hdg; kept while unknown)
+    airborne_s: float = 0.0
+    """Vehicle (sim) time spent above ``AIRBORNE_ALT_M``: the sum of the ``time_boot_ms``
+    steps between consecutive positions that were both airborne (late, out-of-order
+    positions are left out)."""
+    last_fix_ms: int | None = None
+    last_fix_airborne: bool = False
     # last SYS_STATUS
     sensors_present: int | None = None
     sensors_health: int = 0
@@ -482,9 +495,18 @@ class Router:
         link.address = addr
         link.messages += 1
         if kind == "GLOBAL_POSITION_INT":
+            rel_alt_m = msg.relative_alt / 1000.0
+            t_ms, last_ms = msg.time_boot_ms, link.last_fix_ms
+            if last_ms is None or t_ms > last_ms or t_ms < last_ms - REBOOT_MS:
+                airborne = rel_alt_m > AIRBORNE_ALT_M
+                if last_ms is not None and t_ms > last_ms and airborne and link.last_fix_airborne:
+                    link.airborne_s += (t_ms - last_ms) / 1000.0
+                link.last_fix_ms, link.last_fix_airborne = t_ms, airborne
             link.time_boot_ms = msg.time_boot_ms
             link.lat_deg, link.lon_deg = msg.lat / 1e7, msg.lon / 1e7
-            link.alt_m, link.rel_alt_m = msg.alt / 1000.0, msg.relative_alt / 1000.0
+            link.alt_m, link.rel_alt_m = msg.alt / 1000.0, rel_alt_m
+            if msg.hdg != HDG_UNKNOWN:
+                link.heading_deg = msg.hdg / 100.0
         elif kind == "SYS_STATUS":
             link.sensors_present = msg.onboard_control_sensors_present
             link.sensors_health = msg.onboard_control_sensors_health

@@ -1,0 +1,76 @@
+"""The web page of one ``econdor run``: feed, operator control and server, wired to the run."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from ..control import ControlState, RunControl
+from ..core.tasks import SampleLog
+from ..dfc import DfcEvent
+from ..link.router import Router
+from ..mission import Mission
+from ..rundir import RunLog
+from .feed import LiveFeed, StatusSource
+from .server import WebServer, parse_web_address
+
+
+class LiveWeb:
+    """``econdor run --web``: serve the run's page; pause / resume / stop between iterations.
+
+    Parameters
+    ----------
+    address:
+        ``[HOST:]PORT`` (port 0: any free port; the returned address says which).
+    """
+
+    def __init__(self, address: str, *, mission: Mission, planner: str, run_dir: str,
+                 runlog: RunLog, rate_hz: float = 4.0, token: str | None = None) -> None:
+        host, port = parse_web_address(address)
+        self.runlog = runlog
+        self.control = RunControl(on_change=self._on_control)
+        self.feed = LiveFeed(mission_name=mission.name, planner=planner, grid=mission.grid,
+                             origin=mission.origin, runlog=runlog, control=self.control,
+                             max_iterations=mission.algorithm.max_iterations,
+                             run_dir=run_dir, rate_hz=rate_hz)
+        self.server = WebServer(self.feed, host, port, token=token, rate_hz=rate_hz)
+
+    def start(self) -> str:
+        """Bind and serve; the page's address (with its token when one is needed)."""
+        return self.server.start()
+
+    def _on_control(self, state: ControlState, iteration: int) -> None:
+        self.feed.on_control(state, iteration)
+        where = {ControlState.PAUSING: f"pausing after iteration {iteration}",
+                 ControlState.PAUSED: f"paused before iteration {iteration}",
+                 ControlState.RUNNING: "resumed",
+                 ControlState.STOPPING: f"stopping after iteration {iteration}; then every "
+                                        "vehicle returns to launch",
+                 ControlState.STOPPED: f"stopped before iteration {iteration}: vehicles "
+                                       "return to launch",
+                 ControlState.FINISHED: "run over"}[state]
+        if state is not ControlState.FINISHED:
+            self.runlog.add("operator", where)
+
+    def attach(self, status: StatusSource, sysids: Sequence[int], router: Router) -> None:
+        """The fleet is up: vehicle snapshots from ``status``, trails from ``router``."""
+        self.feed.attach(status, sysids)
+        router.add_sample_handler(self.feed.on_sample)
+
+    def progress(self, event: DfcEvent) -> None:
+        self.feed.progress(event)
+
+    def add_samples(self, log: SampleLog) -> None:
+        self.feed.add_samples(log)
+
+    def checkpoint(self, iteration: int) -> bool:
+        return self.control.checkpoint(iteration)
+
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        """The run is over: tell the pages (their last update), then stop serving."""
+        self.control.finish()
+        self.feed.finish(summary)
+        self.server.stop()
+
+
+__all__ = ["LiveWeb"]
