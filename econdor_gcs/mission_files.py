@@ -41,7 +41,7 @@ from typing import Any
 
 from .errors import EcondorError
 from .link.codec import mavlink
-from .link.mission import MissionItemSpec
+from .link.mission import FLOAT_TO_INT_FRAME, INT_TO_FLOAT_FRAME, MissionItemSpec
 
 __all__ = [
     "MissionFile",
@@ -70,12 +70,8 @@ FENCE_CIRCLE_OUT = mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
 RALLY_POINT = mavlink.MAV_CMD_NAV_RALLY_POINT
 
 # _INT frame -> float frame (the files hold float MISSION_ITEM values)
-_INT_TO_FLOAT = {
-    mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-}
-_FLOAT_TO_INT = {v: k for k, v in _INT_TO_FLOAT.items()}
+_INT_TO_FLOAT = INT_TO_FLOAT_FRAME
+_FLOAT_TO_INT = FLOAT_TO_INT_FRAME
 _GLOBAL_FRAMES = frozenset((*_INT_TO_FLOAT, *_FLOAT_TO_INT))
 # QGC's AltitudeMode: 1 relative to home, 2 absolute (AMSL), 4 terrain frame
 _ALTITUDE_MODE = {mavlink.MAV_FRAME_GLOBAL: 2, mavlink.MAV_FRAME_GLOBAL_INT: 2,

@@ -28,17 +28,12 @@ from pathlib import Path
 from .errors import EcondorError, MissionRejected
 from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import mavlink
-from .link.mission import MissionItemSpec
+from .link.mission import INT_TO_FLOAT_FRAME, MissionItemSpec
 from .link.router import Router
 from .mission_files import MissionFile, is_global_frame, is_home_item, read_mission_file
 
 __all__ = ["Mismatch", "compare_items", "upload_cli", "upload_verified"]
 
-_FRAME_TWINS = {
-    mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-}
 ARDUPILOT_ALT_STEP_M = 0.01
 """ArduPilot stores mission altitudes in centimetres."""
 _TYPE_NAMES = {mavlink.MAV_MISSION_TYPE_MISSION: "mission", mavlink.MAV_MISSION_TYPE_FENCE: "fence",
@@ -59,7 +54,7 @@ class Mismatch:
 
 
 def _float_frame(frame: int) -> int:
-    return _FRAME_TWINS.get(frame, frame)
+    return INT_TO_FLOAT_FRAME.get(frame, frame)
 
 
 def _f32(v: float) -> float:

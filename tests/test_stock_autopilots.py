@@ -23,8 +23,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_sim_vehicle_interop import LineReader, mavproxy_exe
-from vehicle_helpers import DEMO, REPO, VehicleProcess, free_port, wait_for
+from vehicle_helpers import DEMO, REPO, MavproxyShell, VehicleProcess, free_port, mavproxy_exe, wait_for
 
 from econdor_gcs.export import export_cli
 from econdor_gcs.link.tlog import read_tlog
@@ -64,40 +63,21 @@ def test_exported_wpl_in_mavwp_and_mavproxy_flown_by_ardupilot(tmp_path):
         assert (round(w.x * 1e7), round(w.y * 1e7), w.z) == (it.x, it.y, it.z)
     last = len(ours) - 1
     with VehicleProcess("--speedup", "50", "--autopilot", "ardupilot", "--prearm-s", "1",
-                        connect="tcpin:127.0.0.1:0") as veh:
-        proc = subprocess.Popen(
-            [mavproxy_exe(), f"--master=tcp:127.0.0.1:{veh.port}", "--no-state",
-             "--source-system=255", "--source-component=190"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            cwd=tmp_path)
-        assert proc.stdin is not None and proc.stdout is not None
-        reader = LineReader(proc.stdout)
-
-        def cmd(text: str) -> None:
-            assert proc.stdin is not None
-            proc.stdin.write((text + "\n").encode())
-            proc.stdin.flush()
-
-        try:
-            reader.wait("Mode STABILIZE", 20)  # ArduCopter's boot mode, decoded by MAVProxy
-            cmd(f"wp load {path}")
-            reader.wait("MISSION_ACK: TYPE_MISSION: ACCEPTED", 15)
-            cmd("mode guided")
-            reader.wait("Mode GUIDED", 10)
-            cmd("arm throttle")
-            reader.wait("ARMED", 10)  # after the pre-arm checks pass (MAVProxy retries)
-            cmd("mode auto")
-            reader.wait(f"waypoint {last}", 60)  # the RTL item: the mission's end
-            reader.wait("AP: landed, disarmed", 30)
-            reader.wait("DISARMED", 10)
-        finally:
-            stop(proc)
-            assert proc.stdout is not None
-            proc.stdout.close()
-            if proc.stdin is not None and not proc.stdin.closed:
-                proc.stdin.close()
+                        connect="tcpin:127.0.0.1:0") as veh, \
+            MavproxyShell(f"tcp:127.0.0.1:{veh.port}", cwd=tmp_path) as mp:
+        mp.wait("Mode STABILIZE", 20)  # ArduCopter's boot mode, decoded by MAVProxy
+        mp.cmd(f"wp load {path}")
+        mp.wait("MISSION_ACK: TYPE_MISSION: ACCEPTED", 15)
+        mp.cmd("mode guided")
+        mp.wait("Mode GUIDED", 10)
+        mp.cmd("arm throttle")
+        mp.wait("ARMED", 10)  # the pre-arm checks (1 s after boot) have passed by now
+        mp.cmd("mode auto")
+        mp.wait(f"waypoint {last}", 60)  # the RTL item: the mission's end
+        mp.wait("AP: landed, disarmed", 30)
+        mp.wait("DISARMED", 10)
     # MAVProxy's "waypoint N" lines (a prompt like "AUTO> " may come first)
-    reached = [int(m[1]) for line in reader.lines
+    reached = [int(m[1]) for line in mp.lines
                if (m := re.search(r"(?:^|> )waypoint (\d+)$", line.strip()))]
     assert reached == sorted(reached) and reached[-1] == last
 

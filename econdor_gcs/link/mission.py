@@ -56,12 +56,12 @@ __all__ = [
 
 MAV_CMD_WAYPOINT_USER_1 = mavlink.MAV_CMD_WAYPOINT_USER_1
 FRAME_REL_INT = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-_INT_TO_FLOAT_FRAME = {
+INT_TO_FLOAT_FRAME = {  # the _INT frames and their float twins (MISSION_ITEM, files)
     mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
 }
-_FLOAT_TO_INT_FRAME = {v: k for k, v in _INT_TO_FLOAT_FRAME.items()}
+FLOAT_TO_INT_FRAME = {v: k for k, v in INT_TO_FLOAT_FRAME.items()}
 
 DEFAULT_TIMEOUT_S = 1.5
 DEFAULT_RETRIES = 5
@@ -121,12 +121,12 @@ class MissionItemSpec:
 
     def to_legacy_message(self, target_system: int, target_component: int) -> MAVLinkMessage:
         """As the deprecated float ``MISSION_ITEM`` (``_INT`` frames mapped to float frames)."""
-        global_frame = self.frame in _INT_TO_FLOAT_FRAME or self.frame in _FLOAT_TO_INT_FRAME
+        global_frame = self.frame in INT_TO_FLOAT_FRAME or self.frame in FLOAT_TO_INT_FRAME
         x = self.x / 1e7 if global_frame else float(self.x)
         y = self.y / 1e7 if global_frame else float(self.y)
         return mavlink.MAVLink_mission_item_message(
             target_system, target_component, self.seq,
-            _INT_TO_FLOAT_FRAME.get(self.frame, self.frame),
+            INT_TO_FLOAT_FRAME.get(self.frame, self.frame),
             self.command, self.current, self.autocontinue, self.param1, self.param2, self.param3,
             self.param4, x, y, self.z, self.mission_type,
         )
@@ -136,8 +136,8 @@ class MissionItemSpec:
         """From a ``MISSION_ITEM_INT`` or a legacy ``MISSION_ITEM`` (float frames -> ``_INT``)."""
         frame, x, y = msg.frame, msg.x, msg.y
         if msg.get_type() == "MISSION_ITEM":
-            if frame in _FLOAT_TO_INT_FRAME:
-                frame = _FLOAT_TO_INT_FRAME[frame]
+            if frame in FLOAT_TO_INT_FRAME:
+                frame = FLOAT_TO_INT_FRAME[frame]
                 x, y = round(x * 1e7), round(y * 1e7)
             else:
                 x, y = round(x), round(y)
