@@ -261,7 +261,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="counts 1,5; speedups 20,100; 2 s")
     ap.add_argument("--counts", default=None)
-    ap.add_argument("--speedups", default="20,100")
+    ap.add_argument("--speedups", default="20,50,100")
     ap.add_argument("--window", type=float, default=None, help="measurement window, wall s")
     a = ap.parse_args()
     counts = [int(c) for c in (a.counts or ("1,5" if a.quick else "1,5,20")).split(",")]

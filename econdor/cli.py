@@ -56,21 +56,41 @@ def _sysid(text: str) -> int:
     return v
 
 
+def _probability(text: str) -> float:
+    """``0.1`` or ``10%`` -> 0.1."""
+    scale = 100.0 if text.endswith("%") else 1.0
+    try:
+        v = float(text.rstrip("%")) / scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability (0.1 or 10%), got {text!r}"
+                                         ) from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within 0..1 (0..100%), got {text}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="econdor", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a mission over MAVLink (starts simulated vehicles "
                                      "unless --connect is given)")
-    run.add_argument("mission", type=Path)
-    run.add_argument("--out", type=Path, default=None, help="run directory (default runs/<name>-<time>)")
+    run.add_argument("mission", type=Path, nargs="?",
+                     help="mission YAML (not with --resume: the run directory has it)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="run directory (default runs/<name>-<time>); a non-empty one is "
+                          "refused unless --force")
+    run.add_argument("--force", action="store_true",
+                     help="replace an earlier run in --out")
+    run.add_argument("--resume", type=Path, default=None, metavar="RUN_DIR",
+                     help="continue an interrupted run after its last finished flight")
     run.add_argument("--planner", choices=PLANNER_NAMES, default=None)
     run.add_argument("--vehicles", type=_positive_int, default=None)
     run.add_argument("--speedup", type=_positive_float, default=None)
     run.add_argument("--seed", type=int, default=None)
     run.add_argument("--connect", default=None,
                      help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
-    run.add_argument("--timeout", type=_positive_float, default=20.0,
+    run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
     run.add_argument("--autopilot", default=None, metavar="KINDS",
                      help="the simulated vehicles this run starts: px4, ardupilot, "
@@ -84,10 +104,28 @@ def build_parser() -> argparse.ArgumentParser:
                           "MAVProxy --master=udpin:HOST:PORT)")
     run.add_argument("--forward-commands", action="store_true",
                      help="relay what the watcher sends to the vehicles (dropped otherwise)")
+    run.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                     help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
+                          "(hashed with SHA-256, as MAVProxy does)")
     run.add_argument("--quiet", action="store_true")
     run.add_argument("--web", nargs="?", const=WEB_DEFAULT, default=None, metavar="[HOST:]PORT",
                      help=f"serve a live page of the run (default {WEB_DEFAULT}; another "
                           "host than loopback needs the token printed at start)")
+
+    rl = sub.add_parser("relay", help="a fault-injecting UDP relay between two loopback "
+                                      "endpoints (for tests and link checks)")
+    rl.add_argument("--listen", required=True, metavar="EP",
+                    help="where the vehicles send, e.g. udpin:127.0.0.1:14560 (port 0: any)")
+    rl.add_argument("--to", required=True, metavar="EP",
+                    help="where to relay to (the GCS), e.g. udpout:127.0.0.1:14550")
+    for name, what in (("drop", "lose"), ("duplicate", "deliver twice"),
+                       ("reorder", "hold back behind the next one"),
+                       ("corrupt", "flip one bit of")):
+        rl.add_argument(f"--{name}", type=_probability, default=0.0, metavar="P",
+                        help=f"probability to {what} each datagram, each way (0.1 or 10%%)")
+    rl.add_argument("--seed", type=int, default=None, help="seed of the fault draws")
+    rl.add_argument("--duration", type=_positive_float, default=None, metavar="S",
+                    help="stop after S seconds (default: at Ctrl-C / SIGTERM)")
 
     st = sub.add_parser("study", help="in-process study over many seeds")
     st.add_argument("mission", type=Path)
@@ -168,6 +206,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     planners = list(PLANNERS) if args.planner == "all" else [args.planner]
     total = len(seeds) * len(planners)
     workers = args.workers or default_workers()
+    _warm_up_tracer(args.quiet)
     if args.quiet:
         summary = run_study(mission, seeds, planners, args.out, workers, args.scheduler,
                             figures=not args.no_figures)
@@ -208,10 +247,41 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Usage errors of ``econdor run`` (exit 2): what --resume excludes and needs."""
+    if args.resume is None:
+        if args.mission is None:
+            parser.error("run: a MISSION.yaml is needed (or --resume RUN_DIR)")
+        if args.timeout is None:
+            args.timeout = 20.0
+        return
+    clash = [f"--{name}" for name in ("out", "planner", "vehicles", "speedup", "seed")
+             if getattr(args, name) is not None] + (["--force"] if args.force else [])
+    if args.mission is not None:
+        clash.insert(0, "MISSION.yaml")
+    if clash:
+        parser.error(f"run: --resume continues the recorded run; {', '.join(clash)} cannot "
+                     "change it")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from econdor_gcs.gcs import run_mission_cli
 
+    if not args.connect:
+        # the vehicles we start load the compiled tracer from numba's cache; on a cold
+        # cache compile it here first, before the station starts waiting for them
+        _warm_up_tracer(args.quiet)
     return run_mission_cli(args)
+
+
+def _warm_up_tracer(quiet: bool) -> None:
+    """Load the compiled tracer, compiling it on a cold cache (say so when that took long)."""
+    from sim_vehicle.tracer import warm_up
+
+    took_s = warm_up()
+    if took_s > 3.0 and not quiet:
+        print(f"econdor: compiled the onboard tracer in {took_s:.0f} s (once: it is cached "
+              "for the next runs)", file=sys.stderr, flush=True)
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
@@ -261,12 +331,35 @@ def _cmd_upload(args: argparse.Namespace) -> int:
     return upload_cli(args)
 
 
-COMMANDS = {"study": _cmd_study, "report": _cmd_report, "run": _cmd_run, "export": _cmd_export,
-            "view": _cmd_view, "import": _cmd_import, "upload": _cmd_upload}
+def _cmd_relay(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from econdor_gcs.link.relay import Faults, Relay, parse_relay_endpoint, serve
+
+    listen, to = parse_relay_endpoint(args.listen), parse_relay_endpoint(args.to)
+    relay = Relay(listen, to, Faults(args.drop, args.duplicate, args.reorder, args.corrupt),
+                  seed=args.seed)
+
+    def ready(r: Relay) -> None:
+        host, port = r.listen_address
+        print(f"relay: listening on udpin:{host}:{port} -> udpout:{to[0]}:{to[1]}",
+              file=sys.stderr, flush=True)
+
+    asyncio.run(serve(relay, duration_s=args.duration, ready=ready))
+    print(f"relay: {relay.stats_line()}", file=sys.stderr, flush=True)
+    return 0
+
+
+COMMANDS = {"relay": _cmd_relay, "study": _cmd_study, "report": _cmd_report, "run": _cmd_run,
+            "export": _cmd_export, "view": _cmd_view, "import": _cmd_import,
+            "upload": _cmd_upload}
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "run":
+        _check_run_args(parser, args)
     try:
         return COMMANDS[args.command](args)
     except EcondorError as exc:

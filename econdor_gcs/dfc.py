@@ -22,9 +22,10 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
@@ -46,7 +47,7 @@ from .core.planners import (
 )
 from .core.spline import reconstruct
 from .core.tasks import FlightReport, Phase, SampleLog, Task
-from .errors import MissionError
+from .errors import MissionError, RunError
 from .mission import Mission
 
 
@@ -98,6 +99,27 @@ class IterationRecord:
     def csv_row(self) -> dict[str, Any]:
         d = asdict(self)
         return {k: d[k] for k in self.CSV_COLUMNS}
+
+
+FINISH = -1
+"""The iteration number of the flight home (:meth:`Executor.finish`) in flight records."""
+
+
+@dataclass
+class FlightRecord:
+    """One flight of the executor as the run directory keeps it (``flights.jsonl`` plus the
+    samples in ``samples.csv``); a resumed run replays these instead of flying again.
+
+    ``positions_before_m`` are the vehicle positions the flight was planned from;
+    ``executor_state`` is what an executor with ``state()`` / ``restore(state)`` (the
+    in-process one) needs to continue exactly where it was after the flight.
+    """
+
+    iteration: int
+    plans: list[list[Task]]
+    reports: list[FlightReport]
+    positions_before_m: list[tuple[float, float]]
+    executor_state: dict[str, Any] | None = None
 
 
 @dataclass
@@ -234,6 +256,8 @@ class Dfc:
         seed: int | None = None,
         progress: Progress | None = None,
         on_samples: Callable[[SampleLog], None] | None = None,
+        on_flight: Callable[[FlightRecord], None] | None = None,
+        replay: Sequence[FlightRecord] = (),
         checkpoint: Checkpoint | None = None,
     ) -> None:
         self.mission = mission
@@ -244,6 +268,13 @@ class Dfc:
         self.seed = mission.seed if seed is None else seed
         self.progress: Progress = progress or (lambda event: None)
         self.on_samples = on_samples
+        """Called with the samples of each flight as the DFC takes them in (displays)."""
+        self.on_flight = on_flight
+        """Called with each flight the executor flew, before the DFC uses its samples (the
+        run directory records them: samples, then the flight's line)."""
+        self._replay = {r.iteration: r for r in replay}
+        self.replayed = len(self._replay)
+        self._planned_from: list[tuple[float, float]] | None = None
         self.checkpoint: Checkpoint = checkpoint or (lambda iteration: True)
         self.grid = mission.grid
         self.truth = None
@@ -278,37 +309,71 @@ class Dfc:
         self.recon_s += self._last_recon_s
         return est
 
-    def _account(self, reports: list[FlightReport], batch: Batch | None = None,
-                 pattern: bool = False) -> None:
+    def _account(self, reports: list[FlightReport], batch: Batch | None = None) -> None:
         """Add a flight's samples and distances to the run's totals.
 
         ``batch`` is the planner's batch that was flown (its survey lines count as
-        productive, 'contour' distance); ``pattern`` marks the mission's initiation
-        pattern, whose samples are tagged ``Phase.SURVEY``.
+        productive, 'contour' distance).
         """
         for r in reports:
-            log = r.samples
-            if pattern:
-                log.phase = np.full(len(log), Phase.SURVEY, dtype=np.int8)
-            self.logs.append(log)
+            self.logs.append(r.samples)
             if self.on_samples is not None:
-                self.on_samples(log)
+                self.on_samples(r.samples)
         self.flight_m += sum(r.flown_m for r in reports)
         self.contour_m += sum(r.traced_m for r in reports)
         if batch is not None:
             self.contour_m += batch.survey_m
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
 
+    def _positions(self, iteration: int) -> list[tuple[float, float]]:
+        """Where the vehicles are when ``iteration`` is planned (recorded ones on replay)."""
+        rec = self._replay.get(iteration)
+        pos = list(rec.positions_before_m) if rec is not None else self.executor.positions()
+        self._planned_from = pos
+        return pos
+
+    def _fly(self, plans: list[list[Task]], iteration: int, pattern: bool = False
+             ) -> list[FlightReport]:
+        """Fly ``plans`` (or replay the recorded flight of ``iteration``); the samples are
+        handed to ``on_flight`` -- written to disk -- before the DFC uses them.
+
+        ``pattern`` marks the mission's initiation pattern, whose samples are tagged
+        ``Phase.SURVEY``.
+        """
+        rec = self._replay.pop(iteration, None)
+        if rec is not None:
+            if rec.plans != plans:
+                raise RunError(f"cannot resume: the plans of iteration {iteration} differ from "
+                               "the recorded ones (was the mission or the code changed?)")
+            if not self._replay and rec.executor_state is not None:
+                restore = getattr(self.executor, "restore", None)
+                if restore is not None:  # the executor takes over from here
+                    restore(rec.executor_state)
+            return [dataclasses.replace(r, samples=dataclasses.replace(r.samples),
+                                        outcomes=list(r.outcomes)) for r in rec.reports]
+        before = self._planned_from if self._planned_from is not None else \
+            self.executor.positions()
+        reports = self.executor.fly(plans, iteration)
+        if pattern:
+            for r in reports:
+                r.samples.phase = np.full(len(r.samples), Phase.SURVEY, dtype=np.int8)
+        if self.on_flight is not None:
+            state = getattr(self.executor, "state", None)
+            self.on_flight(FlightRecord(iteration, [list(p) for p in plans], reports,
+                                        list(before), state() if state is not None else None))
+        self._planned_from = None
+        return reports
+
     def _context(self, iteration: int, estimate: FloatArray | None) -> PlanContext:
         budget = self.mission.algorithm.flight_budget_m
         return PlanContext(
             iteration=iteration, region=self.mission.region, n_vehicles=self.executor.n_vehicles,
             grid=self.grid, estimate=estimate, samples=self._samples(),
-            positions_m=self.executor.positions(),
+            positions_m=self._positions(iteration),
             budget_left_m=budget - self.flight_m if budget > 0 else math.inf)
 
-    def _pattern_plans(self) -> list[list[Task]]:
-        """The mission's initiation pattern: the two diagonals or a survey."""
+    def _pattern(self) -> tuple[Batch, list[list[Task]]]:
+        """The mission's initiation pattern (the two diagonals or a survey) and its plans."""
         m = self.mission
         n = self.executor.n_vehicles
         if m.initiation.pattern == "lawnmower":
@@ -317,8 +382,9 @@ class Dfc:
         else:
             jobs = diagonal_jobs(m.region, n)
             if len(jobs) == n:  # one diagonal share per vehicle, in order
-                return [list(j.tasks) for j in jobs]
-        return assign_jobs(jobs, self.executor.positions(), m.algorithm.search_radius_m)
+                return Batch(jobs, levels_planned=0), [list(j.tasks) for j in jobs]
+        batch = Batch(jobs, levels_planned=0)
+        return batch, assign_jobs(jobs, self._positions(0), m.algorithm.search_radius_m)
 
     def _subsample_initiation(self, reports: list[FlightReport]) -> None:
         k = self.mission.initiation.samples_per_diagonal
@@ -382,13 +448,15 @@ class Dfc:
         self.progress(RunStarted(self.planner_name, self.seed, self.executor.n_vehicles))
         first = self.planner.initiation(self._context(0, None))
         if first is None:  # the mission's pattern; the DFC keeps only a few of its samples
-            plans = self._pattern_plans()
-            reports = self.executor.fly(plans, 0)
+            pattern, plans = self._pattern()
+            self.progress(IterationPlanned(0, pattern, plans))
+            reports = self._fly(plans, 0, pattern=True)
             self._subsample_initiation(reports)
-            self._account(reports, pattern=True)
+            self._account(reports)
         else:
-            plans = assign_jobs(first.jobs, self.executor.positions(), a.search_radius_m)
-            reports = self.executor.fly(plans, 0)
+            plans = assign_jobs(first.jobs, self._positions(0), a.search_radius_m)
+            self.progress(IterationPlanned(0, first, plans))
+            reports = self._fly(plans, 0)
             self._account(reports, batch=first)
         estimate = self._reconstruct()
         self._record(0, first, estimate, None, reports)
@@ -407,12 +475,12 @@ class Dfc:
             if idle > a.max_idle_iterations:
                 reason = "stalled"
                 break
-            plans = assign_jobs(batch.jobs, self.executor.positions(), a.search_radius_m,
+            plans = assign_jobs(batch.jobs, self._positions(it), a.search_radius_m,
                                 first_piece_id=1000 * it)
             self.progress(IterationPlanned(it, batch, plans))
             previous = estimate
             if batch.jobs:
-                reports = self.executor.fly(plans, it)
+                reports = self._fly(plans, it)
                 self._account(reports, batch=batch)
                 estimate = self._reconstruct()
             else:  # nothing new: the estimate (and so E_n = 0) is unchanged
@@ -425,7 +493,17 @@ class Dfc:
                 converged, reason = True, "learning_error_converged"
                 break
             span_prev = span_now
-        home = self.executor.finish()
+        home_rec = self._replay.pop(FINISH, None)
+        if self._replay:
+            raise RunError(f"cannot resume: {len(self._replay)} recorded flights were never "
+                           "reached (was the mission or the code changed?)")
+        if home_rec is not None:  # it died after coming home: only the results were missing
+            home = home_rec.reports
+        else:
+            before = self.executor.positions()
+            home = self.executor.finish()
+            if self.on_flight is not None:
+                self.on_flight(FlightRecord(FINISH, [], home, before))
         if home:
             self._account(home)
             if self.records:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -218,6 +218,24 @@ def _load_samples(path: Path) -> np.ndarray:
     return a if a.size else np.zeros((0, 6))
 
 
+def _sysids_of(summary: dict[str, Any]) -> Callable[[int], int]:
+    """Vehicle index (``samples.csv``) -> system id (missions, ``--vehicle``).
+
+    ``summary.json``'s ``sysids`` list is in index order; without it (runs whose vehicles
+    the station started itself number them 1..N) the system id is the index + 1.
+
+    >>> f = _sysids_of({"sysids": [7, 9]})
+    >>> f(0), f(1), _sysids_of({})(0)
+    (7, 9, 1)
+    """
+    sysids = summary.get("sysids")
+    if isinstance(sysids, list) and all(isinstance(s, int) for s in sysids):
+        def lookup(index: int) -> int:
+            return int(sysids[index]) if 0 <= index < len(sysids) else index + 1
+        return lookup
+    return lambda index: index + 1
+
+
 def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
                     vehicle: int | None = None) -> dict[str, Any]:
     """A FeatureCollection of the run: sample paths, mission points, area boundary.
@@ -225,7 +243,9 @@ def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
     Sample paths (``samples.csv`` local ENU) are placed with ``summary.json``'s ``origin``
     ``{lat_deg, lon_deg, alt_m}`` or, failing that, the home item of a saved mission (vehicles
     start at the origin).  ``iteration`` / ``vehicle`` filter the mission points; ``vehicle``
-    also the sample paths.
+    (a system id, as in the mission file names) also the sample paths, whose
+    ``samples.csv`` vehicle index is mapped to the system id with ``summary.json``'s
+    ``sysids``.
     """
     run_dir = Path(run_dir)
     _check_run_dir(run_dir)
@@ -240,10 +260,12 @@ def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
         if len(a) and origin is None:
             raise EcondorError(f"{run_dir}: cannot place the samples on the map: summary.json "
                                "has no origin and no mission with a home item was saved")
-        for sysid in sorted({int(v) for v in a[:, 5]}) if len(a) else []:
+        sysid_of = _sysids_of(summary)
+        for index in sorted({int(v) for v in a[:, 5]}) if len(a) else []:
+            sysid = sysid_of(index)
             if vehicle is not None and sysid != vehicle:
                 continue
-            rows = a[a[:, 5] == sysid]
+            rows = a[a[:, 5] == index]
             rows = rows[np.argsort(rows[:, 0], kind="stable")]
             assert origin is not None
             lon, lat = _lonlat(origin, rows[:, 1], rows[:, 2])

@@ -84,7 +84,8 @@ class Fleet:
     def start(self, count: int, connect: str, *, speedup: float | None = None,
               seed: int | None = None, first_sysid: int = 1,
               extra: dict[int, list[str]] | None = None,
-              kinds: Sequence[VehicleKind] = (DEFAULT_KIND,)) -> None:
+              kinds: Sequence[VehicleKind] = (DEFAULT_KIND,),
+              signing_key_file: str | Path | None = None) -> None:
         """Launch ``count`` vehicles sending to ``connect`` (``udpout:HOST:PORT``), of
         ``kinds`` in turn."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -96,6 +97,8 @@ class Fleet:
                 cmd += ["--speedup", repr(float(speedup))]
             if seed is not None:
                 cmd += ["--seed", str(seed)]
+            if signing_key_file is not None:  # the file's name, never the key
+                cmd += ["--signing-key", str(signing_key_file)]
             cmd += (extra or {}).get(sysid, [])
             with (self.log_dir / f"v{sysid}.log").open("wb") as log:
                 self.procs[sysid] = subprocess.Popen(

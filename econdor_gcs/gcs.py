@@ -7,7 +7,12 @@ Pieces, from the bottom up:
     (one UDP endpoint, vehicles routed by system id, every message to ``telemetry.tlog``).
     The synchronous world (the :class:`~.dfc.Dfc` loop in the main thread) submits
     coroutines with :meth:`Station.call`; Ctrl-C / SIGTERM interrupt that wait in the main
-    thread and the ``finally`` blocks close everything.
+    thread and the ``finally`` blocks close everything. **That loop thread alone owns the
+    vehicle state**: the router's callbacks update it there, the flights run there, and
+    other threads (the DFC's ``positions()``, the live display's ``status_rows()``, the
+    error path's ``pending_samples()``) get their answers made there
+    (:meth:`Station.run_sync`). Waits wake on what the vehicles send (an event set by every
+    sample, message and router event), not on polling.
 :class:`MavlinkExecutor`
     The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
     :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home,
@@ -49,8 +54,10 @@ Conventions and choices (see also DESIGN.md §4):
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -66,6 +73,10 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from .core.tasks import (
+    SAMPLE_COUNT_COMMAND,
+    SAMPLE_RESEND_COMMAND,
+    SAMPLE_RESEND_MAX,
+    TRACE_RESEND_COMMAND,
     FlightReport,
     OutcomeStatus,
     Phase,
@@ -87,7 +98,13 @@ from .errors import (
 from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import MAVLinkMessage, mavlink
 from .link.forward import Forwarder
-from .link.mission import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, MissionPlan, plan_mission
+from .link.mission import (
+    MAV_CMD_WAYPOINT_USER_1,
+    MissionItemSpec,
+    MissionPlan,
+    fence_items,
+    plan_mission,
+)
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import (
     Router,
@@ -98,7 +115,9 @@ from .link.router import (
 )
 from .link.tlog import TlogWriter
 from .mission import Mission
-from .rundir import RunLog, Severity
+from .mission_files import write_wpl
+from .rundir import RunDirMode, RunLog, Severity
+from .signing import SigningKey, load_signing_key
 
 if TYPE_CHECKING:
     from .fleet import VehicleKind
@@ -114,9 +133,31 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
+LATE = -2
+"""Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+RECOVERY_ROUNDS = 200
+"""At most this many rounds of resend requests for one vehicle's missing samples ..."""
+RECOVERY_STALLED_ROUNDS = 4
+"""... and the station gives up earlier when this many rounds in a row brought nothing."""
+RECOVERY_GAPS_PER_ROUND = 100
+"""Resend requests per round: a vehicle answers them in one burst, and a burst larger than
+its socket's send buffer (~1000 packets) is dropped on the vehicle itself."""
+FENCE_MARGIN_M = 5.0
+"""The fence uploaded to every vehicle: the mission area plus this margin on every side."""
+LOSS_SILENCE_S = 5.0
+"""A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
+DESCENT_RATE_MPS = 1.0
+"""Slowest descent we expect of a vehicle landing (PX4 lands at 0.7-1.5 m/s)."""
+ITEM_TIME_FACTOR = 3.0
+ITEM_TIME_MARGIN_S = 60.0
+"""A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
+cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
+RECOVERY_SETTLE_S = 0.25
+"""Wall time without a new sample after which a round of resends counts as arrived."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
@@ -176,11 +217,16 @@ class Flight:
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_ms: int | None = None
     rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
+    row_seqs: list[int] = field(default_factory=list)
+    """Mission item of each row (-1 outside items, :data:`LATE` for a sample that arrived
+    after later ones: attributed at the end, by time)."""
     pieces: dict[int, TraceReport] = field(default_factory=dict)
     item_flown_m: dict[int, float] = field(default_factory=dict)
     last_ms: int | None = None
     done: bool = False
     landed: bool = False
+    reached: set[int] = field(default_factory=set)
+    """Mission items the vehicle reported reached."""
 
     def __post_init__(self) -> None:
         if not self.task_seqs:
@@ -192,6 +238,13 @@ class Flight:
     @property
     def last_seq(self) -> int:
         return self.task_seqs[-1][1] if self.task_seqs else -1
+
+    def task_at(self, seq: int) -> Task | None:
+        """The task mission item ``seq`` belongs to (None for home, takeoff, speed)."""
+        for task, (first, last) in zip(self.tasks, self.task_seqs, strict=True):
+            if first <= seq <= last:
+                return task
+        return None
 
 
 def build_report(flight: Flight) -> FlightReport:
@@ -213,11 +266,12 @@ def build_report(flight: Flight) -> FlightReport:
     flown_on = flight.item_flown_m
     for task, (first, last) in zip(flight.tasks, flight.task_seqs, strict=True):
         item_m = sum(flown_on.get(seq, 0.0) for seq in range(first, last + 1))
+        reached = flight.done or last in flight.reached
         if isinstance(task, TraceTask) and flight.style == TaskStyle.WAYPOINTS:
             # the estimated contour, flown as waypoints: along it from the first waypoint on
             along_m = sum(flown_on.get(seq, 0.0) for seq in range(first + 1, last + 1))
-            status = OutcomeStatus.REACHED if flight.done else OutcomeStatus.UNREPORTED
-            outcomes.append(TaskOutcome(task, status, item_m, along_m if flight.done else 0.0))
+            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
+            outcomes.append(TaskOutcome(task, status, item_m, along_m if reached else 0.0))
         elif isinstance(task, TraceTask):
             rep = flight.pieces.get(task.piece_id)
             if rep is None:
@@ -225,7 +279,7 @@ def build_report(flight: Flight) -> FlightReport:
             else:
                 outcomes.append(TaskOutcome(task, rep.status, rep.flown_m, rep.traced_m))
         else:
-            status = OutcomeStatus.REACHED if flight.done else OutcomeStatus.UNREPORTED
+            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
             outcomes.append(TaskOutcome(task, status, item_m))
     traced = float(sum(o.traced_m for o in outcomes))
     sim_s = 0.0
@@ -233,6 +287,18 @@ def build_report(flight: Flight) -> FlightReport:
         sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
     return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
                         outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
+
+
+def _all_in(keys: Sequence[int], mapping: dict[int, Any]) -> bool:
+    return all(k in mapping for k in keys)
+
+
+def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
+    """One vehicle's report of two flights in one iteration (b after a)."""
+    return FlightReport(vehicle=a.vehicle, samples=SampleLog.concat([a.samples, b.samples]),
+                        flown_m=a.flown_m + b.flown_m, traced_m=a.traced_m + b.traced_m,
+                        outcomes=a.outcomes + b.outcomes, end_x_m=b.end_x_m, end_y_m=b.end_y_m,
+                        sim_s=a.sim_s + b.sim_s)
 
 
 def mission_items_json(items: Sequence[MissionItemSpec]) -> str:
@@ -247,11 +313,14 @@ class Station:
     """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
 
     def __init__(self, endpoint: str, tlog: TlogWriter | None = None,
-                 heartbeat_timeout_s: float = 20.0) -> None:
+                 heartbeat_timeout_s: float = 20.0, signing: SigningKey | None = None) -> None:
         self.loop = asyncio.new_event_loop()
-        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s)
+        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s,
+                             signing=signing)
         self._thread = threading.Thread(target=self._run, name="econdor-gcs", daemon=True)
         self._started = False
+        self.close_error: str | None = None
+        """Why :meth:`close` could not close the endpoint cleanly (logged), else None."""
 
     def _run(self) -> None:
         asyncio.set_event_loop(self.loop)
@@ -284,12 +353,28 @@ class Station:
             fut.cancel()
             raise
 
+    def run_sync(self, fn: Callable[[], T], timeout_s: float = 10.0) -> T:
+        """Run ``fn()`` on the station's loop thread (the one thread that owns the vehicle
+        state) and return its result; on that thread itself, or when the loop no longer runs
+        (the error path), just call it."""
+        if not self._started or not self.loop.is_running() or \
+                threading.current_thread() is self._thread:
+            return fn()
+
+        async def run() -> T:
+            return fn()
+
+        return asyncio.run_coroutine_threadsafe(run(), self.loop).result(timeout_s)
+
     def close(self) -> None:
         if not self._started:
             self.loop.close()
             return
-        with contextlib.suppress(Exception):
+        try:
             asyncio.run_coroutine_threadsafe(self.router.close(), self.loop).result(5.0)
+        except Exception as exc:  # noqa: BLE001 - logged and kept: closing goes on regardless
+            self.close_error = f"closing the GCS endpoint failed: {exc!r}"
+            log.error("%s", self.close_error)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self._thread.join(5.0)
         if not self._thread.is_alive():
@@ -327,6 +412,31 @@ class VehicleState:
     status: str = "idle"
     raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+    seen_ms: list[int] = field(default_factory=list)
+    """Sorted times of every sample received (a resent one that is already here is a
+    duplicate); with ``_seen`` for the lookups."""
+    _seen: set[int] = field(default_factory=set)
+    newest_ms: int = -1
+    synced_ms: int = -1
+    """Every sample up to this time is here (the vehicle's count says so)."""
+    duplicates: int = 0
+    recovered: int = 0
+    """Samples that came only after a resend request."""
+    recovering: bool = False
+    lost: str | None = None
+    """Why the vehicle was given up (None while it serves)."""
+    item_since: float = 0.0
+    """Wall time the current mission item began (for the item time limit)."""
+    item_since_ms: int = 0
+    """The vehicle's own (sim) time when the current mission item began."""
+    vehicle_samples: int | None = None
+    """How many samples the vehicle says it took (its count at the last recovery)."""
+    missing: int = 0
+    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost)."""
+
+    def count_seen(self, first_ms: int, last_ms: int) -> int:
+        return bisect.bisect_right(self.seen_ms, last_ms) - \
+            bisect.bisect_left(self.seen_ms, first_ms)
 
 
 @dataclass(frozen=True)
@@ -353,7 +463,8 @@ class VehicleStatus:
     flown_m: float
     samples: int
     status: str
-    """The executor's word: idle, uploading, arming, flying, holding, returning, landed, ..."""
+    """The executor's word: idle, uploading, arming, flying, holding, returning, landed, lost,
+    ..."""
     message: str = ""
     """The vehicle's last STATUSTEXT (for people)."""
 
@@ -405,7 +516,9 @@ class MavlinkExecutor:
         self.timeout_s = timeout_s
         self.tolerance_m = tolerance_m
         self.origin = mission.origin
-        self._raw_lock = threading.RLock()
+        self._changed = asyncio.Event()
+        """Set by every sample, message and event from the vehicles (on the loop thread, which
+        owns all this state): the waits wake on it instead of polling."""
         self.altitude_m = mission.vehicles.altitude_m
         self.home = (0.0, 0.0)
         self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(self.sysids)}
@@ -413,7 +526,11 @@ class MavlinkExecutor:
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
         self.iteration = 0
         self.sim_s = 0.0
-        self._lost: str | None = None
+        self.fences_refused: list[int] = []
+        """Vehicles that refused the geofence upload (they fly without one)."""
+        self.losses: list[dict[str, Any]] = []
+        """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
+        its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
         self.router.add_sample_handler(self._on_sample)
@@ -426,46 +543,58 @@ class MavlinkExecutor:
         if v is None:
             return
         seq = v.current_seq if v.current_seq is not None else -1
-        with self._raw_lock:
-            phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
-            v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
-                          seq))
-            v.samples += 1
-            f = v.flight
-            if f is not None:
-                if f.start_ms is None:
-                    f.start_ms = s.time_boot_ms
-                f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
-            if len(v.raw) >= SAMPLE_BATCH:
-                self._convert(v)
+        self._changed.set()
+        t = s.time_boot_ms
+        if t in v._seen:
+            v.duplicates += 1  # a resend of a sample that had arrived
+            return
+        v._seen.add(t)
+        if t > v.newest_ms:
+            v.newest_ms = t
+            v.seen_ms.append(t)
+        else:  # a resent sample: its item and phase are settled at the end, by time
+            bisect.insort(v.seen_ms, t)
+            seq = LATE
+        if v.recovering:
+            v.recovered += 1
+        phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
+                      seq))
+        v.samples += 1
+        f = v.flight
+        if f is not None:
+            if f.start_ms is None:
+                f.start_ms = s.time_boot_ms
+            f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
+        if len(v.raw) >= SAMPLE_BATCH:
+            self._convert(v)
 
     def _convert(self, v: VehicleState) -> None:
         """Convert ``v``'s raw samples to local rows in one vectorised pymap3d call.
 
         Everything that changes ``v.flight`` calls this first, so one batch always belongs
         to one flight (or to none: stray samples)."""
-        with self._raw_lock:
-            raw, v.raw = v.raw, []
-            if not raw:
-                return
-            a = np.asarray(raw, dtype=float)
-            x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
-            f = v.flight
-            if v.last_xy is not None:
-                steps = np.hypot(np.diff(x, prepend=v.last_xy[0]),
-                                 np.diff(y, prepend=v.last_xy[1]))
-            else:
-                steps = np.concatenate(([0.0], np.hypot(np.diff(x), np.diff(y))))
-            v.flown_m += float(steps.sum())
-            if f is not None:
-                seqs = a[:, 5].astype(np.int64)
-                for seq in np.unique(seqs[seqs >= 0]).tolist():
-                    f.item_flown_m[seq] = f.item_flown_m.get(seq, 0.0) + \
-                        float(steps[seqs == seq].sum())
-            v.last_xy = (float(x[-1]), float(y[-1]))
-            rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
-                            a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
-            (f.rows if f is not None else v.stray).extend(rows)
+        raw, v.raw = v.raw, []
+        if not raw:
+            return
+        a = np.asarray(raw, dtype=float)
+        x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
+        f = v.flight
+        seqs = a[:, 5].astype(np.int64)
+        live = seqs != LATE  # the live display's odometer follows the samples in order
+        if live.any():
+            xs, ys = x[live], y[live]
+            start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
+            v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
+                                               np.diff(ys, prepend=start[1]))))
+            v.last_xy = (float(xs[-1]), float(ys[-1]))
+        rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
+                        a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        if f is not None:
+            f.rows.extend(rows)
+            f.row_seqs.extend(seqs.tolist())
+        else:
+            v.stray.extend(rows)
 
     def _convert_all(self) -> None:
         for v in self.vehicles.values():
@@ -475,6 +604,7 @@ class MavlinkExecutor:
         v = self.vehicles.get(sysid)
         if v is None:
             return
+        self._changed.set()
         kind = msg.get_type()
         f = v.flight
         if kind == "MISSION_CURRENT":
@@ -484,16 +614,19 @@ class MavlinkExecutor:
                 v.status = "holding"
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
+                v.item_since = time.monotonic()
+                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
                 v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
         elif kind == "MISSION_ITEM_REACHED":
+            if f is not None:
+                f.reached.add(msg.seq)
             if f is not None and f.tasks and msg.seq == f.last_seq:
                 f.done = True
                 v.status = "holding"
         elif kind == "NAMED_VALUE_INT":
             change = self._decode(phase_change, msg)
             if change is not None:
-                with self._raw_lock:
-                    v.phases.add(*change)
+                v.phases.add(*change)
         elif kind == "DEBUG_FLOAT_ARRAY":
             rep = self._decode(trace_report, msg)
             if rep is not None and f is not None:
@@ -523,13 +656,23 @@ class MavlinkExecutor:
             return None
 
     def _on_event(self, event: object) -> None:
+        self._changed.set()
         if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
-            v = self.vehicles[event.sysid]
-            where = ""
-            if v.flight is not None and v.current_seq is not None:
-                where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
-            self._lost = (f"vehicle {event.sysid} lost: no heartbeat for "
-                          f"{event.silent_s:.0f} s{where}")
+            self._mark_lost(self.vehicles[event.sysid],
+                            f"no heartbeat for {event.silent_s:.0f} s")
+
+    def _mark_lost(self, v: VehicleState, reason: str) -> None:
+        """Give ``v`` up: it gets no more work; its unfinished pieces go to the others."""
+        if v.lost is not None:
+            return
+        where = ""
+        if v.flight is not None and v.current_seq is not None:
+            where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
+        v.lost = reason + where
+        v.status = "lost"
+        log.warning("vehicle %d lost: %s", v.sysid, v.lost)
+        self.losses.append({"sysid": v.sysid, "reason": v.lost, "iteration": self.iteration,
+                            "reassigned": []})
 
     # -- Executor protocol ----------------------------------------------------------------------
     def wait_ready(self) -> None:
@@ -539,22 +682,46 @@ class MavlinkExecutor:
     async def _wait_positions(self) -> None:
         """Ask for the streams (ArduPilot sends only heartbeats until asked; the request is
         repeated each second in case it was lost) and wait for a position from everyone."""
-        deadline = time.monotonic() + self.timeout_s
-        next_request = 0.0
-        while True:
-            missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
-            if not missing:
-                break
+        requested = {"at": -math.inf}
+
+        def ask() -> None:
             now = time.monotonic()
-            if now > deadline:
-                raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
-                                     f"{self.timeout_s:g} s")
-            if now >= next_request:
-                for sysid in missing:
+            if now - requested["at"] < 1.0:
+                return
+            requested["at"] = now
+            for sysid in self.sysids:
+                if self.router.vehicles[sysid].lat_deg is None:
                     self.router.request_data_streams(sysid)
-                next_request = now + 1.0
-            await asyncio.sleep(0.02)
+
+        deadline = time.monotonic() + self.timeout_s
+        ask()
+        if not await self._until(lambda: all(self.router.vehicles[s].lat_deg is not None
+                                             for s in self.sysids), on_tick=ask,
+                                 deadline=deadline):
+            missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
+            raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
+                                 f"{self.timeout_s:g} s")
+        for v in self.vehicles.values():
+            # this run accounts for the samples from now on (a vehicle that flew for an
+            # earlier run, or for this one before a resume, keeps those to itself)
+            v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
+        fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
+        await self._all([self._tolerant(v, self._upload_fence(v, fence))
+                         for v in self.vehicles.values()])
+
+    async def _upload_fence(self, v: VehicleState, fence: list[MissionItemSpec]) -> None:
+        """The area plus :data:`FENCE_MARGIN_M` as the vehicle's inclusion fence (mission
+        type FENCE): an autopilot that enforces fences keeps the vehicle inside."""
+        try:
+            await asyncio.wait_for(self.router.upload_mission(
+                v.sysid, fence, mission_type=mavlink.MAV_MISSION_TYPE_FENCE), self.timeout_s)
+        except TimeoutError:
+            raise VehicleTimeout(f"vehicle {v.sysid}: fence upload did not finish within "
+                                 f"{self.timeout_s:g} s") from None
+        except ProtocolError as exc:  # a vehicle without fences flies without one
+            log.warning("vehicle %d refused the fence: %s", v.sysid, exc)
+            self.fences_refused.append(v.sysid)
 
     async def _slow_streams(self, sysid: int) -> None:
         """Ask for the display-only streams at a few Hz of *wall* time.
@@ -577,8 +744,13 @@ class MavlinkExecutor:
         x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
         return x, y
 
+    def _owned(self, fn: Callable[[], T]) -> T:
+        """``fn()`` on the thread that owns the vehicle state (the station's loop)."""
+        run_sync = getattr(self.station, "run_sync", None)
+        return run_sync(fn) if run_sync is not None else fn()
+
     def positions(self) -> list[tuple[float, float]]:
-        return [self._position(s) for s in self.sysids]
+        return self._owned(lambda: [self._position(s) for s in self.sysids])
 
     def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         if len(plans) != self.n_vehicles:
@@ -601,6 +773,7 @@ class MavlinkExecutor:
                    task_seqs=list(plan.task_seqs) if plan else [],
                    style=plan.style if plan else TaskStyle.TRACE)
         f.rows.extend(v.stray)  # nothing is ever dropped
+        f.row_seqs.extend([LATE] * len(v.stray))
         v.stray.clear()
         v.flight = f
         return f
@@ -612,53 +785,91 @@ class MavlinkExecutor:
         if f is None:
             return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self._position(v.sysid),
                                 0.0)
+        self._settle(v, f)
         return build_report(f)
+
+    def _settle(self, v: VehicleState, f: Flight) -> None:
+        """Put a flight's samples in time order (resent ones arrive late), give each the
+        phase the vehicle reported for its time, and each late one the mission item of the
+        sample before it; then the distance flown per item, along the ordered path."""
+        if not f.rows:
+            return
+        order = sorted(range(len(f.rows)), key=lambda i: f.rows[i][0])
+        rows = [f.rows[i] for i in order]
+        seqs = [f.row_seqs[i] if i < len(f.row_seqs) else LATE for i in order]
+        if v.phases.known:
+            rows = [(t, x, y, val, int(v.phases.at(round(t * 1000.0))))
+                    for t, x, y, val, _ in rows]
+        prev = -1
+        for k, s in enumerate(seqs):
+            if s == LATE:
+                seqs[k] = prev
+            prev = seqs[k]
+        f.rows, f.row_seqs = rows, seqs
+        xy = np.vstack([np.asarray(f.start_xy)[None, :], np.asarray(rows)[:, 1:3]])
+        steps = np.hypot(*np.diff(xy, axis=0).T)
+        f.item_flown_m = {}
+        for s, step in zip(seqs, steps.tolist(), strict=True):
+            if s >= 0:
+                f.item_flown_m[s] = f.item_flown_m.get(s, 0.0) + step
 
     def pending_samples(self) -> SampleLog:
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
+        return self._owned(self._pending_samples)
+
+    def _pending_samples(self) -> SampleLog:
         logs = []
-        with self._raw_lock:
-            self._convert_all()
-            for v in self.vehicles.values():
-                rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
-                v.stray.clear()
-                if v.flight is not None:
-                    v.flight.rows.clear()
-                if rows:
-                    a = np.asarray(rows, dtype=float)
-                    logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
-                                          a[:, 4].astype(np.int8),
-                                          np.full(len(rows), v.index, dtype=np.int16)))
+        self._convert_all()
+        for v in self.vehicles.values():
+            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+            v.stray.clear()
+            if v.flight is not None:
+                v.flight.rows.clear()
+                v.flight.row_seqs.clear()
+            if rows:
+                a = np.asarray(rows, dtype=float)
+                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
+                                      a[:, 4].astype(np.int8),
+                                      np.full(len(rows), v.index, dtype=np.int16)))
         return SampleLog.concat(logs)
 
     def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
-                      tasks: Sequence[Task]) -> None:
+                      tasks: Sequence[Task], round_no: int = 0) -> None:
         """``iter{NN}_v{sysid}.json`` (items), ``.waypoints`` (QGC WPL) and ``.tasks.json``
         (the tasks, with the estimated contours, for ``econdor export --iteration``)."""
         if self.missions_dir is None:
             return
-        from .mission_files import write_wpl
         from .plans import write_tasks
 
-        stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}"
+        self.missions_dir.mkdir(parents=True, exist_ok=True)
+        # a second round (pieces of a lost vehicle) in the same iteration gets its own file
+        suffix = f"_r{round_no}" if round_no else ""
+        stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}{suffix}"
         try:
-            self.missions_dir.mkdir(parents=True, exist_ok=True)
             stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
             write_wpl(stem.with_suffix(".waypoints"), items)
             write_tasks(stem.with_suffix(".tasks.json"), tasks)
         except OSError as exc:
-            raise RunError(f"{stem}: cannot save the mission ({exc.strerror or exc})") from exc
+            raise RunError(f"cannot save the mission of vehicle {sysid} in {stem.parent}: "
+                           f"{exc.strerror or exc}") from exc
 
-    async def _plan_and_upload(self, v: VehicleState, tasks: list[Task],
-                               iteration: int) -> None:
+    async def _plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
+                               round_no: int) -> None:
         """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
-        refused a trace item; then begin the flight."""
+        refused a trace item (the flight begins first: a failed upload leaves its tasks
+        unfinished, for the others)."""
         style = v.style or TaskStyle.TRACE
+        f: Flight | None = None
         while True:
             plan = plan_mission(self.origin, tasks, self.altitude_m, style=style,
                                 tolerance_m=self.tolerance_m, home=self.home,
                                 speed_mps=self.mission.vehicles.speed_mps, end="none")
-            self._save_mission(iteration, v.sysid, plan.items, tasks)
+            self._save_mission(iteration, v.sysid, plan.items, tasks, round_no)
+            if f is None:
+                f = self._begin(v, tasks, plan)
+            else:
+                f.task_seqs, f.style = list(plan.task_seqs), plan.style
+            v.item_phases = dict(plan.item_phases)
             try:
                 await self._upload(v, plan.items)
             except MissionRejected as exc:
@@ -672,8 +883,6 @@ class MavlinkExecutor:
                 continue
             if any(isinstance(t, TraceTask) for t in tasks):
                 v.style = style
-            v.item_phases = dict(plan.item_phases)
-            self._begin(v, tasks, plan)
             return
 
     async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
@@ -687,6 +896,12 @@ class MavlinkExecutor:
         v.items = items
         v.current_seq = None
         v.status = "uploaded"
+
+    async def _disarm(self, v: VehicleState) -> None:
+        await self.router.disarm(v.sysid)
+
+    async def _return(self, v: VehicleState) -> None:
+        await self.router.return_to_launch(v.sysid)
 
     async def _start(self, v: VehicleState) -> None:
         v.status = "starting"
@@ -706,34 +921,176 @@ class MavlinkExecutor:
             raise
 
     def _check_lost(self) -> None:
-        if self._lost is not None:
-            raise VehicleTimeout(self._lost)
+        """Fail only when no vehicle is left; a single loss is handled."""
+        if self.vehicles and all(v.lost is not None for v in self.vehicles.values()):
+            raise VehicleTimeout("every vehicle lost: " + "; ".join(
+                f"vehicle {v.sysid} lost: {v.lost}" for v in self.vehicles.values()))
+
+    async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
+                     on_tick: Callable[[], object] | None = None,
+                     deadline: float | None = None) -> bool:
+        """Wait until ``cond()`` holds, waking whenever something arrives from a vehicle
+        (and every ``tick_s`` for ``on_tick``, e.g. the time limits); False at ``deadline``."""
+        while True:
+            self._changed.clear()
+            if cond():
+                return True
+            if on_tick is not None:
+                on_tick()
+            if deadline is not None and time.monotonic() > deadline:
+                return False
+            with contextlib.suppress(TimeoutError):  # a tick: look again
+                await asyncio.wait_for(self._changed.wait(), tick_s)
+
+    async def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]) -> None:
+        """Run a step with ``v``; if it fails because ``v`` went silent, ``v`` is lost and
+        the run goes on. Any other failure (a refusal from a vehicle that answers) stands."""
+        try:
+            await coro
+        except LinkError as exc:
+            link = self.router.vehicles.get(v.sysid)
+            silent = time.monotonic() - link.last_heartbeat_mono if link else math.inf
+            if v.lost is None and silent <= LOSS_SILENCE_S:
+                raise
+            self._mark_lost(v, f"{exc} (silent for {silent:.0f} s)")
+
+    def _item_limit_s(self, v: VehicleState) -> float:
+        """Sim seconds the current mission item may take (module constants)."""
+        f, seq = v.flight, v.current_seq
+        speed = self.mission.vehicles.speed_mps
+        region = self.mission.region
+        length = 2 * (region.width_m + region.height_m)  # to anywhere in the area
+        if f is not None and not f.tasks:  # home, then down
+            return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S + \
+                2 * self.altitude_m / DESCENT_RATE_MPS
+        task = f.task_at(seq) if f is not None and seq is not None else None
+        if isinstance(task, TraceTask) and f is not None and f.style == TaskStyle.TRACE:
+            # the search, then the trace (up to its limit; a closed one fits the area)
+            length += 2 * math.pi * task.search_radius_m + (
+                task.max_length_m if task.max_length_m > 0 else 4 * length)
+        return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S
+
+    def _check_progress(self, flying: list[VehicleState]) -> None:
+        """A vehicle whose current item takes longer than its limit is lost. The limit is
+        in the vehicle's own sim time (a vehicle slowed by a busy machine is not late); a
+        vehicle whose clock stops while it heartbeats is caught by wall time (10x)."""
+        now = time.monotonic()
+        for v in flying:
+            f = v.flight
+            if v.lost is not None or f is None or f.done or f.landed:
+                continue  # a vehicle that finished (or landed) is not late any more
+            limit_s = self._item_limit_s(v)
+            sim_ms = (self.router.vehicles[v.sysid].time_boot_ms or 0) - v.item_since_ms
+            wall_s = now - v.item_since
+            if sim_ms > 1000 * limit_s or wall_s > 10 * limit_s / self.mission.vehicles.speedup:
+                self._mark_lost(v, f"mission item {v.current_seq} not finished within "
+                                   f"{limit_s:.0f} s of its time")
+                self._spawn(self.router.return_to_launch(v.sysid), v)
+
+    def _spawn(self, coro: Coroutine[Any, Any, Any], v: VehicleState) -> None:
+        """Send a command to a vehicle given up, without waiting (it may not answer)."""
+        task = asyncio.ensure_future(coro)
+
+        def done(t: asyncio.Future[Any]) -> None:
+            if not t.cancelled() and t.exception() is not None:
+                log.warning("vehicle %d (lost): %r", v.sysid, t.exception())
+
+        task.add_done_callback(done)
 
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+        """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
+        during the flight left unfinished, are flown by the others (in further rounds)."""
         self._check_lost()
+        reports = {v.index: self._end_idle(v) for v in self.vehicles.values()}
+        plans = self._reassign([list(p) for p in plans], [])
+        for round_no in range(len(self.sysids)):
+            flown = await self._round(plans, iteration, round_no)
+            leftover: list[tuple[int, list[Task]]] = []
+            for v in flown:
+                r = self._end(v)
+                if v.lost is not None:
+                    left = self._unfinished(r)
+                    if left:
+                        leftover.append((v.sysid, left))
+                    r.outcomes = [o for o in r.outcomes if o.task not in left]
+                reports[v.index] = r if round_no == 0 else _merge(reports[v.index], r)
+            if not leftover:
+                break
+            plans = self._reassign([[] for _ in self.sysids], leftover)
+        out = [reports[v.index] for v in self.vehicles.values()]
+        self.sim_s += max((r.sim_s for r in out), default=0.0)
+        return out
+
+    @staticmethod
+    def _unfinished(report: FlightReport) -> list[Task]:
+        """The tasks of a flight without an outcome (a lost vehicle did not finish them)."""
+        return [o.task for o in report.outcomes if o.status == OutcomeStatus.UNREPORTED]
+
+    def _reassign(self, plans: list[list[Task]],
+                  extra: list[tuple[int, list[Task]]]) -> list[list[Task]]:
+        """Give the plans of lost vehicles, and the ``extra`` (sysid, tasks) they left
+        unfinished, to the vehicles still in service: each batch to the least loaded one,
+        nearest its first task first."""
+        live = [i for i, s in enumerate(self.sysids) if self.vehicles[s].lost is None]
+        if not live:
+            self._check_lost()
+            return plans
+        batches = list(extra)
+        for i, s in enumerate(self.sysids):
+            if self.vehicles[s].lost is not None and plans[i]:
+                batches.append((s, plans[i]))
+                plans[i] = []
+        positions = self.positions()
+        load = {i: len(plans[i]) for i in live}
+        for source, tasks in batches:
+            # split a lost vehicle's tasks over the vehicles left, in order
+            step = max(1, math.ceil(len(tasks) / len(live)))
+            for batch in (tasks[k:k + step] for k in range(0, len(tasks), step)):
+                first = batch[0]
+                i = min(live, key=lambda j: (load[j], math.dist(positions[j],
+                                                                (first.x_m, first.y_m))))
+                plans[i] = plans[i] + batch
+                load[i] += len(batch)
+                pieces = [t.piece_id for t in batch if isinstance(t, TraceTask)]
+                loss = next(x for x in reversed(self.losses) if x["sysid"] == source)
+                loss["reassigned"].append({"iteration": self.iteration, "to": self.sysids[i],
+                                           "tasks": len(batch), "pieces": pieces})
+                log.warning("vehicle %d (lost): %d tasks (pieces %s) go to vehicle %d",
+                            source, len(batch), pieces, self.sysids[i])
+        return plans
+
+    async def _round(self, plans: list[list[Task]], iteration: int, round_no: int
+                     ) -> list[VehicleState]:
+        """Upload, start and fly one set of plans; return the vehicles that flew."""
         flying: list[VehicleState] = []
         t0 = time.monotonic()
         jobs: list[Coroutine[Any, Any, None]] = []
         for sysid, tasks in zip(self.sysids, plans, strict=True):
-            if not tasks:
-                continue
             v = self.vehicles[sysid]
+            if not tasks or v.lost is not None:
+                continue
             flying.append(v)
-            jobs.append(self._plan_and_upload(v, tasks, iteration))
+            jobs.append(self._tolerant(v, self._plan_and_upload(v, tasks, iteration,
+                                                                 round_no)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await self._all(jobs)
-        await self._all([self._start(v) for v in flying])
+        await self._all([self._tolerant(v, self._start(v)) for v in flying if v.lost is None])
         t1 = time.monotonic()
+        for v in flying:
+            v.item_since = t1
+            v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += t1 - t0
-        while not all(v.flight is not None and v.flight.done for v in flying):
+        def tick() -> None:
             self._check_lost()
-            await asyncio.sleep(0.02)
+            self._check_progress(flying)
+
+        await self._until(lambda: all(v.lost is not None or (v.flight is not None
+                                                             and v.flight.done)
+                                      for v in flying), on_tick=tick)
         self.timings["flight_s"] += time.monotonic() - t1
-        reports = [self._end(v) if v in flying else self._end_idle(v)
-                   for v in self.vehicles.values()]
-        self.sim_s += max((r.sim_s for r in reports), default=0.0)
-        return reports
+        await self._recover([v for v in flying if v.lost is None])
+        return flying
 
     def _end_idle(self, v: VehicleState) -> FlightReport:
         self._convert(v)
@@ -745,40 +1102,49 @@ class MavlinkExecutor:
         t0 = time.monotonic()
         going: list[VehicleState] = []
         for v in self.vehicles.values():
+            if v.lost is not None:
+                continue
             link = self.router.vehicles[v.sysid]
             airborne = (link.rel_alt_m or 0.0) > 0.5
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
-                        await self.router.disarm(v.sysid)
+                        await self._tolerant(v, self._disarm(v))
                 continue
             self._begin(v, [])
             going.append(v)
         for v in going:
             v.status = "returning"
-            await self.router.return_to_launch(v.sysid)
+            await self._tolerant(v, self._return(v))
+            # the way home has the time limit of an item anywhere in the area
+            v.item_since = time.monotonic()
+            v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += time.monotonic() - t0
         t1 = time.monotonic()
-        while True:
-            self._check_lost()
+
+        def all_down() -> bool:
             for v in going:
                 link = self.router.vehicles[v.sysid]
                 f = v.flight
                 if f is not None and not f.landed and not link.armed and \
                         (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
-                    f.landed = True  # the heartbeat says so (the STATUSTEXT may be lost)
-            if all(v.flight is None or v.flight.landed for v in going):
-                break
-            await asyncio.sleep(0.02)
+                    f.landed = True  # the heartbeat says so (EXTENDED_SYS_STATE may be lost)
+            return all(v.flight is None or v.flight.landed or v.lost is not None
+                       for v in going)
+
+        def tick() -> None:
+            self._check_lost()
+            self._check_progress(going)
+
+        await self._until(all_down, on_tick=tick)
         # the heartbeat (1 Hz) confirms the disarm; a vehicle that never says so is left be
-        deadline = time.monotonic() + 2.5
-        while any(self.router.vehicles[v.sysid].armed for v in going):
-            if time.monotonic() > deadline:
-                break
-            await asyncio.sleep(0.02)
+        await self._until(lambda: not any(self.router.vehicles[v.sysid].armed
+                                          for v in going if v.lost is None),
+                          deadline=time.monotonic() + 2.5)
         for v in going:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
+        await self._recover(going)
         reports = [self._end(v) if v in going else self._end_idle(v)
                    for v in self.vehicles.values()]
         for r, v in zip(reports, self.vehicles.values(), strict=True):
@@ -787,10 +1153,140 @@ class MavlinkExecutor:
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
         return reports
 
-    # -- for the live displays (terminal, web page) ------------------------------------------
+    # -- sample recovery (README, "No sample lost") ------------------------------------------
+    async def _recover(self, vs: list[VehicleState]) -> None:
+        t0 = time.monotonic()
+        await self._all([self._tolerant(v, self._recover_one(v)) for v in vs
+                         if v.lost is None])
+        self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
+            time.monotonic() - t0
+
+    async def _count(self, v: VehicleState, first_ms: int, last_ms: int) -> int:
+        ack = await self.router.command_int(v.sysid, SAMPLE_COUNT_COMMAND, first_ms, last_ms,
+                                            timeout_s=0.3, retries=20)
+        return int(ack.result_param2)
+
+    def _gaps(self, v: VehicleState, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
+        """Time ranges of [first_ms, last_ms] with no sample here that may hold samples the
+        vehicle took: between two received samples more than 1.5 sensor periods apart,
+        and before the first / after the last. (A range where the vehicle took none, e.g.
+        while it climbed, costs one request and brings nothing.)"""
+        lo = bisect.bisect_left(v.seen_ms, first_ms)
+        hi = bisect.bisect_right(v.seen_ms, last_ms)
+        times = [first_ms - 1, *v.seen_ms[lo:hi], last_ms + 1]
+        period_ms = 1000.0 / self.mission.vehicles.sample_rate_hz
+        # a long gap goes in pieces the vehicle will resend (half its limit at our rate)
+        piece_ms = max(1, int(SAMPLE_RESEND_MAX * period_ms / 2))
+        gaps = []
+        for a, b in zip(times, times[1:], strict=False):
+            if b - a > 1.5 * period_ms or (a == first_ms - 1 and b > first_ms) \
+                    or (b == last_ms + 1 and a < last_ms):
+                gaps += [(s, min(s + piece_ms - 1, b - 1)) for s in range(a + 1, b, piece_ms)]
+        return gaps
+
+    def _pieces(self, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
+        """[first_ms, last_ms] in ranges of at most a quarter of a resend's limit at the
+        mission's sample rate."""
+        step = max(1, int(SAMPLE_RESEND_MAX * 1000.0 / self.mission.vehicles.sample_rate_hz
+                          / 4))
+        return [(s, min(s + step - 1, last_ms)) for s in range(first_ms, last_ms + 1, step)]
+
+    async def _recover_one(self, v: VehicleState) -> None:
+        """Make sure every sample ``v`` took since the last recovery is here: ask for its
+        count, request every gap again, wait for the resends, repeat."""
+        link = self.router.vehicles[v.sysid]
+        first = v.synced_ms + 1
+        last = max(link.time_boot_ms or 0, v.newest_ms)
+        if last < first:
+            return
+        n = have = 0
+        v.recovering = True
+        try:
+            n, have = await self._recover_range(v, first, last)
+            # a report may be stamped after the last time we know of (the vehicle's last
+            # position report can lag behind its last item): ask up to the end of time
+            await self._recover_reports(v, first, 2**31 - 1)
+        finally:
+            v.recovering = False
+        v.vehicle_samples = (v.vehicle_samples or 0) + n
+        v.missing += max(0, n - have)
+        if n > have:
+            log.error("vehicle %d: %d of its %d samples in %d..%d ms never arrived", v.sysid,
+                      n - have, n, first, last)
+        v.synced_ms = last
+
+    async def _recover_range(self, v: VehicleState, first: int, last: int) -> tuple[int, int]:
+        n = have = 0
+        stalled, best = 0, -1
+        for round_no in range(RECOVERY_ROUNDS):
+            self._check_lost()
+            n = await self._count(v, first, last)
+            have = v.count_seen(first, last)
+            if have >= n:
+                break
+            stalled = stalled + 1 if have <= best else 0
+            best = max(best, have)
+            if stalled >= RECOVERY_STALLED_ROUNDS:
+                break
+            # a sample missing where the spacing does not show it (a vehicle sampling faster
+            # than the mission says): the whole range again, in pieces it will resend
+            gaps = self._gaps(v, first, last) or self._pieces(first, last)
+            # fire and forget (what arrives is what counts), a round's worth at a time,
+            # rotating, so gaps where the vehicle took nothing (a climb) cannot crowd out
+            # the others
+            k = round_no * RECOVERY_GAPS_PER_ROUND % len(gaps)
+            for a, b in (gaps[k:] + gaps[:k])[:RECOVERY_GAPS_PER_ROUND]:
+                self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
+            await self._quiet(v)
+        return n, have
+
+    async def _recover_reports(self, v: VehicleState, first: int, last: int) -> None:
+        """Ask again for the TRACE reports of trace items that have none (lost on the way)."""
+        f = v.flight
+        if f is None or f.style != TaskStyle.TRACE:
+            return  # contours flown as waypoints have no TRACE reports
+        for _ in range(RECOVERY_ROUNDS):
+            missing = [t.piece_id for t in f.tasks
+                       if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
+            if not missing:
+                return
+            await self.router.command_int(v.sysid, TRACE_RESEND_COMMAND, first, last,
+                                          timeout_s=0.3, retries=20)
+            await self._until(functools.partial(_all_in, missing, f.pieces),
+                              deadline=time.monotonic() + 1.0)
+        log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
+                  [t.piece_id for t in f.tasks
+                   if isinstance(t, TraceTask) and t.piece_id not in f.pieces])
+
+    async def _quiet(self, v: VehicleState) -> None:
+        """Wait until ``v``'s samples stop arriving (the resends are in, or lost)."""
+        start = time.monotonic()
+        seen = [len(v.seen_ms), start]  # samples so far, and when that last changed
+
+        def quiet() -> bool:
+            now = time.monotonic()
+            if len(v.seen_ms) != seen[0]:
+                seen[:] = [len(v.seen_ms), now]
+            return now - seen[1] >= RECOVERY_SETTLE_S
+
+        await self._until(quiet, tick_s=0.05, deadline=start + 5.0)
+
+    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
+        """Per vehicle: samples it took (its own count), received, recovered by resends,
+        duplicates dropped, missing (for summary.json)."""
+        return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
+                               "recovered": v.recovered, "duplicates": v.duplicates,
+                               "missing": v.missing, "lost": v.lost is not None}
+                for v in self.vehicles.values()}
+
+    # -- for the live display ---------------------------------------------------------------
     def status_rows(self) -> list[VehicleStatus]:
         """A snapshot of every vehicle, in vehicle-index order: the one way displays read
-        vehicle state (safe to call from another thread; nothing returned is live)."""
+        vehicle state (any thread may ask; the rows are made on the thread that owns the
+        state, and nothing returned is live)."""
+        return self._owned(self._status_rows)
+
+    def _status_rows(self) -> list[VehicleStatus]:
         rows = []
         self._convert_all()
         for v in self.vehicles.values():
@@ -807,7 +1303,7 @@ class MavlinkExecutor:
                 heading_deg=link.heading_deg if link else None,
                 flight_time_s=link.airborne_s if link else 0.0,
                 armed=bool(link.armed) if link else False,
-                lost=bool(link.lost) if link else False,
+                lost=v.lost is not None or (bool(link.lost) if link else False),
                 item=v.current_seq if v.current_seq is not None else 0,
                 items=len(v.items) - 1 if v.items else 0,
                 phase=self._phase_now(v),
@@ -880,12 +1376,14 @@ def run_mission(
     quiet: bool = True,
     mission_path: Path | None = None,
     figures: bool = True,
+    mode: RunDirMode = RunDirMode.NEW,
+    signing_key_file: Path | None = None,
+    web: str | None = None,
+    announce: Callable[[str], None] | None = None,
     autopilots: Sequence[VehicleKind] | None = None,
     tolerance_m: float = 1.0,
     forward: str | None = None,
     forward_commands: bool = False,
-    web: str | None = None,
-    announce: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
 
@@ -894,6 +1392,11 @@ def run_mission(
     waypoint polylines for vehicles that refuse contour items. ``forward`` is a watcher's
     ``udpout:HOST:PORT`` that gets every vehicle message (:mod:`.link.forward`); what it sends
     back reaches the vehicles only with ``forward_commands``.
+
+    ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
+    resume a run use :func:`resume_mission`. With ``signing_key_file`` (see
+    :func:`~.signing.load_signing_key`) every message is signed, unsigned telemetry is
+    dropped, and the vehicles this run starts sign too (the key is written nowhere).
     ``web`` (``[HOST:]PORT``) serves the run's page (:mod:`econdor_gcs.web`) with pause /
     resume / stop; ``announce`` is told its address as soon as it listens.
 
@@ -902,10 +1405,11 @@ def run_mission(
     """
     from .dfc import Dfc
     from .fleet import DEFAULT_KIND, Fleet, kinds_for
-    from .plans import keep_mission_file, save_next_batch
-    from .rundir import RunDir
+    from .plans import save_next_batch
+    from .rundir import RunDir, read_checkpoint
 
     wall0 = time.perf_counter()
+    signing = load_signing_key(signing_key_file) if signing_key_file is not None else None
     n = vehicles or mission.vehicles.count
     speed = speedup or mission.vehicles.speedup
     seed = mission.seed if seed is None else seed
@@ -913,12 +1417,23 @@ def run_mission(
     mission = mission.with_vehicles(count=n, speedup=speed)
     out = Path(out)
     kinds = list(autopilots or [DEFAULT_KIND])
-    rd = RunDir(out, grid=mission.grid)
-    if mission_path is not None:
-        keep_mission_file(mission_path, out)
+    resume = mode == RunDirMode.RESUME
+    replay = read_checkpoint(out) if resume else []
+    rd = RunDir(out, mode, grid=mission.grid)
     runlog = RunLog(out / "log.jsonl")
-    tlog = TlogWriter(out / "telemetry.tlog")
-    station = Station(connect or "udpin:127.0.0.1:0", tlog, heartbeat_timeout_s=timeout_s)
+    if not resume:
+        mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
+        rd.write_run_config({
+            "transport": "mavlink", "mission": mission.name, "planner": planner, "seed": seed,
+            "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
+            "mission_path": str(mission_path.resolve()) if mission_path else None,
+            "signed": signing is not None,
+            "autopilots": [str(k) for k in kinds] if connect is None else None,
+            "tolerance_m": tolerance_m,
+        }, mission_text)
+    tlog = TlogWriter(out / "telemetry.tlog", append=resume)
+    station = Station(connect or "udpin:127.0.0.1:0", tlog,
+                      heartbeat_timeout_s=min(timeout_s, LOSS_SILENCE_S), signing=signing)
     _log_station(station.router, runlog)
     forwarder: Forwarder | None = None
     fleet: Fleet | None = None
@@ -962,7 +1477,8 @@ def run_mission(
                 if mission_path is None:
                     raise RunError("run_mission: mission_path is needed to start vehicles")
                 fleet = Fleet(mission_path, out / "vehicles")
-                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed, kinds=kinds)
+                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed,
+                            signing_key_file=signing_key_file, kinds=kinds)
                 sysids = list(range(1, n + 1))
                 try:
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
@@ -976,7 +1492,7 @@ def run_mission(
             executor.wait_ready()
             truth = mission.build_field(seed)
             progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
-            on_samples: list[Callable[[SampleLog], None]] = [rd.append_samples]
+            on_samples: list[Callable[[SampleLog], None]] = []
             if not quiet:
                 from .live import LiveDisplay
 
@@ -987,8 +1503,11 @@ def run_mission(
                 page.attach(executor.status_rows, sysids, station.router)
                 progress.append(page.progress)
                 on_samples.append(page.add_samples)
+            # the run directory records each flight (samples, then its line) before the DFC
+            # uses it; displays see the samples as the DFC takes them in
             dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
                       progress=_all_of(progress), on_samples=_all_of(on_samples),
+                      on_flight=rd.record_flight, replay=replay,
                       checkpoint=page.checkpoint if page is not None else None)
             result = dfc.run()
             if live is not None:
@@ -998,6 +1517,7 @@ def run_mission(
             timings["setup_s"] = t_setup
             result.wall_s = time.perf_counter() - wall0
             result.sim_s = executor.sim_s
+            parser = station.router.parser
             save_next_batch(out, dfc.planner, mission, result)
             started = kinds_for(n, kinds) if connect is None else None
             extra = {**base, "sysids": sysids, "timings": timings,
@@ -1005,10 +1525,22 @@ def run_mission(
                      "forward": ({"to": forward, "commands": forward_commands,
                                   **forwarder.stats} if forwarder is not None else None),
                      "samples_dropped_unpaired": station.router.pairer.dropped,
-                     "report_errors": executor.report_errors}
+                     "report_errors": executor.report_errors,
+                     "sample_recovery": executor.sample_accounting(),
+                     "lost_vehicles": executor.losses,
+                     "fence": {"margin_m": FENCE_MARGIN_M,
+                               "refused_by": executor.fences_refused},
+                     "link": {"bad_packets": parser.bad_packets,
+                              "unknown_packets": parser.unknown_packets,
+                              "unsigned_dropped": parser.unsigned_packets,
+                              "bad_signature_dropped": parser.bad_signature_packets},
+                     "signed": signing is not None}
+            if resume:
+                extra["resumed"] = {"flights_replayed": dfc.replayed,
+                                    "samples_interrupted": rd.interrupted_samples}
             timings["rundir_s"] = rd.write_s
             rd.write_result(result, extra=extra)
-            summary = {**result.summary(), **extra}
+            summary = {**result.summary(), **extra, "samples_recorded": rd.n_samples}
             if page is not None:
                 page.close(summary)
                 page = None
@@ -1026,10 +1558,10 @@ def run_mission(
     finally:
         if live is not None:
             live.stop()
-        if forwarder is not None:
-            station.loop.call_soon_threadsafe(forwarder.close)
         if page is not None:
             page.close(None)
+        if forwarder is not None:
+            station.loop.call_soon_threadsafe(forwarder.close)
         station.close()
         if fleet is not None:
             fleet.stop()
@@ -1111,14 +1643,67 @@ def _logging_to(runlog: RunLog) -> Iterator[None]:
         logger.removeHandler(handler)
 
 
+def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
+                   connect: str | None = None, timeout_s: float | None = None,
+                   signing_key_file: Path | None = None) -> dict[str, Any]:
+    """Continue the MAVLink run recorded in ``out`` after its last finished flight.
+
+    The finished flights are replayed from ``flights.jsonl`` and ``samples.csv`` (the DFC
+    plans them again from the same estimates and checks the plans match), then the vehicles
+    fly on from wherever they are: started anew by this process, or the ones at
+    ``connect`` (default: the run's own ``--connect``). Samples of the interrupted flight
+    are kept in ``samples_interrupted.csv`` and not used.
+    """
+    from .fleet import VehicleKind
+    from .mission import parse_mission
+    from .rundir import read_run_config
+
+    config = read_run_config(out)
+    if config.get("transport") != "mavlink":
+        raise RunError(f"{out}: a {config.get('transport')} run, not a MAVLink one")
+    if config.get("signed") and signing_key_file is None:
+        raise RunError(f"{out}: the run was signed; resume it with --signing-key")
+    copy = out / "mission.yaml"
+    original = Path(config["mission_path"]) if config.get("mission_path") else None
+    try:
+        text = copy.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RunError(f"{copy}: cannot read the run's mission ({exc.strerror or exc})") from exc
+    import yaml
+
+    base_dir = original.parent if original is not None else out
+    mission = parse_mission(yaml.safe_load(text), base_dir=base_dir, source=str(copy))
+    mission_path = original if original is not None and original.exists() else copy
+    return run_mission(
+        mission, out, planner=config["planner"], vehicles=config["vehicles"],
+        speedup=config["speedup"], seed=config["seed"],
+        connect=connect if connect is not None else config.get("connect"),
+        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
+        quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
+        signing_key_file=signing_key_file,
+        autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
+        tolerance_m=float(config.get("tolerance_m", 1.0)))
+
+
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
                    base: dict[str, Any], timings: dict[str, float], fill: Any,
                    error: str) -> None:
-    with contextlib.suppress(Exception):
-        if executor is not None:
+    """Leave a usable run directory after ``error``: the samples still pending, the metrics
+    so far, a ``summary.json`` with ``"error"``.
+
+    Failures on this path do not hide the original error: each is logged (one line on
+    stderr) and listed in the summary's ``"error_path"``.
+    """
+    problems: list[str] = []
+    if executor is not None:
+        try:
             pending = executor.pending_samples()
             if len(pending):
-                rd.append_samples(pending)
+                # an unfinished flight: resume sets these aside (no flights.jsonl line)
+                rd.append_samples(pending, executor.iteration)
+        except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
+            problems.append(f"the samples still pending were not written: {exc!r}")
+            log.exception("econdor: %s", problems[-1])
     fill()
     records = list(dfc.records) if dfc is not None else []
     last = records[-1] if records else None
@@ -1131,14 +1716,19 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
         "span_ratio": last.span_ratio if last else None,
         "flight_distance_m": dfc.flight_m if dfc is not None else 0.0,
         "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
-        "samples": rd.n_samples,
+        "samples": sum(len(s) for s in dfc.logs) if dfc is not None else 0,
+        "samples_recorded": rd.n_samples,
         "converged": False,
         "wall_s": timings.get("total_wall_s"),
         "sim_s": timings.get("sim_s", 0.0),
         "timings": timings,
     }
-    with contextlib.suppress(Exception):
+    if problems:
+        summary["error_path"] = problems
+    try:
         rd.write_partial(records, summary)
+    except Exception as exc:  # noqa: BLE001 - as above
+        log.exception("econdor: the partial summary.json was not written: %r", exc)
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
@@ -1158,27 +1748,38 @@ async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
 
 def run_mission_cli(args: Any) -> int:
     """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
-    from .mission import load_mission
-
-    mission = load_mission(args.mission)
-    out = args.out or _default_out(mission)
     from .fleet import parse_kinds
+    from .mission import load_mission
 
     web = getattr(args, "web", None)
     kinds = parse_kinds(args.autopilot) if getattr(args, "autopilot", None) else None
-    if getattr(args, "forward_commands", False) and not getattr(args, "forward", None):
+    forward = getattr(args, "forward", None)
+    forward_commands = bool(getattr(args, "forward_commands", False))
+    if forward_commands and not forward:
         raise EcondorError("--forward-commands needs --forward udpout:HOST:PORT")
     if kinds is not None and args.connect:
         raise EcondorError("--autopilot chooses the vehicles econdor starts; with --connect "
                            "the vehicles are started elsewhere")
-    summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
-                          speedup=args.speedup, seed=args.seed, connect=args.connect,
-                          timeout_s=args.timeout, quiet=args.quiet, mission_path=args.mission,
-                          autopilots=kinds,
-                          tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
-                          forward=getattr(args, "forward", None),
-                          forward_commands=bool(getattr(args, "forward_commands", False)),
-                          web=web, announce=lambda url: print(f"web: {url}", flush=True))
+    if args.resume is not None:
+        if kinds is not None:
+            raise EcondorError("--autopilot: a resumed run starts the vehicles it started "
+                               "before (its run.json)")
+        out = args.resume
+        summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
+                                 timeout_s=args.timeout, signing_key_file=args.signing_key)
+    else:
+        mission = load_mission(args.mission)
+        out = args.out or _default_out(mission)
+        mode = RunDirMode.FORCE if args.force else RunDirMode.NEW
+        summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
+                              speedup=args.speedup, seed=args.seed, connect=args.connect,
+                              timeout_s=args.timeout, quiet=args.quiet,
+                              mission_path=args.mission, mode=mode,
+                              signing_key_file=args.signing_key, web=web,
+                              announce=lambda url: print(f"web: {url}", flush=True),
+                              autopilots=kinds,
+                              tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
+                              forward=forward, forward_commands=forward_commands)
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

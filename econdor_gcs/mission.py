@@ -24,7 +24,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -165,6 +165,23 @@ def _coerce(where: str, value: Any, typ: type | tuple[type, ...]) -> Any:
     raise AssertionError(typ)  # pragma: no cover
 
 
+def _key(key: Any) -> str:
+    """A key as an error message shows it: plain if it is plain text, else its repr (so a
+    message stays one line whatever the YAML held).
+
+    >>> _key("width_m"), _key("a\\nb"), _key(3)
+    ('width_m', "'a\\\\nb'", '3')
+    """
+    if isinstance(key, str) and key and key.isprintable() and key.strip() == key:
+        return key
+    return repr(key)
+
+
+def _unknown(raw: Mapping[Any, Any], allowed: Iterable[str]) -> list[str]:
+    allowed = set(allowed)
+    return sorted(_key(k) for k in raw if not (isinstance(k, str) and k in allowed))
+
+
 def _section(
     name: str, raw: Any, schema: Mapping[str, tuple[type | tuple[type, ...], Any, Check | None]]
 ) -> dict[str, Any]:
@@ -172,7 +189,7 @@ def _section(
         raw = {}
     if not isinstance(raw, Mapping):
         raise MissionError(f"{name}: expected a mapping, got {type(raw).__name__}")
-    unknown = sorted(set(raw) - set(schema))
+    unknown = _unknown(raw, schema)
     if unknown:
         raise MissionError(
             f"{name}.{unknown[0]}: unknown key (allowed: {', '.join(sorted(schema))})"
@@ -296,7 +313,7 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
     """Validate an already-parsed YAML document."""
     if not isinstance(raw, Mapping):
         raise MissionError(f"{source}: expected a mapping at the top level")
-    unknown = sorted(set(raw) - _TOP_KEYS)
+    unknown = _unknown(raw, _TOP_KEYS)
     if unknown:
         raise MissionError(f"{unknown[0]}: unknown key (allowed: {', '.join(sorted(_TOP_KEYS))})")
     if "field" not in raw:
@@ -307,7 +324,7 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
     model = fraw.get("model")
     if model is None:
         raise MissionError("field.model: missing required key")
-    if model not in _FIELD_SCHEMA:
+    if not isinstance(model, str) or model not in _FIELD_SCHEMA:
         raise MissionError(f"field.model: must be one of {', '.join(_FIELD_SCHEMA)}; got {model!r}")
     fparams = _section("field", {k: v for k, v in fraw.items() if k != "model"},
                        _FIELD_SCHEMA[model])
@@ -316,6 +333,9 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
     name = raw.get("name", "mission")
     if not isinstance(name, str):
         raise MissionError(f"name: expected a string, got {name!r}")
+    if not name or not name.isprintable() or any(c in name for c in "/\\"):
+        raise MissionError(f"name: must be printable text without / or \\ (it names run "
+                           f"directories), got {name!r}")
     seed = _coerce("seed", raw.get("seed", 0), int)
     if seed < 0:
         raise MissionError(f"seed: must be >= 0, got {seed}")
@@ -351,6 +371,8 @@ def load_mission(path: str | Path) -> Mission:
         raise MissionError(f"{p}: no such mission file") from exc
     except OSError as exc:
         raise MissionError(f"{p}: cannot read ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise MissionError(f"{p}: not UTF-8 text (byte {exc.start})") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:

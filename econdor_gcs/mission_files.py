@@ -119,6 +119,40 @@ def is_global_frame(frame: int) -> bool:
     return frame in _GLOBAL_FRAMES
 
 
+_FLOAT32_MAX = 3.4028234663852886e38
+_UINT = {"seq": 0xFFFF, "command": 0xFFFF, "frame": 0xFF, "current": 0xFF,
+         "autocontinue": 0xFF}
+
+
+def _checked(item: MissionItemSpec, where: str) -> MissionItemSpec:
+    """``item`` if it fits a MISSION_ITEM_INT (and its position is on the globe), else an
+    :class:`EcondorError` naming the field.
+
+    >>> _checked(MissionItemSpec(0, 6, 16, x=900_000_001), "f line 2")
+    Traceback (most recent call last):
+    ...
+    econdor_gcs.errors.EcondorError: f line 2: latitude 90.0000001 out of range [-90, 90]
+    """
+    for name, top in _UINT.items():
+        v = getattr(item, name)
+        if not 0 <= v <= top:
+            raise EcondorError(f"{where}: {name} {v} out of range [0, {top}]")
+    for name in ("param1", "param2", "param3", "param4", "z"):
+        v = getattr(item, name)
+        if math.isfinite(v) and abs(v) > _FLOAT32_MAX:
+            raise EcondorError(f"{where}: {name} {v:g} does not fit a float32")
+    if is_global_frame(item.frame):
+        if not -90 * 10**7 <= item.x <= 90 * 10**7:
+            raise EcondorError(f"{where}: latitude {item.x / 1e7} out of range [-90, 90]")
+        if not -180 * 10**7 <= item.y <= 180 * 10**7:
+            raise EcondorError(f"{where}: longitude {item.y / 1e7} out of range [-180, 180]")
+    for name in ("x", "y"):
+        v = getattr(item, name)
+        if not -(2**31) <= v < 2**31:
+            raise EcondorError(f"{where}: {name} {v} does not fit an int32")
+    return item
+
+
 def _check_item(where: str, seq: int, expected_seq: int, frame: int, command: int,
                 lat: float, lon: float, z: float) -> None:
     """One item's sanity: order, known frame and command, coordinates in range."""
@@ -224,9 +258,9 @@ def _parse_wpl(text: str, name: str, int_frames: bool) -> list[MissionItemSpec]:
             xi, yi = round(x) if math.isfinite(x) else 0, round(y) if math.isfinite(y) else 0
         if int_frames:
             frame = _FLOAT_TO_INT.get(frame, frame)
-        items.append(MissionItemSpec(
+        items.append(_checked(MissionItemSpec(
             seq=seq, frame=frame, command=command, current=current, autocontinue=autocontinue,
-            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z))
+            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z), where))
     return items
 
 
@@ -448,11 +482,11 @@ def plan_to_file(doc: Any, *, name: str = "<plan>", int_frames: bool = False) ->
                     p[6] if math.isfinite(p[6]) else 0.0)
         scale = 1e7 if is_global_frame(frame) else 1.0
         x, y = (round(v * scale) if math.isfinite(v) else 0 for v in p[4:6])
-        items.append(MissionItemSpec(
+        items.append(_checked(MissionItemSpec(
             seq=len(items), frame=frame_of(frame), command=command,
             current=1 if not items else 0, autocontinue=int(bool(entry.get("autoContinue", True))),
             param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=int(x), y=int(y),
-            z=p[6] if math.isfinite(p[6]) else 0.0))
+            z=p[6] if math.isfinite(p[6]) else 0.0), where))
     fence = _fence_items(doc["geoFence"], name) if "geoFence" in doc else []
     rally = _rally_items(doc["rallyPoints"], name) if "rallyPoints" in doc else []
     return MissionFile(items, fence, rally, home_alt)

@@ -3,7 +3,8 @@
 ``econdor run`` leaves in its run directory:
 
 ``mission.yaml``
-    a copy of the mission it ran (origin, area, altitude, speed, search radius);
+    a copy of the mission it ran (written with ``run.json``; origin, area, altitude, speed,
+    search radius);
 ``missions/iter{NN}_v{sysid}.tasks.json``
     the tasks each vehicle was given in iteration NN, trace tasks with their estimated
     contour (``route_m``), so that ``econdor export --iteration NN`` can rebuild the mission
@@ -34,7 +35,7 @@ from .mission import Mission
 if TYPE_CHECKING:
     from .dfc import RunResult
 
-__all__ = ["keep_mission_file", "read_next_batch", "read_tasks", "save_next_batch",
+__all__ = ["read_next_batch", "read_tasks", "save_next_batch",
            "task_from_json", "task_to_json", "write_next_batch", "write_tasks"]
 
 FORMAT_VERSION = 1
@@ -165,15 +166,6 @@ def read_next_batch(path: str | Path) -> tuple[int, list[Job]]:
     if not isinstance(it, int) or isinstance(it, bool):
         raise EcondorError(f"{path}: iteration must be an integer")
     return it, [_job_from_json(j, f"{path}: jobs[{i}]") for i, j in enumerate(jobs)]
-
-
-def keep_mission_file(mission_path: str | Path, run_dir: Path) -> None:
-    """A copy of the mission YAML in the run directory (``econdor export`` re-plans from it)."""
-    try:
-        (run_dir / "mission.yaml").write_bytes(Path(mission_path).read_bytes())
-    except OSError as exc:
-        raise RunError(f"{run_dir}: cannot keep a copy of {mission_path} "
-                       f"({exc.strerror or exc})") from exc
 
 
 def save_next_batch(run_dir: Path, planner: Planner, mission: Mission,

@@ -10,6 +10,8 @@ accounts for them.
 from __future__ import annotations
 
 from collections.abc import Generator
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +28,10 @@ from econdor_gcs.core.tasks import (
     Waypoint,
 )
 from econdor_gcs.core.waypoints import task_waypoints
+from econdor_gcs.dfc import Dfc, Progress, RunResult
+from econdor_gcs.errors import RunError
 from econdor_gcs.mission import Mission
+from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
 from sim_vehicle.body import Sample, SimBody
 from sim_vehicle.executor import run_plan, run_task
 from sim_vehicle.kinematics import VehicleLimits
@@ -89,28 +94,92 @@ class InProcessExecutor:
         rows: list[tuple[float, float, float, float, int]] = []
         outcomes: list[TaskOutcome] = []
 
-        def leg(wp: Waypoint, phase: Phase) -> float:
+        def leg(wp: Waypoint, phase: Phase) -> tuple[float, OutcomeStatus]:
             odo = body.odometer_m
             gen: Generator[Sample, None, TaskOutcome] = run_task(body, wp, self.params)
             while True:
                 try:
                     s = next(gen)
-                except StopIteration:
-                    return body.odometer_m - odo
+                except StopIteration as stop:
+                    return body.odometer_m - odo, stop.value.status
                 rows.append((s.t_s, s.x_m, s.y_m, s.value, int(phase)))
 
         for task in tasks:
             wps = task_waypoints(task, self.tolerance_m)
             along = isinstance(task, TraceTask)
-            flown = [leg(wp, Phase.TRACE if along and k > 0 else Phase.TRANSIT)
-                     for k, wp in enumerate(wps)]
-            outcomes.append(TaskOutcome(task, OutcomeStatus.REACHED, sum(flown),
+            legs = [leg(wp, Phase.TRACE if along and k > 0 else Phase.TRANSIT)
+                    for k, wp in enumerate(wps)]
+            flown = [m for m, _ in legs]
+            # a leg whose time budget ran out makes the whole task unreachable
+            status = next((st for _, st in legs if st != OutcomeStatus.REACHED),
+                          OutcomeStatus.REACHED)
+            outcomes.append(TaskOutcome(task, status, sum(flown),
                                         sum(flown[1:]) if along else 0.0))
-        log = SampleLog.from_rows([(*r, vehicle) for r in rows])
+        a = np.asarray(rows, dtype=float).reshape(-1, 5)
+        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
+                        a[:, 4].astype(np.int8), np.full(len(a), vehicle, dtype=np.int16))
         return FlightReport(vehicle=vehicle, samples=log, flown_m=body.odometer_m - odo0_m,
                             traced_m=float(sum(o.traced_m for o in outcomes)),
                             outcomes=outcomes, end_x_m=body.x_m, end_y_m=body.y_m,
                             sim_s=body.t_s - t0_s)
 
+    def state(self) -> dict[str, Any]:
+        """The vehicles' state between flights (what a resumed run restores)."""
+        return {"bodies": [b.checkpoint() for b in self.bodies]}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        bodies = state["bodies"]
+        if len(bodies) != len(self.bodies):
+            raise RunError(f"cannot resume: {len(bodies)} vehicles recorded, "
+                           f"{len(self.bodies)} now")
+        for body, b in zip(self.bodies, bodies, strict=True):
+            body.restore(b)
+
     def finish(self) -> list[FlightReport]:
         return self.fly([[Waypoint(*self.home)] for _ in self.bodies], -1)
+
+
+def run_inprocess(mission: Mission, out: str | Path, *, planner: str | None = None,
+                  seed: int | None = None, n_vehicles: int | None = None,
+                  mode: RunDirMode = RunDirMode.NEW, progress: Progress | None = None,
+                  extra: dict[str, Any] | None = None, style: TaskStyle = TaskStyle.TRACE,
+                  tolerance_m: float = 1.0) -> RunResult:
+    """One in-process DFC run into the run directory ``out``.
+
+    With ``mode=RunDirMode.RESUME`` the run recorded in ``out`` (its ``run.json`` gives the
+    planner, seed and fleet size) continues after its last finished flight: the finished
+    flights are replayed from ``flights.jsonl`` and ``samples.csv``, the vehicles restored to
+    where they were, and the run ends with exactly the result an uninterrupted run of the
+    same seed has.
+    """
+    out = Path(out)
+    if mode == RunDirMode.RESUME:
+        config = read_run_config(out)
+        if config.get("transport") != "in-process":
+            raise RunError(f"{out}: a {config.get('transport')} run; resume it with econdor run")
+        for key, given in (("planner", planner), ("seed", seed), ("vehicles", n_vehicles)):
+            if given is not None and given != config[key]:
+                raise RunError(f"{out}: recorded with {key} {config[key]}, not {given}")
+        planner, seed, n_vehicles = config["planner"], config["seed"], config["vehicles"]
+    planner = planner or mission.algorithm.planner
+    seed = mission.seed if seed is None else seed
+    n = n_vehicles or mission.vehicles.count
+    replay = read_checkpoint(out) if mode == RunDirMode.RESUME else []
+    rd = RunDir(out, mode)
+    try:
+        if mode != RunDirMode.RESUME:
+            rd.write_run_config({"transport": "in-process", "mission": mission.name,
+                                 "planner": planner, "seed": seed, "vehicles": n}, None)
+        field = mission.build_field(seed)
+        executor = InProcessExecutor(mission, field, n_vehicles=n, seed=seed, style=style,
+                                     tolerance_m=tolerance_m)
+        dfc = Dfc(mission, executor, planner=planner, truth=field, seed=seed,
+                  progress=progress, on_flight=rd.record_flight, replay=replay)
+        result = dfc.run()
+        resumed = {"resumed": {"flights_replayed": dfc.replayed,
+                               "samples_interrupted": rd.interrupted_samples}} if replay else {}
+        rd.write_result(result, {"mission": mission.name, "transport": "in-process",
+                                 **resumed, **(extra or {})})
+    finally:
+        rd.close()
+    return result

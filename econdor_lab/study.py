@@ -25,9 +25,10 @@ from econdor_gcs.core.tasks import TaskStyle
 from econdor_gcs.dfc import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import Mission
-from econdor_gcs.rundir import RunDir, write_json
+from econdor_gcs.rundir import RunDirMode, write_json
+from sim_vehicle.tracer import warm_up
 
-from .inprocess import InProcessExecutor
+from .inprocess import InProcessExecutor, run_inprocess
 
 _BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels")
@@ -64,28 +65,36 @@ def run_seed(mission: Mission, seed: int, planner: str, out_dir: str | None,
 
     ``style`` is how the vehicles get contour pieces (``WAYPOINTS``: as stock autopilots,
     the estimated contour simplified to ``tolerance_m``)."""
-    field = mission.build_field(seed)
-    executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed, style=style,
-                                 tolerance_m=tolerance_m)
     run_dir = None
-    rd = None
     if out_dir is not None:
+        # a study owns its runs/ folder: a re-run of the same study replaces its runs
         run_dir = str(Path(out_dir) / "runs" / f"{planner}-{seed}")
-        rd = RunDir(run_dir)
-    try:
-        dfc = Dfc(mission, executor, planner=planner, truth=field, seed=seed,
-                  on_samples=rd.append_samples if rd else None)
-        result = dfc.run()
-        if rd is not None:
-            rd.write_result(result, {"mission": mission.name, "transport": "in-process"})
-    finally:
-        if rd is not None:
-            rd.close()
+        result = run_inprocess(mission, run_dir, planner=planner, seed=seed,
+                               n_vehicles=n_vehicles, mode=RunDirMode.FORCE, style=style,
+                               tolerance_m=tolerance_m)
+    else:
+        field = mission.build_field(seed)
+        executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed,
+                                     style=style, tolerance_m=tolerance_m)
+        result = Dfc(mission, executor, planner=planner, truth=field, seed=seed).run()
     rows = [study_row(seed, planner, r) for r in result.records]
     return {"summary": result.summary(), "rows": rows, "run_dir": run_dir,
+            "worker": worker_info(),
             "levels": [r.levels for r in result.records],
             "kappa": [r.kappa for r in result.records],
             "delta": [r.delta for r in result.records]}
+
+
+def worker_info() -> dict[str, int]:
+    """The process a run ran in, and how often numba compiled (``tracer_compilations``) or
+    loaded from its disk cache (``tracer_cache_loads``) the tracer there so far: a worker
+    that reuses its compiled code shows one load (or one compilation) however many runs."""
+    from sim_vehicle import machine
+
+    stats = machine.advance.stats
+    return {"pid": os.getpid(), "tracer_compilations": sum(stats.cache_misses.values()),
+            "tracer_cache_loads": sum(stats.cache_hits.values()),
+            "tracer_signatures": len(machine.advance.signatures)}
 
 
 def _median(values: Iterable[float]) -> float:
@@ -133,6 +142,9 @@ def run_study(
     t0 = time.perf_counter()
     results: list[dict[str, Any]] = []
     notify = progress or (lambda r: None)
+    # load the compiled tracer (compile it, on a cold cache) once, before any run: the runs'
+    # wall times are then the runs', and workers load it from the disk cache
+    warm_up()
     if scheduler:
         results = _run_dask(mission, jobs, str(out), scheduler, notify, connect_timeout_s)
     elif (workers or 1) <= 1 or len(jobs) == 1:

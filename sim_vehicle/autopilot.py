@@ -26,6 +26,7 @@ SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -33,7 +34,13 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
-from econdor_gcs.core.tasks import Phase
+from econdor_gcs.core.tasks import (
+    SAMPLE_COUNT_COMMAND,
+    SAMPLE_RESEND_COMMAND,
+    SAMPLE_RESEND_MAX,
+    TRACE_RESEND_COMMAND,
+    Phase,
+)
 
 from .body import Sample
 from .mission_server import MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
@@ -117,7 +124,11 @@ class Autopilot:
         self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line,
                                    streams_on_request=self.streams_on_request)
         self.activity: Activity | None = None
-        self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0}
+        self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
+                                         "commands_repeated": 0}
+        self._last_command: tuple[tuple[Any, ...], int] | None = None
+        """The last COMMAND_LONG run (sender, command, params) and its result: a resend of it
+        (``confirmation`` > 0) is answered, not run again."""
         self.unhandled: dict[str, int] = {}
 
     # -- the personality's part ----------------------------------------------------------------
@@ -264,23 +275,61 @@ class Autopilot:
                                                              msg.ts1))
 
     def _on_command_long(self, msg: Any) -> None:
-        self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
-                                         msg.param5, msg.param6, msg.param7])
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
+                  msg.param7]
+        key = (msg.get_srcSystem(), msg.get_srcComponent(), msg.command,
+               tuple(struct.pack("<7f", *params)))
+        last = self._last_command
+        if msg.confirmation > 0 and last is not None and last[0] == key:
+            # a resend because our COMMAND_ACK was lost: answer again, do not run it twice
+            # (a second MISSION_START would restart the mission, a second RTL after landing
+            # would be refused)
+            self.counters["commands_repeated"] += 1
+            self.outbox.put(mavlink.MAVLink_command_ack_message(
+                msg.command, last[1], 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+            return
+        result = self._command(msg, msg.command, params)
+        self._last_command = (key, result)
 
     def _on_command_int(self, msg: Any) -> None:
+        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND):
+            self._sample_command(msg)
+            return
         self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
                                          msg.x / 1e7, msg.y / 1e7, msg.z])
+
+    def _sample_command(self, msg: Any) -> None:
+        """The station's sample recovery (COMMAND_INT, x/y = first/last time_boot_ms)."""
+        self.counters["commands"] += 1
+        first, last = int(msg.x) & 0xFFFFFFFF, int(msg.y) & 0xFFFFFFFF
+        if msg.command == TRACE_RESEND_COMMAND:
+            reports = self.outbox.archive.reports_between(first, last)
+            self.outbox.put(mavlink.MAVLink_command_ack_message(
+                msg.command, ACCEPTED, 0, len(reports), msg.get_srcSystem(),
+                msg.get_srcComponent()))
+            for report in reports:
+                self.outbox.put(report)
+            return
+        n = self.outbox.archive.count(first, last) if first <= last else 0
+        too_many = msg.command == SAMPLE_RESEND_COMMAND and n > SAMPLE_RESEND_MAX
+        result = DENIED if too_many else ACCEPTED
+        # the ACK first: the station learns how many follow before they arrive
+        self.outbox.put(mavlink.MAVLink_command_ack_message(
+            msg.command, result, 0, n, msg.get_srcSystem(), msg.get_srcComponent()))
+        if msg.command == SAMPLE_RESEND_COMMAND and result == ACCEPTED and n:
+            self.outbox.resend(first, last)
 
     def _on_set_mode(self, msg: Any) -> None:
         self.on_set_mode(msg)
 
-    def _command(self, msg: Any, cmd: int, p: list[float]) -> None:
+    def _command(self, msg: Any, cmd: int, p: list[float]) -> int:
         self.counters["commands"] += 1
         result, after = self.execute_command(cmd, p)
         self.outbox.put(mavlink.MAVLink_command_ack_message(
             cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
         for m in after:
             self.outbox.put(m)
+        return result
 
     # -- commands ------------------------------------------------------------------------------
 

@@ -3,6 +3,9 @@
 The sensor reads the field **only at the vehicle's own position**, once per tick,
 optionally with additive Gaussian noise. Nothing else in the simulated vehicle may
 evaluate the field.
+
+The body's state lives in one :data:`~sim_vehicle.machine.BODY` record that the compiled
+tracer (:mod:`sim_vehicle.machine`) advances in place; the properties here read it.
 """
 
 from __future__ import annotations
@@ -13,12 +16,23 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from econdor_gcs.core.fields import GaussianSumField, gaussian_sum_at
 from econdor_gcs.core.geometry import Region
 
-from .kinematics import PointMass, VehicleLimits
+from .kinematics import VehicleLimits, check_step
+from .machine import BODY, body_move
 
 MAX_SUBSTEP_S = 0.02
 """Kinematics are integrated with sub-steps no longer than this."""
+
+_NO_TERMS = np.zeros(0)
+# 8-byte slots of the BODY record, read through plain float64 / int64 views (much cheaper
+# per read than a field lookup on a record)
+_SLOT = {name: offset // 8 for name, (_, offset, *_) in (BODY.fields or {}).items()}
+_X, _Y, _VX, _VY = _SLOT["x_m"], _SLOT["y_m"], _SLOT["vx_mps"], _SLOT["vy_mps"]
+_ODO, _HDG, _T0, _DT = (_SLOT["odometer_m"], _SLOT["last_heading_rad"], _SLOT["t0_s"],
+                        _SLOT["dt_s"])
+_TICKS = _SLOT["ticks"]
 
 
 class Sample(NamedTuple):
@@ -38,7 +52,9 @@ class SimBody:
     ----------
     field
         ``field(x, y) -> value``; called with ``np.float64`` scalars, the result is
-        converted with ``float()``.
+        converted with ``float()``. A :class:`~econdor_gcs.core.fields.GaussianSumField`
+        (the paper, authors and plume models) is read by compiled code; any other field
+        (a raster, a test function) through this call, one tick at a time.
     region
         The area the vehicle's tasks are confined to.
     x_m, y_m
@@ -78,55 +94,109 @@ class SimBody:
         self.dt_s = 1.0 / self.sample_rate_hz
         self.noise_std = float(noise_std)
         self._rng = rng if rng is not None else np.random.default_rng()
-        self._t0_s = float(t_s)
-        self._ticks = 0
-        self._n_sub = max(1, math.ceil(self.dt_s / MAX_SUBSTEP_S - 1e-9))
-        self.point = PointMass(x_m, y_m, limits)
+        self._noise = np.zeros(0)  # drawn ahead, used in order (one value per tick)
+        self.state = np.zeros(1, dtype=BODY)
+        s = self._s = self.state[0]
+        self._f = self.state.view(np.float64)
+        self._i = self.state.view(np.int64)
+        s["x_m"], s["y_m"] = float(x_m), float(y_m)
+        s["t0_s"], s["dt_s"] = float(t_s), self.dt_s
+        s["n_sub"] = max(1, math.ceil(self.dt_s / MAX_SUBSTEP_S - 1e-9))
+        s["max_speed_mps"] = limits.max_speed_mps
+        s["max_accel_mps2"] = limits.max_accel_mps2
+        s["max_turn_rate_dps"] = limits.max_turn_rate_dps
+        s["xmin"], s["xmax"], s["ymin"], s["ymax"] = (region.xmin, region.xmax, region.ymin,
+                                                      region.ymax)
+        if isinstance(field, GaussianSumField):
+            self.field_terms = (1, field.cx_m, field.cy_m, field.inv2s2, field.weights,
+                                field.scale, field.offset)
+        else:
+            self.field_terms = (0, _NO_TERMS, _NO_TERMS, _NO_TERMS, _NO_TERMS, 1.0, 0.0)
 
     @property
     def t_s(self) -> float:
         """Current sim time in seconds."""
-        return self._t0_s + self._ticks * self.dt_s
+        return self._f.item(_T0) + self._i.item(_TICKS) * self._f.item(_DT)
 
     @property
     def x_m(self) -> float:
         """Current easting."""
-        return self.point.x_m
+        return self._f.item(_X)
 
     @property
     def y_m(self) -> float:
         """Current northing."""
-        return self.point.y_m
+        return self._f.item(_Y)
 
     @property
     def vx_mps(self) -> float:
         """Current east velocity."""
-        return self.point.vx_mps
+        return self._f.item(_VX)
 
     @property
     def vy_mps(self) -> float:
         """Current north velocity."""
-        return self.point.vy_mps
+        return self._f.item(_VY)
 
     @property
     def speed_mps(self) -> float:
         """Current ground speed."""
-        return self.point.speed_mps
+        return math.hypot(self.vx_mps, self.vy_mps)
 
     @property
     def heading_rad(self) -> float:
-        """Velocity heading (ENU radians)."""
-        return self.point.heading_rad
+        """Velocity heading (ENU radians); the last heading flown when at rest."""
+        vx, vy = self.vx_mps, self.vy_mps
+        if vx != 0.0 or vy != 0.0:
+            return math.atan2(vy, vx)
+        return self._f.item(_HDG)
 
     @property
     def odometer_m(self) -> float:
         """Distance flown since construction."""
-        return self.point.odometer_m
+        return self._f.item(_ODO)
 
     @property
     def ticks(self) -> int:
         """Number of ticks taken so far."""
-        return self._ticks
+        return self._i.item(_TICKS)
+
+    def noise_ahead(self, n: int) -> np.ndarray:
+        """The sensor noise of the next ``n`` ticks (empty without noise), drawn ahead in
+        order from the body's generator; :meth:`noise_used` consumes it."""
+        if self.noise_std <= 0.0:
+            return _NO_TERMS
+        if len(self._noise) < n:
+            more = self._rng.normal(0.0, self.noise_std, size=n - len(self._noise))
+            self._noise = np.concatenate([self._noise, more])
+        return self._noise[:n]
+
+    def noise_used(self, n: int) -> None:
+        """Drop the first ``n`` values of the noise drawn ahead."""
+        if n:
+            self._noise = self._noise[n:]
+
+    def read_field(self) -> float:
+        """The true field at the current position (no noise)."""
+        kind, cx, cy, inv, w, scale, offset = self.field_terms
+        if kind == 1:
+            return offset + scale * gaussian_sum_at(self.x_m, self.y_m, cx, cy, inv, w)
+        return float(self._field(np.float64(self.x_m), np.float64(self.y_m)))
+
+    def checkpoint(self) -> dict[str, Any]:
+        """Everything that moves (the machine's record: time, position, velocity, heading,
+        odometer), the noise drawn ahead and the noise generator, JSON-safe;
+        :meth:`restore` puts it back exactly."""
+        record = {name: self.state[0][name].item() for name in self.state.dtype.names or ()}
+        return {"record": record, "noise_ahead": self._noise.tolist(),
+                "rng": self._rng.bit_generator.state}
+
+    def restore(self, checkpoint: dict[str, Any]) -> None:
+        """Continue from a :meth:`checkpoint` of a body built with the same parameters."""
+        for name, value in checkpoint["record"].items():
+            self.state[0][name] = value
+        self._noise = np.asarray(checkpoint["noise_ahead"], dtype=float)
+        self._rng.bit_generator.state = checkpoint["rng"]
 
     def sense(self) -> float:
         """Read the sensor at the current position (true value + noise).
@@ -136,9 +206,11 @@ class SimBody:
         float
             The measured value.
         """
-        value = float(self._field(np.float64(self.point.x_m), np.float64(self.point.y_m)))
-        if self.noise_std > 0.0:
-            value += float(self._rng.normal(0.0, self.noise_std))
+        value = self.read_field()
+        noise = self.noise_ahead(1)
+        if len(noise):
+            value += float(noise[0])
+            self.noise_used(1)
         return value
 
     def tick(self, vx_cmd_mps: float, vy_cmd_mps: float, phase: int) -> Sample:
@@ -156,11 +228,9 @@ class SimBody:
         Sample
             The reading taken at the new position and time.
         """
-        sub_dt_s = self.dt_s / self._n_sub
-        for _ in range(self._n_sub):
-            self.point.step(sub_dt_s, vx_cmd_mps, vy_cmd_mps)
-        self._ticks += 1
-        return Sample(self.t_s, self.point.x_m, self.point.y_m, self.sense(), int(phase))
+        check_step(self.dt_s, vx_cmd_mps, vy_cmd_mps)
+        body_move(self._s, float(vx_cmd_mps), float(vy_cmd_mps))
+        return Sample(self.t_s, self.x_m, self.y_m, self.sense(), int(phase))
 
     def hold(self, phase: int) -> Sample:
         """One tick with a zero velocity command (brake / hover).

@@ -105,6 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--prearm-s", type=_non_negative, default=None,
                    help="wall seconds after boot during which arming fails (default: 2 for "
                         "ardupilot, 0 for px4)")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
+                        "(SHA-256, as MAVProxy does); unsigned messages are then ignored")
     p.add_argument("--reject-command", type=int, action="append", default=[],
                    metavar="CMD", help="(testing) refuse mission items with this MAV_CMD")
     return p
@@ -112,21 +115,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run_one(args: argparse.Namespace) -> int:
     from econdor_gcs.mission import load_mission
+    from econdor_gcs.signing import load_signing_key
 
     from .mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
+    from .tracer import warm_up
     from .transport import parse_endpoint
 
     mission = load_mission(args.mission)
     ep = parse_endpoint(args.connect)
     if args.seed is not None and args.seed < 0:
         raise EcondorError(f"--seed must be >= 0, got {args.seed}")
+    signing = load_signing_key(args.signing_key) if args.signing_key is not None else None
     overrides: dict[str, Any] = {"companion": args.companion, "prearm_s": args.prearm_s}
     if args.tel_rate is not None:
         overrides["tel_rate_hz"] = args.tel_rate
+    warm_up()  # load (or compile) the tracer before the vehicle shows itself
     try:
         vehicle = MavlinkVehicle.from_mission(mission, sysid=args.sysid, connect=ep,
                                               speedup=args.speedup, seed=args.seed,
-                                              home=args.home,
+                                              home=args.home, signing=signing,
                                               autopilot=AUTOPILOTS[args.autopilot], **overrides)
     except OSError as exc:
         raise EcondorError(f"cannot open {args.connect}: {exc.strerror or exc}") from exc
@@ -163,6 +170,9 @@ def _run_many(args: argparse.Namespace) -> int:
     base = args.sysid_base if args.sysid_base is not None else args.sysid
     if base + args.count - 1 > 254:
         raise EcondorError(f"system ids {base}..{base + args.count - 1} exceed 254")
+    from .tracer import warm_up
+
+    warm_up()  # compile once here on a cold cache; the children then load it
     children: list[subprocess.Popen[bytes]] = []
     stopping = False
 
@@ -191,6 +201,8 @@ def _run_many(args: argparse.Namespace) -> int:
             cmd += ["--prearm-s", repr(args.prearm_s)]
         for c in args.reject_command:
             cmd += ["--reject-command", str(c)]
+        if args.signing_key is not None:
+            cmd += ["--signing-key", args.signing_key]
         children.append(subprocess.Popen(cmd))
     status = 0
     try:

@@ -1,4 +1,9 @@
-"""Run tasks and whole plans on a simulated body (in-process fast mode)."""
+"""Run tasks and whole plans on a simulated body.
+
+:func:`run_task` yields one sample per tick (the MAVLink vehicle); :func:`run_plan` runs
+a whole plan in compiled batches (the in-process executor). Both drive the same compiled
+tracer.
+"""
 
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ from econdor_gcs.core.tasks import (
 )
 
 from .body import Sample, SimBody
-from .tracer import EventCallback, TracerParams, fly_to, trace_contour
+from .tracer import EventCallback, TracerParams, fly_to, run_task_batch, trace_contour
 
 
 def run_task(
@@ -90,30 +95,24 @@ def run_plan(
     """
     t0_s = body.t_s
     odo0_m = body.odometer_m
-    rows: list[Sample] = []
+    chunks: list[np.ndarray] = []
     outcomes: list[TaskOutcome] = []
-
-    def drain(gen: Generator[Sample, None, TaskOutcome]) -> TaskOutcome:
-        while True:
-            try:
-                rows.append(next(gen))
-            except StopIteration as stop:
-                return stop.value
-
     for task in tasks:
-        outcomes.append(drain(run_task(body, task, params)))
+        rows, outcome = run_task_batch(body, task, params)
+        chunks.append(rows)
+        outcomes.append(outcome)
     if return_to is not None:
-        drain(fly_to(body, return_to[0], return_to[1], Phase.TRANSIT,
-                     speed_mps=params.transit_speed_mps))
-    if rows:
-        arr = np.array([(s.t_s, s.x_m, s.y_m, s.value, s.phase) for s in rows], dtype=float)
+        rows, _ = run_task_batch(body, Waypoint(*return_to), params)
+        chunks.append(rows)
+    arr = np.concatenate(chunks) if chunks else np.zeros((0, 5))
+    if len(arr):
         log = SampleLog(
             t_s=arr[:, 0].copy(),
             x_m=arr[:, 1].copy(),
             y_m=arr[:, 2].copy(),
             value=arr[:, 3].copy(),
             phase=arr[:, 4].astype(np.int8),
-            vehicle=np.full(len(rows), vehicle, dtype=np.int16),
+            vehicle=np.full(len(arr), vehicle, dtype=np.int16),
         )
     else:
         log = SampleLog()

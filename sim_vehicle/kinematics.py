@@ -15,12 +15,18 @@ three limits (see :class:`VehicleLimits`):
 Position is integrated with the mean of the old and new velocity, so the odometer
 (``sum |mean velocity| * dt``) equals the length of the polyline through the
 positions after every step exactly.
+
+The step itself is :func:`point_step`, compiled with numba (cached on disk): the
+onboard tracer (:mod:`sim_vehicle.machine`) calls it for every sub-step, and
+:class:`PointMass` is its Python face.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from numba import njit
 
 TURN_LIMIT_MIN_SPEED_MPS = 0.5
 """Below this speed the vehicle is considered hovering and may turn freely."""
@@ -51,6 +57,7 @@ class VehicleLimits:
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
 
 
+@njit(cache=True)
 def wrap_angle_rad(angle_rad: float) -> float:
     """Wrap an angle to ``[-pi, pi)``.
 
@@ -63,8 +70,65 @@ def wrap_angle_rad(angle_rad: float) -> float:
     -------
     float
         The equivalent angle in ``[-pi, pi)``.
+
+    Examples
+    --------
+    >>> round(wrap_angle_rad(3.5 * math.pi), 12) == round(-0.5 * math.pi, 12)
+    True
     """
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def point_step(
+    x_m: float, y_m: float, vx_mps: float, vy_mps: float, odometer_m: float,
+    last_heading_rad: float, dt_s: float, vx_cmd_mps: float, vy_cmd_mps: float,
+    max_speed_mps: float, max_accel_mps2: float, max_turn_rate_dps: float,
+) -> tuple[float, float, float, float, float, float]:
+    """One kinematic step of the point mass (the limits above); trusts its input.
+
+    Returns
+    -------
+    x_m, y_m, vx_mps, vy_mps, odometer_m, last_heading_rad
+        The state after ``dt_s``.
+    """
+    cx, cy = vx_cmd_mps, vy_cmd_mps
+    cmd_speed = math.hypot(cx, cy)
+    if cmd_speed > max_speed_mps:
+        scale = max_speed_mps / cmd_speed
+        cx, cy, cmd_speed = cx * scale, cy * scale, max_speed_mps
+
+    vx, vy = vx_mps, vy_mps
+    speed = math.hypot(vx, vy)
+    if speed >= TURN_LIMIT_MIN_SPEED_MPS and cmd_speed > 0.0:
+        heading = math.atan2(vy, vx)
+        diff = wrap_angle_rad(math.atan2(cy, cx) - heading)
+        max_turn = math.radians(max_turn_rate_dps) * dt_s
+        if abs(diff) > max_turn:
+            new_heading = heading + math.copysign(max_turn, diff)
+            mag = cmd_speed * max(math.cos(diff), 0.0)
+            cx, cy = mag * math.cos(new_heading), mag * math.sin(new_heading)
+
+    dvx, dvy = cx - vx, cy - vy
+    dv = math.hypot(dvx, dvy)
+    dv_max = max_accel_mps2 * dt_s
+    if dv > dv_max:
+        scale = dv_max / dv
+        dvx, dvy = dvx * scale, dvy * scale
+    nvx, nvy = vx + dvx, vy + dvy
+    if nvx != 0.0 or nvy != 0.0:
+        last_heading_rad = math.atan2(nvy, nvx)
+    mx, my = 0.5 * (vx + nvx), 0.5 * (vy + nvy)
+    return (x_m + mx * dt_s, y_m + my * dt_s, nvx, nvy,
+            odometer_m + math.hypot(mx, my) * dt_s, last_heading_rad)
+
+
+def check_step(dt_s: float, vx_cmd_mps: float, vy_cmd_mps: float) -> None:
+    """Raise ``ValueError`` for a non-positive step or a non-finite command."""
+    if not dt_s > 0.0:
+        raise ValueError(f"dt_s must be > 0, got {dt_s!r}")
+    if not (math.isfinite(vx_cmd_mps) and math.isfinite(vy_cmd_mps)):
+        raise ValueError(f"velocity command must be finite, got ({vx_cmd_mps}, {vy_cmd_mps})")
 
 
 class PointMass:
@@ -121,39 +185,10 @@ class PointMass:
         vx_cmd_mps, vy_cmd_mps
             Commanded velocity; clipped to the speed limit.
         """
-        if not dt_s > 0.0:
-            raise ValueError(f"dt_s must be > 0, got {dt_s!r}")
-        if not (math.isfinite(vx_cmd_mps) and math.isfinite(vy_cmd_mps)):
-            raise ValueError(f"velocity command must be finite, got ({vx_cmd_mps}, {vy_cmd_mps})")
+        check_step(dt_s, vx_cmd_mps, vy_cmd_mps)
         lim = self.limits
-        cx, cy = float(vx_cmd_mps), float(vy_cmd_mps)
-        cmd_speed = math.hypot(cx, cy)
-        if cmd_speed > lim.max_speed_mps:
-            scale = lim.max_speed_mps / cmd_speed
-            cx, cy, cmd_speed = cx * scale, cy * scale, lim.max_speed_mps
-
-        vx, vy = self.vx_mps, self.vy_mps
-        speed = math.hypot(vx, vy)
-        if speed >= TURN_LIMIT_MIN_SPEED_MPS and cmd_speed > 0.0:
-            heading = math.atan2(vy, vx)
-            diff = wrap_angle_rad(math.atan2(cy, cx) - heading)
-            max_turn = math.radians(lim.max_turn_rate_dps) * dt_s
-            if abs(diff) > max_turn:
-                new_heading = heading + math.copysign(max_turn, diff)
-                mag = cmd_speed * max(math.cos(diff), 0.0)
-                cx, cy = mag * math.cos(new_heading), mag * math.sin(new_heading)
-
-        dvx, dvy = cx - vx, cy - vy
-        dv = math.hypot(dvx, dvy)
-        dv_max = lim.max_accel_mps2 * dt_s
-        if dv > dv_max:
-            scale = dv_max / dv
-            dvx, dvy = dvx * scale, dvy * scale
-        nvx, nvy = vx + dvx, vy + dvy
-        if nvx != 0.0 or nvy != 0.0:
-            self._last_heading_rad = math.atan2(nvy, nvx)
-        mx, my = 0.5 * (vx + nvx), 0.5 * (vy + nvy)
-        self.x_m += mx * dt_s
-        self.y_m += my * dt_s
-        self.odometer_m += math.hypot(mx, my) * dt_s
-        self.vx_mps, self.vy_mps = nvx, nvy
+        (self.x_m, self.y_m, self.vx_mps, self.vy_mps, self.odometer_m,
+         self._last_heading_rad) = point_step(
+            self.x_m, self.y_m, self.vx_mps, self.vy_mps, self.odometer_m,
+            self._last_heading_rad, float(dt_s), float(vx_cmd_mps), float(vy_cmd_mps),
+            lim.max_speed_mps, lim.max_accel_mps2, lim.max_turn_rate_dps)

@@ -43,6 +43,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
+from econdor_gcs.signing import SigningKey, refusal_counts, refused, share_signing
 
 from .ardupilot import ArduCopterAutopilot
 from .autopilot import Autopilot
@@ -105,6 +106,10 @@ class MavlinkVehicle:
     autopilot
         The personality: an :class:`~sim_vehicle.autopilot.Autopilot` subclass (see
         :data:`AUTOPILOTS`); ``settings.companion`` says whether it accepts contour items.
+    signing
+        MAVLink 2 signing: everything sent is signed; unsigned and wrongly signed messages
+        (commands, mission uploads, anything) are ignored and counted (``rx_unsigned``,
+        ``rx_bad_signature``).
     """
 
     def __init__(
@@ -117,6 +122,7 @@ class MavlinkVehicle:
         home: tuple[float, float, float] | None = None,
         tracer_params: TracerParams | None = None,
         autopilot: type[Autopilot] = Px4Autopilot,
+        signing: SigningKey | None = None,
     ) -> None:
         s = settings or VehicleSettings()
         self.sysid = s.sysid
@@ -127,8 +133,18 @@ class MavlinkVehicle:
                                    status_line=self.counters_line, now=time.monotonic())
         self.mav = mavlink.MAVLink(_Sink(), srcSystem=self.sysid, srcComponent=COMPONENT_ID)
         self.mav.robust_parsing = True
+        self.signing = signing
+        self._signing_state: Any = None
+        """One pymavlink signing state for every peer's parser: the streams' timestamps are
+        shared, so a packet replayed from another address is refused too."""
+        if signing is not None:
+            signing.apply(self.mav)
+            checker = mavlink.MAVLink(None)
+            signing.apply(checker, sign_outgoing=False)
+            self._signing_state = checker.signing
         self.io_counters: dict[str, int] = {
             "rx_packets": 0, "rx_bad": 0, "rx_other_target": 0, "rx_flood": 0, "tx_packets": 0,
+            "rx_unsigned": 0, "rx_bad_signature": 0,
         }
         self._parsers: dict[object, mavlink.MAVLink] = {}
         self._rx_window: dict[object, list[float]] = {}
@@ -152,6 +168,7 @@ class MavlinkVehicle:
                      speedup: float | None = None, seed: int | None = None,
                      home: tuple[float, float, float] | None = None,
                      autopilot: type[Autopilot] = Px4Autopilot,
+                     signing: SigningKey | None = None,
                      **overrides: Any) -> MavlinkVehicle:
         """Build a vehicle from a loaded :class:`econdor_gcs.mission.Mission`."""
         v = mission.vehicles
@@ -168,7 +185,8 @@ class MavlinkVehicle:
             setattr(settings, k, val)
         field = mission.build_field(settings.seed)
         return cls(field, mission.region, mission.origin, settings,
-                   connect or "udpout:127.0.0.1:14550", home=home, autopilot=autopilot)
+                   connect or "udpout:127.0.0.1:14550", home=home, autopilot=autopilot,
+                   signing=signing)
 
     # ------------------------------------------------------------------ views
 
@@ -201,10 +219,6 @@ class MavlinkVehicle:
         return self.state.speed_mps
 
     @property
-    def mode_name(self) -> str:
-        return self.autopilot.mode_name()
-
-    @property
     def counters(self) -> dict[str, int]:
         """Link and simulation counters (a snapshot)."""
         c = self.io_counters
@@ -212,7 +226,9 @@ class MavlinkVehicle:
         return {"rx_packets": c["rx_packets"], "rx_bad": c["rx_bad"],
                 "rx_other_target": c["rx_other_target"], "rx_flood": c["rx_flood"],
                 "rx_unhandled": ap["rx_unhandled"], "tx_packets": c["tx_packets"],
-                "samples": self.autopilot.outbox.samples_sent, "ticks": ap["ticks"],
+                "rx_unsigned": c["rx_unsigned"], "rx_bad_signature": c["rx_bad_signature"],
+                "samples": len(self.autopilot.outbox.archive),
+                "samples_resent": self.autopilot.outbox.samples_resent, "ticks": ap["ticks"],
                 "commands": ap["commands"]}
 
     @property
@@ -230,7 +246,8 @@ class MavlinkVehicle:
     def counters_line(self) -> str:
         c = self.io_counters
         return (f"rx {c['rx_packets']} bad {c['rx_bad']} other {c['rx_other_target']} "
-                f"flood {c['rx_flood']} tx {c['tx_packets']} drop {self.transport.tx_dropped}")
+                f"flood {c['rx_flood']} unsigned {c['rx_unsigned']} badsig "
+                f"{c['rx_bad_signature']} tx {c['tx_packets']} drop {self.transport.tx_dropped}")
 
     def achieved_speedup(self) -> float:
         wall = time.monotonic() - self._wall0
@@ -362,20 +379,31 @@ class MavlinkVehicle:
                     self._parsers.clear()
                 parser = mavlink.MAVLink(None)
                 parser.robust_parsing = True
+                if self._signing_state is not None:
+                    share_signing(parser, self._signing_state)
                 self._parsers[peer] = parser
             if not self.transport.stream and parser.buf_len() > 0:
                 # a datagram is self-contained: leftovers of the previous one are garbage
                 self.io_counters["rx_bad"] += 1
                 _reset_parser(parser)
+            before = refusal_counts(parser.signing)
             try:
                 msgs = parser.parse_buffer(data) or []
             except Exception:  # noqa: BLE001 - never let a peer's bytes kill the vehicle
                 self.io_counters["rx_bad"] += 1
                 _reset_parser(parser)
                 continue
+            # a signed vehicle ignores unsigned and wrongly signed messages (counted apart)
+            wrong, unsigned = refused(parser.signing, before)
+            self.io_counters["rx_bad_signature"] += wrong
+            self.io_counters["rx_unsigned"] += unsigned
+            refusals = wrong + unsigned
             for msg in msgs:
                 if isinstance(msg, mavlink.MAVLink_bad_data):
-                    self.io_counters["rx_bad"] += 1
+                    if refusals > 0:
+                        refusals -= 1
+                    else:
+                        self.io_counters["rx_bad"] += 1
                     continue
                 if not self._budget_ok(peer, now):
                     self.io_counters["rx_flood"] += 1

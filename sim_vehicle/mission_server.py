@@ -21,12 +21,13 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
   with home and reports frames and altitudes its own way).
 * items whose command is not in ``accepted_commands`` are refused with
   MAV_MISSION_UNSUPPORTED (the contour item only when a companion computer runs the tracer).
-* MISSION_CLEAR_ALL -> MISSION_ACK; MISSION_SET_CURRENT -> MISSION_CURRENT.
+* MISSION_CLEAR_ALL -> MISSION_ACK (of the upload's type, or of type ALL, it also ends a running
+  upload); MISSION_SET_CURRENT -> MISSION_CURRENT.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -337,9 +338,10 @@ class MissionServer:
             self.events.append(MissionEvent("cleared", mtype))
         else:
             return [self._ack(peer, mavlink.MAV_MISSION_UNSUPPORTED, mtype)]
-        if self.upload is not None and self.upload.mission_type in (mtype,
-                                                                     mavlink.MAV_MISSION_TYPE_ALL):
-            self.upload = None
+        up = self.upload
+        if up is not None and mtype in (up.mission_type, mavlink.MAV_MISSION_TYPE_ALL):
+            self.upload = None  # what it was uploading is cleared: the transfer ends
+            self.counters["uploads_failed"] += 1
         return [self._ack(peer, mavlink.MAV_MISSION_ACCEPTED, mtype)]
 
     def _on_set_current(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
@@ -375,7 +377,3 @@ class MissionServer:
         "MISSION_SET_CURRENT": _on_set_current,
     }
 
-
-def with_current(items: list[StoredItem], seq: int) -> list[StoredItem]:
-    """``items`` with the current flag set on ``seq`` only (helper for tests/GCS code)."""
-    return [replace(it, current=int(it.seq == seq)) for it in items]

@@ -217,7 +217,9 @@ class Navigator:
             yield from self.hold_forever()
 
     def report_trace(self, report: TraceReport) -> None:
-        self.outbox.put(trace_report_message(report, int(self.state.body.t_s * 1e6)))
+        msg = trace_report_message(report, int(self.state.body.t_s * 1e6))
+        self.outbox.archive.add_report(int(round(self.state.body.t_s * 1000.0)), msg)
+        self.outbox.put(msg)
 
     def run_item(self, it: StoredItem) -> Generator[Sample | None, None, str]:
         """One mission item; returns ``"end"`` when it ended the flight (RTL, land)."""

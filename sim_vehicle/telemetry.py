@@ -26,6 +26,7 @@ is a
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable
 from typing import Any, NamedTuple, Protocol
@@ -112,6 +113,62 @@ def phase_message(time_boot_ms: int, phase: int) -> Any:
                                                    int(phase))
 
 
+class SampleArchive:
+    """Every sample the vehicle took since boot, and its phase changes, kept for the station's
+    recovery requests (:data:`~econdor_gcs.core.tasks.SAMPLE_COUNT_COMMAND`,
+    :data:`~econdor_gcs.core.tasks.SAMPLE_RESEND_COMMAND`). Times only grow.
+
+    >>> a = SampleArchive()
+    >>> for ms in (100, 200, 300):
+    ...     a.add(_QueuedSample(ms, 0.0, 0.0, 30.0, (0.0, 0.0, 0.0), 1.0))
+    >>> a.count(150, 300), a.count(0, 99), len(a)
+    (2, 0, 3)
+    """
+
+    def __init__(self) -> None:
+        self._ms: list[int] = []
+        self._samples: list[_QueuedSample] = []
+        self._phase_ms: list[int] = []
+        self._phases: list[int] = []
+        self._report_ms: list[int] = []
+        self._reports: list[Any] = []
+
+    def __len__(self) -> int:
+        return len(self._ms)
+
+    def add(self, sample: _QueuedSample) -> None:
+        self._ms.append(sample.time_boot_ms)
+        self._samples.append(sample)
+
+    def add_phase(self, time_boot_ms: int, phase: int) -> None:
+        self._phase_ms.append(time_boot_ms)
+        self._phases.append(phase)
+
+    def add_report(self, time_boot_ms: int, msg: Any) -> None:
+        """A TRACE report (its message), kept to be sent again on request."""
+        self._report_ms.append(time_boot_ms)
+        self._reports.append(msg)
+
+    def reports_between(self, first_ms: int, last_ms: int) -> list[Any]:
+        lo = bisect.bisect_left(self._report_ms, first_ms)
+        return self._reports[lo:bisect.bisect_right(self._report_ms, last_ms)]
+
+    def count(self, first_ms: int, last_ms: int) -> int:
+        """Samples taken at ``first_ms <= time_boot_ms <= last_ms``."""
+        return bisect.bisect_right(self._ms, last_ms) - bisect.bisect_left(self._ms, first_ms)
+
+    def between(self, first_ms: int, last_ms: int) -> list[_QueuedSample]:
+        lo, hi = bisect.bisect_left(self._ms, first_ms), bisect.bisect_right(self._ms, last_ms)
+        return self._samples[lo:hi]
+
+    def phases_between(self, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
+        """The phase changes in the range, and the one in force at its start."""
+        lo = bisect.bisect_right(self._phase_ms, first_ms) - 1
+        hi = bisect.bisect_right(self._phase_ms, last_ms)
+        return list(zip(self._phase_ms[max(lo, 0):hi], self._phases[max(lo, 0):hi],
+                        strict=True))
+
+
 class Outbox:
     """Everything the vehicle wants to send, in order, until the I/O loop drains it.
 
@@ -129,6 +186,8 @@ class Outbox:
         self._queue: list[Any] = []
         self._n_samples = 0
         self._status_id = 0
+        self.archive = SampleArchive()
+        self.samples_resent = 0
         self.samples_sent = 0
         self.last_sample_wall = -1.0
         """Wall time of the last drain that carried samples."""
@@ -140,9 +199,21 @@ class Outbox:
                    vel_enu_mps: tuple[float, float, float]) -> None:
         """Queue one sample taken at ``(x_m, y_m, alt_rel_m)``."""
         ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
-        self._queue.append(_QueuedSample(ms, x_m, y_m, alt_rel_m, vel_enu_mps,
-                                         float(sample.value)))
+        queued = _QueuedSample(ms, x_m, y_m, alt_rel_m, vel_enu_mps, float(sample.value))
+        self.archive.add(queued)
+        self._queue.append(queued)
         self._n_samples += 1
+
+    def resend(self, first_ms: int, last_ms: int) -> int:
+        """Queue the archived samples of a range again, after its phase changes; return how
+        many."""
+        for ms, phase in self.archive.phases_between(first_ms, last_ms):
+            self._queue.append(phase_message(ms, phase))
+        again = self.archive.between(first_ms, last_ms)
+        self._queue.extend(again)
+        self._n_samples += len(again)
+        self.samples_resent += len(again)
+        return len(again)
 
     def statustext(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
         """Queue a STATUSTEXT; texts longer than 50 bytes go in chunks (MAVLink 2 id/chunk_seq)."""
@@ -187,7 +258,7 @@ class Outbox:
                                    q.vel_enu_mps))
             out.append(mavlink.MAVLink_named_value_float_message(q.time_boot_ms, b"FIELD",
                                                                  q.value))
-        self.samples_sent += n
+        self.samples_sent += n  # resent ones included
         self.last_sample_wall = wall
         return out
 
@@ -398,6 +469,7 @@ class Telemetry:
         st = self.state
         if sample.phase != self.phase and st.settings.companion:
             self.phase = sample.phase
-            self.outbox.put(phase_message(int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF,
-                                          sample.phase))
+            ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
+            self.outbox.archive.add_phase(ms, sample.phase)
+            self.outbox.put(phase_message(ms, sample.phase))
         self.outbox.put_sample(sample, st.body.x_m, st.body.y_m, st.alt_rel_m, st.vel_enu_mps)

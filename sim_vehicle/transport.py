@@ -64,6 +64,9 @@ class Transport:
         self.tx_dropped = 0
         self.tx_packets = 0
         self.tx_bytes = 0
+        self.rx_errors = 0
+        """Socket errors while receiving (ICMP unreachable, a TCP client reset, ...): each is
+        counted; the transport keeps serving."""
 
     def fileno_list(self) -> list[socket.socket]:
         raise NotImplementedError
@@ -126,6 +129,7 @@ class UdpTransport(Transport):
                 break
             except OSError:
                 # ICMP port unreachable from a previous send (Linux reports it here)
+                self.rx_errors += 1
                 continue
             if addr != self.fixed:
                 if addr not in self.peers and len(self.peers) >= MAX_UDP_PEERS:
@@ -215,6 +219,7 @@ class TcpServerTransport(Transport):
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
+                self.rx_errors += 1
                 return
             if len(self.clients) >= MAX_TCP_CLIENTS:
                 sock.close()
@@ -240,6 +245,7 @@ class TcpServerTransport(Transport):
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError:
+                    self.rx_errors += 1
                     self._drop(sock)
                     break
                 if not data:
@@ -266,6 +272,7 @@ class TcpServerTransport(Transport):
             except (BlockingIOError, InterruptedError):
                 continue
             except OSError:
+                self.tx_dropped += 1
                 self._drop(sock)
                 continue
             del client.pending[:n]

@@ -245,3 +245,68 @@ def test_nan_in_integer_params_is_answered_not_crashed():
     assert command(ap, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, nan, 1e5)[0] == \
         mavlink.MAV_RESULT_DENIED
     assert command(ap, mavlink.MAV_CMD_REQUEST_MESSAGE, nan)[0] == mavlink.MAV_RESULT_UNSUPPORTED
+
+
+def _resend(ap, cmd, confirmation, *params):
+    p = list(params) + [0.0] * (7 - len(params))
+    ap.receive(rx(mavlink.MAVLink_command_long_message(1, 1, cmd, confirmation, *p)), 0.0)
+    acks = [m for m in ap.outbox.drain(0.0) if m.get_type() == "COMMAND_ACK"]
+    assert len(acks) == 1
+    return acks[0].result
+
+
+def test_a_resent_command_is_answered_not_run_again():
+    """On a lossy link the ACK of MISSION_START can be lost; the station resends it with
+    ``confirmation`` 1. The vehicle answers again and keeps flying where it is (running it
+    again would restart the mission); after landing, a resent RTL is still ACCEPTED."""
+    ap = make(sample_rate_hz=10.0)
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
+                item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(60, 0), 10),
+                item_int(2, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(60, 60), 10)])
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert _resend(ap, mavlink.MAV_CMD_MISSION_START, 0, 1) == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                 for m in ms))
+    assert _resend(ap, mavlink.MAV_CMD_MISSION_START, 1, 1) == mavlink.MAV_RESULT_ACCEPTED
+    msgs = run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" for m in ms))
+    assert [m.seq for m in msgs if m.get_type() == "MISSION_ITEM_REACHED"] == [2]  # not 0, 1
+    assert ap.counters["commands_repeated"] == 1
+    assert _resend(ap, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0) == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: not ap.state.armed)
+    assert _resend(ap, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 1) == mavlink.MAV_RESULT_ACCEPTED
+    # a new command (confirmation 0) runs: on the ground, RTL is refused
+    assert _resend(ap, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0) == mavlink.MAV_RESULT_DENIED
+
+
+def test_samples_are_archived_and_resent_on_request():
+    """The recovery commands: the count of a time range, then its samples again (with the
+    phase in force), as the same GLOBAL_POSITION_INT + FIELD pairs."""
+    from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND
+
+    ap = make(sample_rate_hz=10.0)
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
+                item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 0), 10)])
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    command(ap, mavlink.MAV_CMD_MISSION_START)
+    msgs = run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                        for m in ms))
+    sent = [m for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"]
+    t0, t1 = sent[3].time_boot_ms, sent[9].time_boot_ms
+
+    def ask(cmd, first, last):
+        ap.receive(rx(mavlink.MAVLink_command_int_message(1, 1, 0, cmd, 0, 0, 0, 0, 0, 0,
+                                                          first, last, 0)), 0.0)
+        return ap.outbox.drain(0.0)
+
+    out = ask(SAMPLE_COUNT_COMMAND, 0, 2**31 - 1)
+    assert out[0].get_type() == "COMMAND_ACK" and out[0].result_param2 == len(sent)
+    assert ask(SAMPLE_COUNT_COMMAND, t0, t1)[0].result_param2 == 7
+    out = ask(SAMPLE_RESEND_COMMAND, t0, t1)
+    assert out[0].get_type() == "COMMAND_ACK" and out[0].result_param2 == 7
+    again = [m for m in out if m.get_type() == "NAMED_VALUE_FLOAT"]
+    assert [(m.time_boot_ms, m.value) for m in again] == \
+        [(m.time_boot_ms, m.value) for m in sent[3:10]]
+    phase = [m for m in out if m.get_type() == "NAMED_VALUE_INT"]
+    assert phase and phase[0].time_boot_ms <= t0  # the phase in force at the range start
+    assert ask(SAMPLE_RESEND_COMMAND, 0, 2**31 - 1)[0].result == (
+        mavlink.MAV_RESULT_DENIED if len(sent) > 400 else mavlink.MAV_RESULT_ACCEPTED)

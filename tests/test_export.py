@@ -43,16 +43,19 @@ def mission(vehicle_shift: float = 0.0) -> list[MissionItemSpec]:
 def make_run(tmp: Path, *, origin: bool = True, missions: bool = True) -> Path:
     run = tmp / "run"
     (run / "missions").mkdir(parents=True)
-    summary = {"planner": "econdor", "iterations": 2, "vehicles": 2}
+    # samples.csv holds the 0-based vehicle index; missions and --vehicle use system ids
+    summary: dict[str, object] = {"planner": "econdor", "iterations": 2, "vehicles": 2,
+                                  "sysids": [1, 2]}
     if origin:
         summary["origin"] = {"lat_deg": ORIGIN.lat_deg, "lon_deg": ORIGIN.lon_deg,
                              "alt_m": ORIGIN.alt_m}
         summary["area"] = {"width_m": 100.0, "height_m": 100.0}
     (run / "summary.json").write_text(json.dumps(summary))
     rows = ["t_s,x_m,y_m,value,phase,vehicle"]
-    for v in (1, 2):
+    for index in (0, 1):  # system id index + 1: the path of system v starts at x = v
         for k in range(5):
-            rows.append(f"{k * 0.5:.3f},{10.0 * k + v:.3f},{5.0 * k:.3f},{1.5 * k:.6g},0,{v}")
+            rows.append(f"{k * 0.5:.3f},{10.0 * k + index + 1:.3f},{5.0 * k:.3f},"
+                        f"{1.5 * k:.6g},0,{index}")
     (run / "samples.csv").write_text("\n".join(rows) + "\n")
     if missions:
         for it in (0, 1):
@@ -259,6 +262,30 @@ def test_geojson_from_run_dir(tmp_path: Path) -> None:
     one = geojson_for_run(run, iteration=1, vehicle=2)
     assert {f["properties"].get("vehicle") for f in one["features"]} == {2, None}
     assert {f["properties"].get("iteration") for f in one["features"]} == {1, None}
+
+
+def test_geojson_vehicle_is_a_system_id_for_samples_and_missions(tmp_path: Path) -> None:
+    """samples.csv holds vehicle indices (0-based), missions system ids: ``--vehicle 2`` is
+    system 2's path (index 1) with system 2's mission, never index 2 or system 1."""
+    run = make_run(tmp_path)
+    doc = geojson_for_run(run, vehicle=2)
+    paths = [f for f in doc["features"] if f["properties"]["kind"] == "samples"]
+    assert [p["properties"]["vehicle"] for p in paths] == [2]
+    lon0, lat0 = paths[0]["geometry"]["coordinates"][0]
+    exp = ORIGIN.to_global(2.0, 0.0)  # index 1 starts at x = 2
+    assert lat0 == pytest.approx(exp[0], abs=2e-7) and lon0 == pytest.approx(exp[1], abs=2e-7)
+    points = [f for f in doc["features"] if f["properties"]["kind"] == "trace_start"]
+    assert points and {p["properties"]["vehicle"] for p in points} == {2}
+    # without every path: system ids 1 and 2, not indices 0 and 1
+    every = geojson_for_run(run)
+    assert sorted(f["properties"]["vehicle"] for f in every["features"]
+                  if f["properties"]["kind"] == "samples") == [1, 2]
+    # a run that names other system ids (--connect to vehicles 7 and 9)
+    summary = json.loads((run / "summary.json").read_text())
+    summary["sysids"] = [7, 9]
+    (run / "summary.json").write_text(json.dumps(summary))
+    assert [f["properties"]["vehicle"] for f in geojson_for_run(run, vehicle=9)["features"]
+            if f["properties"]["kind"] == "samples"] == [9]
 
 
 def test_geojson_origin_from_home_item(tmp_path: Path) -> None:

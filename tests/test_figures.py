@@ -9,7 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.image import imread
 
+from econdor_gcs import figures
 from econdor_gcs.figures import RUN_FIGURES, STUDY_FIGURES, plot_run, plot_study
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -114,11 +118,34 @@ def _study_rows(as_strings: bool | str) -> list[dict]:
     return rows
 
 
-def _assert_png(path: Path) -> None:
+def _assert_png(path: Path, fig: Figure | None = None) -> None:
+    """A PNG that decodes, of the figure's size in pixels, and not blank."""
     assert path.exists(), path
     data = path.read_bytes()
     assert data[:8] == PNG_MAGIC, path
-    assert len(data) > 5000, (path, len(data))
+    image = imread(path)
+    if fig is not None:
+        w, h = fig.get_size_inches() * fig.dpi
+        assert image.shape[:2] == (round(h), round(w)), path
+    assert np.ptp(image[..., :3]) > 0.5, path  # drawn on, not one colour
+
+
+@pytest.fixture
+def drawn(monkeypatch: pytest.MonkeyPatch) -> dict[str, Figure]:
+    """Every figure ``econdor_gcs.figures`` saves, by file name (their data are checked)."""
+    figs: dict[str, Figure] = {}
+    real = figures._save
+
+    def save(fig: Figure, path: Path) -> Path:
+        figs[path.name] = fig
+        return real(fig, path)
+
+    monkeypatch.setattr(figures, "_save", save)
+    return figs
+
+
+def _xy(ax, k: int = 0) -> np.ndarray:
+    return np.asarray(ax.lines[k].get_xydata())
 
 
 @pytest.fixture(scope="module")
@@ -126,14 +153,57 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return _make_run(tmp_path_factory.mktemp("figs") / "run")
 
 
-def test_plot_run_writes_all_figures(run_dir: Path) -> None:
+def test_plot_run_writes_all_figures(run_dir: Path, drawn: dict[str, Figure]) -> None:
     run = run_dir
     paths = plot_run(run)
     assert sorted(p.name for p in paths) == sorted(RUN_FIGURES)
     for name in RUN_FIGURES:
         p = run / "figures" / name
         assert p in paths
-        _assert_png(p)
+        _assert_png(p, drawn[name])
+
+
+def test_plot_run_draws_the_run_s_numbers(run_dir: Path, drawn: dict[str, Figure]) -> None:
+    """Each curve is the metrics.csv column it names; the maps show the run's fields and
+    every sample path."""
+    plot_run(run_dir)
+    with (run_dir / "metrics.csv").open() as f:
+        m = {k: np.array([float(r[k]) if r[k] not in ("", "nan") else np.nan for r in rows])
+             for rows in [list(csv.DictReader(f))] for k in rows[0]}
+    it = m["iteration"]
+    ax = drawn["mae_vs_iteration.png"].axes[0]
+    np.testing.assert_allclose(_xy(ax), np.c_[it, m["mae_db"]])
+    assert "MAE per iteration" in ax.get_title()
+    bars = [p.get_height() for p in drawn["mae_vs_iteration.png"].axes[1].patches]
+    np.testing.assert_allclose(bars, np.r_[m["levels_planned"], m["levels_traced"]])
+    le = drawn["learning_error.png"].axes[0]
+    ok = np.isfinite(m["learning_error"])
+    np.testing.assert_allclose(_xy(le)[ok, 1], 20 * np.log10(m["learning_error"][ok]))
+    np.testing.assert_allclose(_xy(drawn["span_ratio.png"].axes[0]), np.c_[it, m["span_ratio"]])
+    fd = drawn["flight_distance.png"].axes[0]
+    np.testing.assert_allclose(_xy(fd, 0)[:, 1], m["flight_distance_m"] / 1000)
+    np.testing.assert_allclose(_xy(fd, 1)[:, 1], m["contour_distance_m"] / 1000)
+    np.testing.assert_allclose(_xy(drawn["mae_vs_distance.png"].axes[0]),
+                               np.c_[m["flight_distance_m"] / 1000, m["mae_db"]])
+    d = drawn["delta.png"].axes
+    np.testing.assert_allclose(_xy(d[0])[:, 1], m["delta"])
+    np.testing.assert_allclose(_xy(d[1])[:, 1], m["kappa"])
+
+    maps = drawn["maps.png"]
+    titles = [ax.get_title() for ax in maps.axes if ax.get_visible() and ax.get_title()]
+    fields = np.load(run_dir / "fields.npz")
+    mae = float(np.mean(np.abs(fields["truth"] - fields["estimate"])))
+    assert titles[:3] == ["true field", "estimate", f"local absolute error (MAE {mae:.3g})"]
+    n = len((run_dir / "samples.csv").read_text().splitlines()) - 1
+    assert titles[3] == f"sample paths by phase ({n} samples)"
+    paths_ax = next(ax for ax in maps.axes if ax.get_title() == titles[3])
+    segs = [c for c in paths_ax.collections if isinstance(c, LineCollection)
+            and not hasattr(c, "levels")]
+    # 2 vehicles x 120 samples: 119 steps each, of which the jumps to the circle and to
+    # the survey line (> 10x the median step) are gaps, not flight
+    assert sum(len(c.get_segments()) for c in segs) == 2 * (119 - 2)
+    legend = [t.get_text() for t in paths_ax.get_legend().get_texts()]
+    assert legend == ["transit", "search", "trace", "survey"]
 
 
 def test_plot_run_without_truth(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from econdor_gcs.core.tasks import (
     TraceTask,
     Waypoint,
 )
-from econdor_gcs.errors import ProtocolError
+from econdor_gcs.errors import ProtocolError, VehicleTimeout
 from econdor_gcs.gcs import (
     Flight,
     MavlinkExecutor,
@@ -69,7 +69,12 @@ def test_trace_report_round_trips_through_mavlink() -> None:
 def test_outcome_status_codes_are_stable_and_unreported_has_none() -> None:
     codes = {s: s.code for s in OutcomeStatus if s is not OutcomeStatus.UNREPORTED}
     assert codes == {"reached": 0, "closed": 1, "boundary": 2, "length_limit": 3,
-                     "not_found": 4, "lost": 5}
+                     "not_found": 4, "lost": 5, "unreachable": 6}
+    # every status the compiled tracer can end a task with is one the station knows
+    from sim_vehicle.machine import STATUS_NAMES
+    for name in STATUS_NAMES.values():
+        if name != "budget":  # the tracer reports a spent trace budget as "lost"
+            assert OutcomeStatus(name).code >= 0
     with pytest.raises(ValueError, match="no wire code"):
         _ = OutcomeStatus.UNREPORTED.code
     assert TaskOutcome(Waypoint(0, 0), "closed", 1.0).status is OutcomeStatus.CLOSED
@@ -267,17 +272,23 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     assert f.done
     r = ex._end(v)
     assert r.vehicle == 1
-    assert list(r.samples.phase) == [Phase.SEARCH, Phase.TRACE, Phase.SEARCH]
-    np.testing.assert_allclose(r.samples.x_m, [1.0, 2.0, 1.5], atol=0.02)
+    # in time order; the late one has the phase reported for its time
+    assert list(r.samples.phase) == [Phase.SEARCH, Phase.SEARCH, Phase.TRACE]
+    np.testing.assert_allclose(r.samples.x_m, [1.0, 1.5, 2.0], atol=0.02)
     assert r.traced_m == pytest.approx(123.4)
     assert r.outcomes[0].status == OutcomeStatus.BOUNDARY
     assert r.outcomes[0].flown_m == pytest.approx(150.5)
     assert r.sim_s == pytest.approx(0.1)
     # vehicle 1 was not flying: its sample is kept for later, not lost
     assert len(ex.pending_samples()) == 1
-    # losing a vehicle is remembered and raised at the next step
+    # a lost vehicle is given up (its work goes to the others); losing all fails the run
     router.handlers["event"](VehicleLost(2, 21.0))
-    with pytest.raises(Exception, match="vehicle 2 lost: no heartbeat for 21 s"):
+    assert ex.vehicles[2].lost == "no heartbeat for 21 s"
+    assert ex.losses[0]["sysid"] == 2
+    ex._check_lost()
+    router.handlers["event"](VehicleLost(1, 6.0))
+    with pytest.raises(VehicleTimeout, match="every vehicle lost: vehicle 1 lost: no heartbeat "
+                                             "for 6 s; vehicle 2 lost: no heartbeat for 21 s"):
         ex._check_lost()
 
 
@@ -342,3 +353,88 @@ def test_mission_complete_state_ends_a_flight_without_item_reached() -> None:
     v.status = "flying"
     on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, mavlink.MISSION_STATE_COMPLETE, 0))
     assert f.done
+
+
+def test_a_vehicle_that_never_finishes_its_item_is_lost() -> None:
+    """Heartbeats alone do not keep a vehicle in service: an item that takes longer than
+    its limit (3x its planned length at cruise speed + 60 s, in the vehicle's own time)
+    makes it lost, and it is told to return."""
+    import asyncio
+
+    m = _mission()
+    router = FakeRouter()
+    returned: list[int] = []
+
+    async def return_to_launch(sysid: int) -> None:
+        returned.append(sysid)
+
+    router.return_to_launch = return_to_launch  # type: ignore[attr-defined]
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
+    tr = TraceTask(50.0, 10.0, 10.0, 10.0, 300.0, 1000)
+    v = ex.vehicles[1]
+    v.items = build_mission(m.origin, [tr], 30.0, end="none")
+    ex._begin(v, [tr])
+    router.vehicles[1].time_boot_ms = 5000
+    router.handlers["message"](1, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
+    limit_s = ex._item_limit_s(v)
+    region = m.region
+    expected = 3 * (2 * (region.width_m + region.height_m) + 2 * math.pi * 10 + 300) / \
+        m.vehicles.speed_mps + 60
+    assert limit_s == pytest.approx(expected)
+
+    async def main() -> None:
+        router.vehicles[1].time_boot_ms = 5000 + int(1000 * limit_s) - 100
+        ex._check_progress([v])
+        assert v.lost is None
+        router.vehicles[1].time_boot_ms = 5000 + int(1000 * limit_s) + 100
+        ex._check_progress([v])
+        await asyncio.sleep(0)
+        await asyncio.sleep(0)
+
+    asyncio.run(main())
+    assert v.lost is not None and v.lost.startswith("mission item 2 not finished within")
+    assert returned == [1]
+
+
+def test_the_station_thread_alone_touches_vehicle_state() -> None:
+    """The display's snapshot and the DFC's positions are made on the station's loop thread,
+    whichever thread asks (the render used to convert samples on its own thread)."""
+    import threading
+
+    from econdor_gcs.gcs import Station
+
+    station = Station("udpin:127.0.0.1:0")
+    station.start()
+    try:
+        ex = MavlinkExecutor(station, _mission(), [])
+        seen: list[threading.Thread] = []
+        real = ex._status_rows
+
+        def spy() -> list[dict[str, Any]]:
+            seen.append(threading.current_thread())
+            return real()
+
+        ex._status_rows = spy  # type: ignore[method-assign]
+        worker = threading.Thread(target=ex.status_rows)
+        worker.start()
+        worker.join(5)
+        ex.status_rows()
+        assert [t.name for t in seen] == ["econdor-gcs", "econdor-gcs"]
+        assert ex.positions() == []
+    finally:
+        station.close()
+
+
+def test_a_landed_vehicle_is_not_late_while_the_others_come_home() -> None:
+    """On the way home the first vehicle down waits for the others; its clock runs on, but
+    it finished: no time limit applies to it (it was declared lost under load before)."""
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
+    v = ex.vehicles[1]
+    f = ex._begin(v, [])
+    v.item_since_ms = 0
+    f.landed = True
+    router.vehicles[1].time_boot_ms = 10**7  # hours of its time later
+    ex._check_progress([v])
+    assert v.lost is None

@@ -40,11 +40,21 @@ def test_parser_drops_and_counts_damage():
 
 
 def test_parser_counts_unknown_message_ids():
+    """A well-formed packet (valid X.25 checksum over header and payload; an unknown id has
+    no CRC_EXTRA) of an id outside common counts as unknown, not as damage."""
+    from pymavlink.generator.mavcrc import x25crc
+
     parser = Parser()
     raw = bytearray(Codec(4, 1).encode(heartbeat()))
-    raw[7:10] = (60123).to_bytes(3, "little")  # a message id outside common; CRC now bad too
+    raw[7:10] = (60123).to_bytes(3, "little")  # a message id outside common
+    raw[-2:] = x25crc(bytes(raw[1:-2])).crc.to_bytes(2, "little")
     assert parser.feed(bytes(raw)) == []
-    assert parser.bad_packets + parser.unknown_packets == 1
+    assert (parser.unknown_packets, parser.bad_packets, parser.packets) == (1, 0, 0)
+    # a known id with a broken checksum is damage, not unknown
+    bad = bytearray(Codec(4, 1).encode(heartbeat()))
+    bad[-1] ^= 0xFF
+    assert parser.feed(bytes(bad)) == []
+    assert (parser.unknown_packets, parser.bad_packets, parser.packets) == (1, 1, 0)
 
 
 def test_parser_never_raises_on_random_bytes():

@@ -415,6 +415,69 @@ def test_pairer_drops_stale_halves():
     assert p.expire(5.0) == 3 and p.pending == 0 and p.dropped == 4
 
 
+async def _with_sim_vehicle(body) -> None:
+    """Run ``body(router, vehicle)`` against the simulated PX4 vehicle (in-process, 20x)."""
+    from vehicle_helpers import inproc_vehicle
+
+    async with Router(ENDPOINT) as router:
+        host, port = router.local_address
+        with inproc_vehicle(connect=f"udpout:{host}:{port}", speedup=20.0) as vehicle:
+            await router.wait_for_vehicles([1], 10.0)
+            async with asyncio.timeout(10.0):
+                while router.vehicles[1].alt_m is None:
+                    await asyncio.sleep(0.02)
+            await body(router, vehicle)
+
+
+async def _until(cond, timeout_s: float = 10.0) -> None:
+    async with asyncio.timeout(timeout_s):
+        while not cond():
+            await asyncio.sleep(0.02)
+
+
+def test_set_mode_sends_main_and_sub_mode_as_px4_reads_them():
+    """DO_SET_MODE carries PX4's main and sub mode in param2/3, not the packed HEARTBEAT
+    value: the simulated PX4 vehicle takes off, then returns, by mode changes alone."""
+    from sim_vehicle.px4 import PX4_MAIN_AUTO, PX4_SUB_RTL, PX4_SUB_TAKEOFF
+    from sim_vehicle.state import FlightMode
+
+    async def body(router: Router, vehicle) -> None:
+        await router.arm(1)
+        await router.set_mode(1, PX4_MAIN_AUTO, PX4_SUB_TAKEOFF)
+        await _until(lambda: vehicle.state.alt_rel_m > 5.0)
+        await router.set_mode(1, PX4_MAIN_AUTO, PX4_SUB_RTL)
+        await _until(lambda: vehicle.state.mode in (FlightMode.RTL, FlightMode.LAND))
+
+    run(_with_sim_vehicle(body))
+
+
+def test_takeoff_altitude_is_above_home_as_documented():
+    """NAV_TAKEOFF's param7 is AMSL for PX4: ``takeoff(sysid, 12)`` holds at 12 m above
+    home (not at the vehicle's default 30 m, which a bare 12 m AMSL below home gives)."""
+
+    async def body(router: Router, vehicle) -> None:
+        await router.arm(1)
+        await router.takeoff(1, 12.0)
+        await _until(lambda: vehicle.state.alt_rel_m > 11.99)
+        await asyncio.sleep(0.3)  # 6 s of sim time: it holds there
+        assert vehicle.state.alt_rel_m == pytest.approx(12.0, abs=1e-3)
+
+    run(_with_sim_vehicle(body))
+
+
+def test_takeoff_needs_a_home_altitude():
+    async def main() -> None:
+        async with Router(ENDPOINT) as router:
+            v = await FakeUdpVehicle(7).start(router.local_address)
+            v.heartbeat()
+            await router.wait_for_vehicles([7], 3.0)
+            with pytest.raises(LinkError, match="vehicle 7: no position yet"):
+                await router.takeoff(7, 10.0)
+            v.close()
+
+    run(main())
+
+
 def test_heading_and_airborne_time_from_positions():
     """GLOBAL_POSITION_INT: the last known heading, and vehicle time between airborne fixes."""
 

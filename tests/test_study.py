@@ -10,6 +10,7 @@ import pytest
 
 from econdor.cli import main
 from econdor_gcs.dfc import IterationRecord
+from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import load_mission
 from econdor_lab.study import parse_seeds, run_seed, run_study
 
@@ -22,14 +23,15 @@ def demo():
         max_iterations=3, min_iterations=3)
 
 
-def test_econdor_run_converges_with_real_tracing(demo, tmp_path):
+def test_econdor_run_improves_at_every_iteration_with_real_tracing(demo, tmp_path):
+    """Demo mission, seed 1, 3 iterations (measured: 17.3, -6.8, -27.7, -38.0 dB)."""
     r = run_seed(demo, 1, "econdor", str(tmp_path))
     rows = r["rows"]
     assert [row["iteration"] for row in rows] == [0, 1, 2, 3]
     maes = [row["mae"] for row in rows]
     assert maes[1] < maes[0] / 3  # tracing the first contours helps a lot
-    assert maes[-1] < maes[1]
-    assert rows[-1]["mae_db"] < -3.0
+    assert all(b < a for a, b in zip(maes, maes[1:], strict=False))
+    assert rows[-1]["mae_db"] < -30.0
     # cumulative distances and samples only grow; contour distance <= flown
     for a, b in zip(rows, rows[1:], strict=False):
         assert b["flight_distance_m"] >= a["flight_distance_m"]
@@ -48,7 +50,7 @@ def test_econdor_run_converges_with_real_tracing(demo, tmp_path):
 def test_parse_seeds():
     assert parse_seeds("0:3") == [0, 1, 2]
     assert parse_seeds("4,7") == [4, 7]
-    with pytest.raises(Exception, match="--seeds"):
+    with pytest.raises(EcondorError, match="--seeds"):
         parse_seeds("a:b")
 
 
@@ -68,8 +70,8 @@ def test_study_outputs_all_planners(demo, tmp_path):
     figs = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))
     assert "fig7_mae_vs_distance.png" in figs and "fig3_mae_db_vs_levels.png" in figs
     assert any(n.startswith("fig9_maps_") for n in figs)
-    for r in summary["runs"]:
-        assert r["isoline_error_m"]["p50"] >= 0 or math.isnan(r["isoline_error_m"]["p50"])
+    for r in summary["runs"]:  # the 50 % contour is found by every planner, within metres
+        assert 0.0 <= r["isoline_error_m"]["p50"] < 5.0, r["planner"]
 
 
 def test_cli_study_and_errors(tmp_path, capsys):
@@ -117,19 +119,90 @@ def test_flight_budget_stops_the_run(demo):
     assert r["rows"][-2]["flight_distance_m"] < 1500.0 <= r["rows"][-1]["flight_distance_m"]
 
 
+class FieldExecutor:
+    """One vehicle that, whatever it is asked to fly, samples a smooth field at 300 random
+    points (the stop rules see estimates that settle, cheaply)."""
+
+    n_vehicles = 1
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def positions(self):
+        return [(0.0, 0.0)]
+
+    def fly(self, plans, iteration):
+        from econdor_gcs.core.tasks import FlightReport, SampleLog
+
+        x, y = self.rng.uniform(0.0, 100.0, (2, 300))
+        value = 50.0 + 20.0 * np.sin(x / 30.0) * np.cos(y / 40.0) + self.rng.normal(0, 0.01, 300)
+        log = SampleLog(np.arange(300) / 10.0, x, y, value, np.zeros(300, np.int8),
+                        np.zeros(300, np.int16))
+        return [FlightReport(0, log, 300.0, 0.0, [], float(x[-1]), float(y[-1]), 30.0)]
+
+    def finish(self):
+        return []
+
+
+def _small(**algorithm):
+    return load_mission(ROOT / "missions" / "demo.yaml").with_overrides(
+        grid_spacing_m=4, **algorithm)
+
+
 def test_gamma_rule_stops_when_learning_error_levels_off():
     """gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2}) within 1 +- lambda (and a stable span)."""
     from econdor_gcs.dfc import Dfc
 
-    class Stub:
-        mission = load_mission(ROOT / "missions" / "demo.yaml").with_overrides(stop_lambda=0.05)
-        records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, 0, 0)
+    dfc = Dfc(_small(stop_lambda=0.05), FieldExecutor())
+    dfc.records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, 0, 0)
                    for i, e in enumerate([math.nan, 1.0, 1.02, 0.99])]
+    assert dfc._gamma_converged(50.0, 50.1)  # gamma = 0.99, span moved 0.2 %
+    assert not dfc._gamma_converged(50.0, 55.0)  # span still moving
+    dfc.records[-1].learning_error = 0.5  # still falling: gamma = 0.6
+    assert not dfc._gamma_converged(50.0, 50.1)
+    dfc.records = dfc.records[:3]  # fewer than three learning errors: never
+    assert not dfc._gamma_converged(50.0, 50.0)
 
-    assert Dfc._gamma_converged(Stub, 50.0, 50.1)  # gamma = 0.99, span moved 0.2 %
-    assert not Dfc._gamma_converged(Stub, 50.0, 55.0)  # span still moving
-    Stub.records[-1].learning_error = 0.5  # still falling: gamma = 0.6
-    assert not Dfc._gamma_converged(Stub, 50.0, 50.1)
+
+def test_run_stops_on_the_gamma_rule():
+    """Through the whole loop: the run ends with ``learning_error_converged`` at the first
+    iteration (>= min_iterations) whose gamma is within 1 +- lambda with a stable span."""
+    from econdor_gcs.dfc import Dfc
+
+    lam = 0.3
+    result = Dfc(_small(stop_lambda=lam, min_iterations=3, max_iterations=12), FieldExecutor(),
+                 planner="no-sg").run()
+    assert result.stop_reason == "learning_error_converged" and result.converged
+    errs = [r.learning_error for r in result.records[1:]]
+    gamma = 3 * errs[-1] / sum(errs[-3:])
+    assert abs(gamma - 1.0) <= lam
+    assert 3 <= len(result.records) - 1 < 12
+
+
+def test_run_stalls_when_there_is_nothing_to_fly(monkeypatch):
+    """A planner with nothing to fly for max_idle_iterations + 1 iterations: ``stalled``."""
+    from econdor_gcs import dfc as dfc_module
+    from econdor_gcs.core.planners import Batch
+
+    class Idle:
+        name = "idle"
+
+        def initiation(self, context):
+            return None  # the mission's diagonals
+
+        def next_batch(self, context):
+            return Batch(jobs=[], levels_planned=0)
+
+        def observe(self, learning_error, reports):
+            pass
+
+    monkeypatch.setitem(dfc_module.PLANNERS, "idle", lambda mission: Idle())
+    result = dfc_module.Dfc(_small(max_iterations=10, min_iterations=1, max_idle_iterations=2),
+                            FieldExecutor(), planner="idle").run()
+    assert result.stop_reason == "stalled" and not result.converged
+    # the initiation, then max_idle_iterations idle iterations recorded; the next one stalls
+    assert [r.iteration for r in result.records] == [0, 1, 2]
+    assert all(r.learning_error == 0.0 for r in result.records[1:])
 
 
 def test_lawnmower_initiation_pattern(tmp_path):
@@ -149,3 +222,16 @@ def test_lawnmower_initiation_pattern(tmp_path):
         on = np.abs(x - line_x) < 0.5
         assert y[on].min() < 5 and y[on].max() > 95, line_x
     assert 600 <= r["rows"][0]["flight_distance_m"] <= 1200  # 600 m of lines + transit
+
+
+def test_samples_of_a_run_still_writing_are_read_up_to_the_last_whole_line(tmp_path):
+    from econdor_gcs.rundir import SAMPLE_COLUMNS, read_samples
+
+    path = tmp_path / "samples.csv"
+    values = {"t_s": "1.5", "x_m": "2", "y_m": "3", "value": "4.25", "phase": "2",
+              "vehicle": "0", "iteration": "1"}
+    row = ",".join(values[c] for c in SAMPLE_COLUMNS)
+    path.write_text(",".join(SAMPLE_COLUMNS) + "\n" + row + "\n" + row + "\n" + "3.0,4.",
+                    encoding="utf-8")
+    s = read_samples(path)
+    assert len(s) == 2 and s.phase.tolist() == [2, 2] and s.value.tolist() == [4.25, 4.25]

@@ -11,8 +11,43 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 from .planners import Job
 from .tasks import Task
+
+
+class _NearestPoints:
+    """Nearest point of every contour piece of ``jobs`` to a query point, in one pass.
+
+    The same point :meth:`~econdor_gcs.core.contours.ContourPiece.nearest_point` picks (the
+    first point at the smallest ``hypot`` distance); jobs without a piece keep their start.
+    """
+
+    def __init__(self, jobs: Sequence[Job]) -> None:
+        self.jobs = jobs
+        pieces = [j.piece.points_m for j in jobs if j.piece is not None]
+        self.has_piece = [j.piece is not None for j in jobs]
+        self.points = np.concatenate(pieces) if pieces else np.zeros((0, 2))
+        lengths = np.array([len(p) for p in pieces], dtype=np.intp)
+        self.starts = np.r_[0, np.cumsum(lengths)[:-1]].astype(np.intp) if pieces else lengths
+
+    def starts_from(self, x_m: float, y_m: float) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
+        if len(self.points):
+            d = np.hypot(self.points[:, 0] - x_m, self.points[:, 1] - y_m)
+            seg_min = np.minimum.reduceat(d, self.starts)
+            at_min = np.flatnonzero(d == np.repeat(seg_min, np.diff(np.r_[self.starts, len(d)])))
+            first = at_min[np.searchsorted(at_min, self.starts)]
+            nearest = self.points[first].tolist()
+        k = 0
+        for job, has in zip(self.jobs, self.has_piece, strict=True):
+            if has:
+                out.append((nearest[k][0], nearest[k][1]))
+                k += 1
+            else:
+                out.append(job.start_m)
+        return out
 
 
 def assign_jobs(
@@ -36,16 +71,14 @@ def assign_jobs(
     piece_id = first_piece_id
     for v in range(n):
         pos = positions_m[v]
-        todo = list(buckets[v])
+        nearest = _NearestPoints(buckets[v])
+        todo = list(range(len(buckets[v])))
         tasks: list[Task] = []
         while todo:
-            for j in todo:
-                if j.piece is not None:
-                    task0 = j.tasks[0]
-                    j.retarget(*pos, search_radius_m, getattr(task0, "max_length_m", 0.0),
-                               piece_id)
-            k = min(range(len(todo)), key=lambda i: math.dist(pos, todo[i].start_m))
-            job = todo.pop(k)
+            # where each job would start from here (a piece: its point nearest to us)
+            starts = nearest.starts_from(*pos)
+            k = min(range(len(todo)), key=lambda i: math.dist(pos, starts[todo[i]]))
+            job = buckets[v][todo.pop(k)]
             if job.piece is not None:
                 job.retarget(*pos, search_radius_m, job.tasks[0].max_length_m, piece_id)  # type: ignore[union-attr]
                 piece_id += 1

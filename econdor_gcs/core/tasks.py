@@ -97,19 +97,12 @@ class SampleLog:
             vehicle=np.concatenate([s.vehicle for s in logs]).astype(np.int16),
         )
 
-    @classmethod
-    def from_rows(cls, rows: list[tuple[float, float, float, float, int, int]]) -> SampleLog:
-        if not rows:
-            return cls()
-        a = np.asarray(rows, dtype=float)
-        return cls(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(np.int8),
-                   a[:, 5].astype(np.int16))
-
 
 class OutcomeStatus(StrEnum):
     """How a task ended.
 
-    ``REACHED`` ends a waypoint; a trace ends ``CLOSED`` (the loop closed), ``BOUNDARY`` (the
+    ``REACHED`` ends a waypoint (``UNREACHABLE`` when its generous time budget ran out
+    first); a trace ends ``CLOSED`` (the loop closed), ``BOUNDARY`` (the
     area boundary was reached on both sides), ``LENGTH_LIMIT``, ``NOT_FOUND`` (the search
     failed) or ``LOST``. ``UNREPORTED`` is the station's word for an outcome that never
     arrived; it has no wire code.
@@ -119,6 +112,7 @@ class OutcomeStatus(StrEnum):
     """
 
     REACHED = "reached"
+    UNREACHABLE = "unreachable"
     CLOSED = "closed"
     BOUNDARY = "boundary"
     LENGTH_LIMIT = "length_limit"
@@ -145,6 +139,7 @@ class OutcomeStatus(StrEnum):
 _STATUS_CODES = {
     OutcomeStatus.REACHED: 0, OutcomeStatus.CLOSED: 1, OutcomeStatus.BOUNDARY: 2,
     OutcomeStatus.LENGTH_LIMIT: 3, OutcomeStatus.NOT_FOUND: 4, OutcomeStatus.LOST: 5,
+    OutcomeStatus.UNREACHABLE: 6,
 }
 
 
@@ -174,6 +169,28 @@ from ``time_boot_ms`` on (the time of the first sample in the new phase)."""
 
 TRACE_REPORT_NAME = "TRACE"
 """``DEBUG_FLOAT_ARRAY.name`` of a :class:`TraceReport` (``array_id`` = mission item seq)."""
+
+# Sample recovery (README, "No sample lost"): two commands, sent as COMMAND_INT so the
+# times are exact integers (x = first, y = last time_boot_ms of a range, both included).
+SAMPLE_COUNT_COMMAND = 31010
+"""``MAV_CMD_USER_1``: how many samples did you take in [x, y] ms? COMMAND_ACK ACCEPTED with
+``result_param2`` = the count.
+
+>>> from pymavlink.dialects.v20 import common
+>>> (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND) == (common.MAV_CMD_USER_1,
+...                                                   common.MAV_CMD_USER_2)
+True
+"""
+SAMPLE_RESEND_COMMAND = 31011
+"""``MAV_CMD_USER_2``: send the samples of [x, y] ms again (the same GLOBAL_POSITION_INT +
+NAMED_VALUE_FLOAT pairs, with the PHASE changes of the range). COMMAND_ACK ACCEPTED with
+``result_param2`` = how many will follow, or DENIED if that is more than
+:data:`SAMPLE_RESEND_MAX` (ask for a smaller range)."""
+SAMPLE_RESEND_MAX = 400
+"""Most samples one resend request may ask for."""
+TRACE_RESEND_COMMAND = 31012
+"""``MAV_CMD_USER_3``: send the TRACE reports of [x, y] ms again (by the report's sim time);
+COMMAND_ACK ACCEPTED with ``result_param2`` = how many follow."""
 
 
 @dataclass(frozen=True)

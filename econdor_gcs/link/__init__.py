@@ -10,7 +10,6 @@ from .mission import (
     build_mission,
 )
 from .router import (
-    GcsEndpoint,
     MissionItemReached,
     Router,
     Sample,
@@ -26,7 +25,6 @@ from .tlog import TlogWriter, read_tlog
 __all__ = [
     "Codec",
     "CommandSender",
-    "GcsEndpoint",
     "MissionClear",
     "MissionDownloader",
     "MissionItemReached",

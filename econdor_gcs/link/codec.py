@@ -16,6 +16,8 @@ from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from ..signing import SigningKey, refusal_counts, refused, share_signing
+
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "Codec", "MAVLinkMessage", "Parser", "mavlink"]
 
 GCS_SYSTEM_ID = 255
@@ -31,14 +33,19 @@ class Codec:
     ----------
     system_id, component_id:
         The sender identity written into every packet header.
+    signing:
+        Sign every packet (MAVLink 2 signing) with this key.
     """
 
     def __init__(self, system_id: int = GCS_SYSTEM_ID,
-                 component_id: int = GCS_COMPONENT_ID) -> None:
+                 component_id: int = GCS_COMPONENT_ID, signing: SigningKey | None = None
+                 ) -> None:
         self.system_id = system_id
         self.component_id = component_id
         self.mav = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self.mav.robust_parsing = True
+        if signing is not None:
+            signing.apply(self.mav)
 
     def encode(self, msg: MAVLinkMessage) -> bytes:
         """Pack ``msg`` with our identity and the next sequence number.
@@ -64,23 +71,38 @@ class Parser:
         garbage runs, bad CRCs, bad lengths, truncated packets (dropped)
     ``unknown_packets``
         well-formed packets of message ids outside the common dialect (dropped)
+    ``unsigned_packets``, ``bad_signature_packets``
+        with a ``signing`` key: packets without a signature, and packets whose signature
+        does not match the key or replays an old timestamp (dropped, not in ``bad_packets``)
     """
 
-    def __init__(self) -> None:
+    def __init__(self, signing: SigningKey | None = None) -> None:
+        self.signing = signing
+        self._signing_state: mavlink.MAVLinkSigning | None = None
         self._new_mav()
         self.packets = 0
         self.bad_packets = 0
         self.unknown_packets = 0
+        self.unsigned_packets = 0
+        self.bad_signature_packets = 0
         self.bytes = 0
 
     def _new_mav(self) -> None:
         self._mav = mavlink.MAVLink(None)
         self._mav.robust_parsing = True
+        if self.signing is not None:
+            if self._signing_state is None:
+                self.signing.apply(self._mav, sign_outgoing=False)
+                self._signing_state = self._mav.signing
+            else:  # a fresh parser keeps the streams' timestamps: replays stay refused
+                share_signing(self._mav, self._signing_state)
 
     def feed(self, data: bytes) -> list[MAVLinkMessage]:
         """Decode every packet in one datagram; never raises."""
         self.bytes += len(data)
         out: list[MAVLinkMessage] = []
+        sig = self._mav.signing
+        before = refusal_counts(sig)
         try:
             found = self._mav.parse_buffer(data) or []
         except (mavlink.MAVError, struct.error, IndexError, ValueError, UnboundLocalError):
@@ -88,10 +110,17 @@ class Parser:
             self.bad_packets += 1
             self._new_mav()
             return out
+        wrong, unsigned = refused(sig, before)  # these came back as BAD_DATA too
+        self.bad_signature_packets += wrong
+        self.unsigned_packets += unsigned
+        refusals = wrong + unsigned
         for msg in found:
             kind = msg.get_type()
             if kind == "BAD_DATA":
-                self.bad_packets += 1
+                if refusals > 0:
+                    refusals -= 1
+                else:
+                    self.bad_packets += 1
             elif kind.startswith("UNKNOWN"):
                 self.unknown_packets += 1
             else:

@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from ..core.geodesy import Origin
+from ..core.geometry import Region
 from ..core.tasks import Phase, Task, TaskStyle, TraceTask, Waypoint
 from ..core.waypoints import task_waypoints
 from ..errors import CommandRejected, MissionRejected, ProtocolError, VehicleTimeout
@@ -45,6 +46,7 @@ __all__ = [
     "change_speed_item",
     "command_name",
     "enum_name",
+    "fence_items",
     "home_item",
     "loiter_item",
     "plan_mission",
@@ -326,6 +328,34 @@ def build_mission(
 ) -> list[MissionItemSpec]:
     """The items of :func:`plan_mission` with contour items (``style=TRACE``)."""
     return plan_mission(origin, tasks, altitude_m, home=home, end=end).items
+
+
+def fence_items(origin: Origin, region: Region, margin_m: float) -> list[MissionItemSpec]:
+    """The area plus ``margin_m`` on every side as an inclusion fence: four
+    ``MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION`` items (param1 = vertex count), mission
+    type FENCE, counter-clockwise from the south-west corner, in ``MAV_FRAME_GLOBAL_INT``
+    (fence vertices have no altitude), as PX4 and ArduPilot take them.
+
+    >>> from econdor_gcs.core.geodesy import Origin
+    >>> from econdor_gcs.core.geometry import Region
+    >>> items = fence_items(Origin(47.0, 8.0, 400.0), Region(0, 100, 0, 50), 5.0)
+    >>> [(it.seq, it.command, it.param1, it.mission_type) for it in items][:2]
+    [(0, 5001, 4.0, 1), (1, 5001, 4.0, 1)]
+    """
+    if not margin_m >= 0:
+        raise ValueError(f"margin_m must be >= 0, got {margin_m}")
+    corners = [(region.xmin - margin_m, region.ymin - margin_m),
+               (region.xmax + margin_m, region.ymin - margin_m),
+               (region.xmax + margin_m, region.ymax + margin_m),
+               (region.xmin - margin_m, region.ymax + margin_m)]
+    items = []
+    for seq, (x, y) in enumerate(corners):
+        lat, lon, _ = origin.to_global(x, y)
+        items.append(MissionItemSpec(
+            seq, mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+            param1=float(len(corners)), x=_e7(lat), y=_e7(lon),
+            mission_type=mavlink.MAV_MISSION_TYPE_FENCE))
+    return items
 
 
 # --------------------------------------------------------------------------------------------
@@ -612,17 +642,27 @@ class CommandSender(_Machine):
 
     def __init__(self, target_system: int, target_component: int, command: int,
                  params: Sequence[float] = (), *, timeout_s: float = DEFAULT_TIMEOUT_S,
-                 retries: int = DEFAULT_RETRIES) -> None:
+                 retries: int = DEFAULT_RETRIES,
+                 position: tuple[int, int, float] | None = None) -> None:
         super().__init__(target_system, target_component, timeout_s, retries)
-        if len(params) > 7:
-            raise ValueError(f"COMMAND_LONG takes at most 7 params, got {len(params)}")
+        limit = 4 if position is not None else 7
+        if len(params) > limit:
+            raise ValueError(f"the command takes at most {limit} params, got {len(params)}")
         self.command = command
         self.params = [float(p) for p in params] + [0.0] * (7 - len(params))
+        self.position = position
+        """``(x, y, z)`` sends COMMAND_INT (exact int32 x/y, MAV_FRAME_GLOBAL_INT) instead of
+        COMMAND_LONG."""
         self.confirmation = 0
         self.progress: int | None = None
         self.what = f"command {command_name(command)}"
 
     def _message(self) -> MAVLinkMessage:
+        if self.position is not None:
+            x, y, z = self.position
+            return mavlink.MAVLink_command_int_message(
+                self.target_system, self.target_component, mavlink.MAV_FRAME_GLOBAL_INT,
+                self.command, 0, 0, *self.params[:4], x, y, z)
         return mavlink.MAVLink_command_long_message(
             self.target_system, self.target_component, self.command, self.confirmation % 256,
             *self.params)

@@ -13,7 +13,7 @@ STATUSTEXT stays for people; nothing here reads it.
 
 from __future__ import annotations
 
-from collections import deque
+import bisect
 
 from ..core.tasks import PHASE_NAME, TRACE_REPORT_NAME, Phase, TraceReport
 from ..errors import ProtocolError
@@ -67,29 +67,39 @@ class PhaseTrack:
     >>> [t.at(ms).name for ms in (999, 1000, 2400, 2500, 9000)]
     ['TRANSIT', 'SEARCH', 'SEARCH', 'TRACE', 'TRACE']
 
-    Only the last ``keep`` changes are remembered: enough for samples that arrive a little
-    out of order, not for a replay.
+    Changes may arrive in any order (a resent range repeats its changes); they are kept
+    sorted by time, at most ``keep`` of them (the oldest are forgotten first).
+
+    >>> t.add(1800, Phase.TRANSIT); t.at(2000).name
+    'TRANSIT'
     """
 
-    def __init__(self, keep: int = 64) -> None:
-        self._changes: deque[tuple[int, Phase]] = deque(maxlen=keep)
+    def __init__(self, keep: int = 100_000) -> None:
+        self.keep = keep
+        self._times: list[int] = []
+        self._phases: list[Phase] = []
 
     @property
     def known(self) -> bool:
         """True once the vehicle has reported a phase (a vehicle without our tracer never does)."""
-        return bool(self._changes)
+        return bool(self._times)
 
     @property
     def latest(self) -> Phase:
         """The last phase reported (TRANSIT before any)."""
-        return self._changes[-1][1] if self._changes else Phase.TRANSIT
+        return self._phases[-1] if self._phases else Phase.TRANSIT
 
     def add(self, time_boot_ms: int, phase: Phase) -> None:
-        self._changes.append((time_boot_ms, phase))
+        k = bisect.bisect_left(self._times, time_boot_ms)
+        if k < len(self._times) and self._times[k] == time_boot_ms:
+            self._phases[k] = phase  # the same change again
+            return
+        self._times.insert(k, time_boot_ms)
+        self._phases.insert(k, phase)
+        if len(self._times) > self.keep:
+            del self._times[0], self._phases[0]
 
     def at(self, time_boot_ms: int) -> Phase:
         """The phase in force at ``time_boot_ms`` (TRANSIT before any report)."""
-        for t, phase in reversed(self._changes):
-            if t <= time_boot_ms:
-                return phase
-        return Phase.TRANSIT
+        k = bisect.bisect_right(self._times, time_boot_ms)
+        return self._phases[k - 1] if k else Phase.TRANSIT

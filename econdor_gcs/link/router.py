@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from ..errors import LinkError, VehicleTimeout
+from ..signing import SigningKey
 from .codec import GCS_COMPONENT_ID, GCS_SYSTEM_ID, Codec, MAVLinkMessage, Parser, mavlink
 from .mission import (
     DEFAULT_RETRIES,
@@ -39,7 +40,6 @@ from .tlog import TlogWriter
 
 __all__ = [
     "DEFAULT_ENDPOINT",
-    "GcsEndpoint",
     "MissionItemReached",
     "Router",
     "Sample",
@@ -314,19 +314,24 @@ class Router:
         Period of our own HEARTBEAT (MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID) to every known vehicle.
     sample_horizon_s:
         How long an unpaired sample half waits (:class:`SamplePairer`).
+    signing:
+        MAVLink 2 signing: everything we send is signed with this key, and whatever
+        arrives unsigned or wrongly signed is dropped and counted
+        (``parser.unsigned_packets``, ``parser.bad_signature_packets``).
     """
 
     def __init__(self, endpoint: str = DEFAULT_ENDPOINT, *, tlog: TlogWriter | None = None,
                  heartbeat_timeout_s: float = 5.0, gcs_heartbeat_s: float = 1.0,
                  sample_horizon_s: float = 5.0, system_id: int = GCS_SYSTEM_ID,
-                 component_id: int = GCS_COMPONENT_ID) -> None:
+                 component_id: int = GCS_COMPONENT_ID, signing: SigningKey | None = None
+                 ) -> None:
         self.endpoint = endpoint
         self.bind_address = parse_endpoint(endpoint)
         self.tlog = tlog
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.gcs_heartbeat_s = gcs_heartbeat_s
-        self.codec = Codec(system_id, component_id)
-        self.parser = Parser()
+        self.codec = Codec(system_id, component_id, signing)
+        self.parser = Parser(signing)
         self.pairer = SamplePairer(sample_horizon_s)
         self.vehicles: dict[int, VehicleLink] = {}
         self.stats: dict[str, int] = {
@@ -651,6 +656,20 @@ class Router:
                                 retries=retries)
         return await self.run_protocol(sysid, machine)
 
+    async def command_int(self, sysid: int, cmd: int, x: int, y: int, z: float = 0.0,
+                          *params: float, timeout_s: float = DEFAULT_TIMEOUT_S,
+                          retries: int = DEFAULT_RETRIES) -> MAVLinkMessage:
+        """COMMAND_INT with exact int32 ``x``/``y``; return the accepting COMMAND_ACK."""
+        machine = CommandSender(sysid, self._compid(sysid), cmd, params, timeout_s=timeout_s,
+                                retries=retries, position=(x, y, z))
+        return await self.run_protocol(sysid, machine)
+
+    def send_command_int(self, sysid: int, cmd: int, x: int, y: int, z: float = 0.0) -> None:
+        """COMMAND_INT without waiting for its answer (requests whose effect is seen)."""
+        self.send(sysid, mavlink.MAVLink_command_int_message(
+            sysid, self._compid(sysid), mavlink.MAV_FRAME_GLOBAL_INT, cmd, 0, 0, 0.0, 0.0, 0.0,
+            0.0, x, y, z))
+
     async def arm(self, sysid: int, *, force: bool = False) -> MAVLinkMessage:
         return await self.command(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1,
                                   21196 if force else 0)
@@ -659,17 +678,39 @@ class Router:
         return await self.command(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0,
                                   21196 if force else 0)
 
-    async def set_mode(self, sysid: int, custom_mode: int,
+    async def set_mode(self, sysid: int, main_mode: int, sub_mode: int = 0,
                        base_mode: int = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
                        ) -> MAVLinkMessage:
-        """MAV_CMD_DO_SET_MODE (the way ArduPilot and PX4 both accept)."""
-        return await self.command(sysid, mavlink.MAV_CMD_DO_SET_MODE, base_mode, custom_mode)
+        """MAV_CMD_DO_SET_MODE: param1 ``base_mode``, param2 the custom main mode, param3 the
+        custom sub mode.
 
-    async def takeoff(self, sysid: int, alt_m: float) -> MAVLinkMessage:
-        """MAV_CMD_NAV_TAKEOFF to ``alt_m`` above home, here."""
+        PX4 reads its main mode (4 = AUTO) from param2 and the AUTO sub mode (2 TAKEOFF,
+        3 LOITER, 4 MISSION, 5 RTL, 6 LAND) from param3 -- not the packed
+        ``main << 16 | sub << 24`` of its HEARTBEAT; ArduPilot reads its mode number from
+        param2 (``sub_mode`` 0).
+        """
+        return await self.command(sysid, mavlink.MAV_CMD_DO_SET_MODE, base_mode, main_mode,
+                                  sub_mode)
+
+    async def takeoff(self, sysid: int, alt_rel_m: float) -> MAVLinkMessage:
+        """MAV_CMD_NAV_TAKEOFF to ``alt_rel_m`` above home, here.
+
+        PX4 (and our simulated vehicle) read param7 as an altitude AMSL: home's AMSL altitude
+        comes from the vehicle's last GLOBAL_POSITION_INT (``alt - relative_alt``). ArduPilot
+        reads param7 above home, so it gets ``alt_rel_m`` as is.
+        """
+        link = self.vehicles.get(sysid)
+        if link is None:
+            raise LinkError(f"vehicle {sysid} has never been heard from")
+        param7 = alt_rel_m
+        if link.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            if link.alt_m is None or link.rel_alt_m is None:
+                raise LinkError(f"vehicle {sysid}: no position yet, so no home altitude to "
+                                "take off from")
+            param7 = link.alt_m - link.rel_alt_m + alt_rel_m
         nan = float("nan")
         return await self.command(sysid, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan,
-                                  alt_m)
+                                  param7)
 
     async def start_mission(self, sysid: int, first: int = 0, last: int = 0) -> MAVLinkMessage:
         """MAV_CMD_MISSION_START (``first = last = 0``: the whole mission)."""
@@ -725,5 +766,3 @@ class Router:
             return sorted(self.vehicles)[:count]
         return wanted or []
 
-
-GcsEndpoint = Router

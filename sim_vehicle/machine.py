@@ -1,0 +1,1019 @@
+"""The onboard tracer as a compiled state machine (numba, cached on disk).
+
+This is the one implementation of the vehicle's flight logic: fly to a point, search
+for a level near a start point, trace the iso-line (see :mod:`sim_vehicle.tracer` for
+what the controller does and :class:`~sim_vehicle.tracer.TracerParams` for its tuning).
+:func:`advance` runs a task for up to ``n`` sensor ticks and stops, keeping everything
+it needs to go on in two numpy records:
+
+``body`` (:data:`BODY`)
+    The simulated vehicle: point-mass state, sim clock, limits and region. It belongs
+    to a :class:`~sim_vehicle.body.SimBody` and outlives tasks.
+``st`` (:data:`STATE`)
+    One task: its parameters, the program counter ``pc`` and the locals of the search,
+    trace and fly-to loops, plus three sample buffers passed beside it (the task's
+    recent samples, the trace leg's window, the leg's turn history).
+
+Each tick is ``_pre`` (checks and transitions that take no time, ending in a velocity
+command), the kinematic sub-steps, a sensor reading and ``_post`` (what the loop does
+with the new sample). The reading comes from the compiled Gaussian sum when the field
+is one; for any other field ``advance`` returns after moving with ``st.await_value``
+set, the caller reads the field at the body's position and calls again with the value.
+The Python generators of :mod:`sim_vehicle.tracer` drive this one tick at a time (the
+MAVLink vehicle); the in-process executor drives it thousands of ticks per call.
+
+Events (contour found, lost, ...) are written to an ``events`` buffer as
+``(code, samples produced before it)`` so an adapter can replay them between the
+samples where they happened.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import logging
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+from numba.core.registry import CPUDispatcher
+
+from econdor_gcs.core import fields as _fields
+from econdor_gcs.core.fields import gaussian_sum_at
+
+from . import kinematics as _kinematics
+from .kinematics import point_step, wrap_angle_rad
+
+log = logging.getLogger(__name__)
+
+# ----------------------------------------------------------------------------- records
+
+BODY = np.dtype([
+    ("x_m", "f8"), ("y_m", "f8"), ("vx_mps", "f8"), ("vy_mps", "f8"), ("odometer_m", "f8"),
+    ("last_heading_rad", "f8"), ("ticks", "i8"), ("t0_s", "f8"), ("dt_s", "f8"), ("n_sub", "i8"),
+    ("max_speed_mps", "f8"), ("max_accel_mps2", "f8"), ("max_turn_rate_dps", "f8"),
+    ("xmin", "f8"), ("xmax", "f8"), ("ymin", "f8"), ("ymax", "f8"),
+])
+"""The simulated vehicle's state (one record, shared by Python and compiled code)."""
+
+_F = "f8"
+_I = "i8"
+STATE = np.dtype([
+    # the task
+    ("kind", _I), ("level", _F), ("task_x_m", _F), ("task_y_m", _F), ("search_radius_m", _F),
+    ("max_length_m", _F), ("wp_phase", _I), ("wp_tolerance_m", _F), ("wp_speed_mps", _F),
+    # TracerParams
+    ("speed_mps", _F), ("transit_speed_mps", _F), ("closure_radius_m", _F),
+    ("closure_min_away_m", _F), ("search_speed_mps", _F), ("approach_speed_mps", _F),
+    ("approach_gain_hz", _F), ("probe_leg_m", _F), ("spiral_spacing_m", _F),
+    ("trace_bandwidth_rps", _F), ("trace_accel_mps2", _F), ("lateral_accel_fraction", _F),
+    ("filter_alpha", _F), ("filter_beta", _F), ("gradient_window", _I), ("min_spread_m", _F),
+    ("boundary_margin_m", _F), ("lost_offset_m", _F), ("lost_time_s", _F),
+    ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
+    ("budget_factor", _F),
+    # control
+    ("pc", _I), ("status", _I), ("await_value", _I), ("cmd_vx", _F), ("cmd_vy", _F),
+    ("cmd_phase", _I), ("odo_before", _F),
+    # meter: the whole task
+    ("odo0_m", _F), ("traced_m", _F), ("rec_start", _I), ("rec_len", _I),
+    # fly_to
+    ("ft_x", _F), ("ft_y", _F), ("ft_phase", _I), ("ft_tol", _F), ("ft_speed", _F),
+    ("ft_k", _I), ("ft_max", _I), ("ft_ok", _I), ("ft_ret", _I),
+    # search
+    ("sr_level", _F), ("sr_cx", _F), ("sr_cy", _F), ("sr_radius", _F), ("sr_ret", _I),
+    ("has_prev", _I), ("prev_x", _F), ("prev_y", _F), ("prev_v", _F),
+    ("v_search", _F), ("v_min", _F), ("probe_k", _I), ("arrival", _F), ("probe_ux", _F),
+    ("probe_uy", _F), ("probe_x0", _F), ("probe_y0", _F), ("v_probe", _F), ("probe_j", _I),
+    ("probe_n", _I), ("best", _F), ("since_best", _I), ("path0", _F), ("max_path", _F),
+    ("pitch", _F), ("phi0", _F), ("theta", _F), ("sp_k", _I), ("sp_max", _I),
+    ("found", _I), ("f_x", _F), ("f_y", _F), ("f_gx", _F), ("f_gy", _F),
+    # trace leg (LegState and the leg's locals)
+    ("start_x", _F), ("start_y", _F), ("away_max", _F), ("grad_mag", _F), ("grad_mag0", _F),
+    ("ticks_left", _I), ("leg_heading", _F), ("side", _F), ("psi", _F), ("kappa", _F),
+    ("lspeed", _F), ("d_f", _F), ("dd_f", _F), ("lost_s", _F), ("has_prev_dist", _I),
+    ("prev_dist", _F), ("n_fit", _I), ("turned", _F), ("th_start", _I), ("th_len", _I),
+    ("turn_k", _I), ("turn_n", _I), ("ux", _F), ("uy", _F), ("heading_before", _F),
+    ("leg_status", _I), ("win_start", _I), ("win_len", _I),
+    # trace orchestration
+    ("heading0", _F), ("reacquired", _I),
+])
+"""One task's state (parameters, program counter, loop locals)."""
+
+RECENT_SAMPLES = 40
+"""Recent samples a task keeps for its gradient fits (``x, y, value`` rows)."""
+
+# task kinds
+KIND_FLY_TO = 1
+KIND_TRACE = 2
+
+# statuses (see STATUS_NAMES)
+REACHED, UNREACHABLE, CLOSED, BOUNDARY, LENGTH_LIMIT, NOT_FOUND, LOST, BUDGET = range(1, 9)
+STATUS_NAMES = {REACHED: "reached", UNREACHABLE: "unreachable", CLOSED: "closed",
+                BOUNDARY: "boundary", LENGTH_LIMIT: "length_limit", NOT_FOUND: "not_found",
+                LOST: "lost", BUDGET: "budget"}
+
+# events (see sim_vehicle.tracer.TracerEvent)
+(EV_FOUND, EV_NOT_FOUND, EV_LOST_SEARCHING, EV_REACQUIRED, EV_BOUNDARY_OTHER, EV_BUDGET,
+ EV_CLOSED, EV_BOUNDARY, EV_LENGTH_LIMIT, EV_LOST) = range(1, 11)
+
+# program counter
+PC_DONE = 0
+PC_FT = 1
+PC_SR_PROBE_START = 10
+PC_SR_PROBE = 11
+PC_SR_DESCENT_START = 12
+PC_SR_DESCENT = 13
+PC_SR_SPIRAL_START = 14
+PC_SR_SPIRAL = 15
+PC_LEG_START = 20
+PC_LEG_TURN = 21
+PC_LEG_MAIN_START = 22
+PC_LEG_MAIN = 23
+PC_TR_START = 30
+PC_TR_SEARCH = 31
+PC_TR_AFTER_SEARCH = 32
+PC_TR_AFTER_LEG = 33
+PC_TR_AFTER_REACQUIRE = 34
+PC_TR_AFTER_RETURN = 35
+PC_TR_END = 36
+PC_FT_END = 37
+
+# phases (econdor_gcs.core.tasks.Phase)
+_TRANSIT, _SEARCH, _TRACE = 0, 1, 2
+
+_TWO_PI = 2.0 * math.pi
+
+
+# ----------------------------------------------------------------------------- body
+
+
+@njit(cache=True)
+def body_move(b, vx_cmd_mps: float, vy_cmd_mps: float) -> None:
+    """Fly one sensor period (``n_sub`` kinematic sub-steps) with a held command."""
+    sub_dt_s = b.dt_s / b.n_sub
+    x, y, vx, vy, odo, hdg = b.x_m, b.y_m, b.vx_mps, b.vy_mps, b.odometer_m, b.last_heading_rad
+    for _ in range(b.n_sub):
+        x, y, vx, vy, odo, hdg = point_step(x, y, vx, vy, odo, hdg, sub_dt_s, vx_cmd_mps,
+                                            vy_cmd_mps, b.max_speed_mps, b.max_accel_mps2,
+                                            b.max_turn_rate_dps)
+    b.x_m, b.y_m, b.vx_mps, b.vy_mps, b.odometer_m, b.last_heading_rad = x, y, vx, vy, odo, hdg
+    b.ticks += 1
+
+
+@njit(cache=True)
+def _speed(b) -> float:
+    return math.hypot(b.vx_mps, b.vy_mps)
+
+
+@njit(cache=True)
+def _heading(b) -> float:
+    if b.vx_mps != 0.0 or b.vy_mps != 0.0:
+        return math.atan2(b.vy_mps, b.vx_mps)
+    return b.last_heading_rad
+
+
+@njit(cache=True)
+def _contains(xmin: float, xmax: float, ymin: float, ymax: float, x: float, y: float) -> bool:
+    return xmin <= x <= xmax and ymin <= y <= ymax
+
+
+@njit(cache=True)
+def _shrink_m(b, margin_m: float) -> float:
+    return min(margin_m, 0.25 * (b.xmax - b.xmin), 0.25 * (b.ymax - b.ymin))
+
+
+@njit(cache=True)
+def _ray_to_edge_m(xmin: float, xmax: float, ymin: float, ymax: float, x_m: float, y_m: float,
+                   ux: float, uy: float) -> float:
+    """Distance from an inside point to the region boundary along unit vector ``(ux, uy)``."""
+    if not _contains(xmin, xmax, ymin, ymax, x_m, y_m):
+        return 0.0
+    dist = math.inf
+    if ux > 1e-12:
+        dist = min(dist, (xmax - x_m) / ux)
+    elif ux < -1e-12:
+        dist = min(dist, (xmin - x_m) / ux)
+    if uy > 1e-12:
+        dist = min(dist, (ymax - y_m) / uy)
+    elif uy < -1e-12:
+        dist = min(dist, (ymin - y_m) / uy)
+    return dist
+
+
+# ----------------------------------------------------------------------------- fits
+
+
+@njit(cache=True)
+def _ring_push(buf: np.ndarray, start: int, length: int, x: float, y: float, v: float
+               ) -> tuple[int, int]:
+    cap = buf.shape[0]
+    if length < cap:
+        k = (start + length) % cap
+        length += 1
+    else:
+        k = start
+        start = (start + 1) % cap
+    buf[k, 0] = x
+    buf[k, 1] = y
+    buf[k, 2] = v
+    return start, length
+
+
+@njit(cache=True)
+def fit_gradient(buf: np.ndarray, start: int, length: int, count: int,
+                 ridge: float = 1e-4) -> tuple[float, float, float]:
+    """Least-squares plane ``v = a + g . (p - mean p)`` through the last ``count`` samples.
+
+    Returns
+    -------
+    gx, gy, spread_m
+        The gradient and the smallest standard deviation of the positions (how well
+        the plane is determined across the track).
+    """
+    n = min(count, length)
+    if n < 3:
+        return 0.0, 0.0, 0.0
+    cap = buf.shape[0]
+    first = start + length - n
+    mx = my = mv = 0.0
+    for i in range(n):
+        k = (first + i) % cap
+        mx += buf[k, 0]
+        my += buf[k, 1]
+        mv += buf[k, 2]
+    mx /= n
+    my /= n
+    mv /= n
+    sxx = syy = sxy = sxv = syv = 0.0
+    for i in range(n):
+        k = (first + i) % cap
+        dx = buf[k, 0] - mx
+        dy = buf[k, 1] - my
+        dv = buf[k, 2] - mv
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+        sxv += dx * dv
+        syv += dy * dv
+    sxx /= n
+    syy /= n
+    sxy /= n
+    tr = sxx + syy
+    det0 = sxx * syy - sxy * sxy
+    lam_min = max(0.5 * tr - math.sqrt(max(0.25 * tr * tr - det0, 0.0)), 0.0)
+    a = sxx + ridge
+    d = syy + ridge
+    det = a * d - sxy * sxy
+    if det <= 0.0:
+        return 0.0, 0.0, 0.0
+    bx = sxv / n
+    by = syv / n
+    gx = (d * bx - sxy * by) / det
+    gy = (a * by - sxy * bx) / det
+    return gx, gy, math.sqrt(lam_min)
+
+
+@njit(cache=True)
+def _dot(a: np.ndarray, b: np.ndarray, n: int) -> float:
+    acc = 0.0
+    for i in range(n):
+        acc += a[i] * b[i]
+    return acc
+
+
+@njit(cache=True)
+def _project_out(q: np.ndarray, rank: int, r: np.ndarray, n: int) -> None:
+    """``r -= Q Q^T r`` twice (re-orthogonalised), ``Q`` the first ``rank`` rows of ``q``."""
+    for _ in range(2):
+        for c in range(rank):
+            proj = _dot(q[c], r, n)
+            for i in range(n):
+                r[i] -= proj * q[c, i]
+
+
+@njit(cache=True)
+def fit_cross_gradient(buf: np.ndarray, start: int, length: int) -> tuple[float, float]:
+    """Cross-track gradient magnitude from samples along a (curved) track.
+
+    The samples are expressed in a local frame (``s`` along the chord of the window,
+    ``n`` across it) and fitted with ``v = a + b s + c s^2 + g n``: the quadratic term
+    absorbs the curvature of a contour that is being followed, so ``g`` is only
+    determined by genuine excursions across the iso-line. ``g`` is computed by
+    Frisch-Waugh-Lovell: with ``r_n`` and ``r_v`` the residuals of ``n`` and ``v`` after
+    projecting out the trend ``(1, s, s^2)`` (an orthonormal basis by modified
+    Gram-Schmidt, re-orthogonalised; a column below 1e-10 of its norm is dropped, as a
+    least-squares solve with a rank cutoff would), ``g = <r_n, r_v> / <r_n, r_n>``.
+
+    Returns
+    -------
+    g_abs, spread_m
+        ``|g|`` and the standard deviation of ``n`` left after removing a quadratic
+        trend in ``s`` (how well ``g`` is determined).
+    """
+    n = length
+    if n < 6:
+        return 0.0, 0.0
+    cap = buf.shape[0]
+    k0 = start % cap
+    k1 = (start + n - 1) % cap
+    mx = my = 0.0
+    for i in range(n):
+        k = (start + i) % cap
+        mx += buf[k, 0]
+        my += buf[k, 1]
+    mx /= n
+    my /= n
+    chord_x, chord_y = buf[k1, 0] - buf[k0, 0], buf[k1, 1] - buf[k0, 1]
+    chord = math.hypot(chord_x, chord_y)
+    if chord < 1e-6:
+        return 0.0, 0.0
+    ux, uy = chord_x / chord, chord_y / chord
+    work = np.empty((6, n))  # rows: q0, q1, q2, along, r_n, r_v
+    q = work[:3]
+    along, r_n, r_v = work[3], work[4], work[5]
+    for i in range(n):
+        k = (start + i) % cap
+        cx = buf[k, 0] - mx
+        cy = buf[k, 1] - my
+        along[i] = cx * ux + cy * uy
+        r_n[i] = -cx * uy + cy * ux
+        r_v[i] = buf[k, 2]
+    rank = 0
+    for j in range(3):
+        col = q[rank]
+        for i in range(n):
+            col[i] = 1.0 if j == 0 else (along[i] if j == 1 else along[i] * along[i])
+        norm0 = math.sqrt(_dot(col, col, n))
+        _project_out(q, rank, col, n)
+        norm = math.sqrt(_dot(col, col, n))
+        if norm > 1e-10 * norm0 and norm > 0.0:
+            for i in range(n):
+                col[i] /= norm
+            rank += 1
+    _project_out(q, rank, r_n, n)
+    nn = _dot(r_n, r_n, n)
+    spread = math.sqrt(nn / n)
+    if spread <= 1e-9:
+        return 0.0, spread
+    _project_out(q, rank, r_v, n)
+    return abs(_dot(r_n, r_v, n) / nn), spread
+
+
+# ----------------------------------------------------------------------------- tasks
+
+
+@njit(inline="always")
+def _call_fly_to(s, b, x: float, y: float, phase: int, tol: float, speed: float, ret: int
+                 ) -> None:
+    s.ft_x = x
+    s.ft_y = y
+    s.ft_phase = phase
+    s.ft_tol = tol
+    s.ft_speed = min(speed, b.max_speed_mps)
+    dist0 = math.hypot(x - b.x_m, y - b.y_m)
+    s.ft_max = int(3.0 * (dist0 / max(s.ft_speed, 0.1) + 10.0) / b.dt_s) + 100
+    s.ft_k = 0
+    s.ft_ret = ret
+    s.pc = PC_FT
+
+
+@njit(inline="always")
+def _call_search(s, level: float, cx: float, cy: float, radius: float, ret: int) -> None:
+    s.sr_level = level
+    s.sr_cx = cx
+    s.sr_cy = cy
+    s.sr_radius = max(radius, 0.0)
+    s.sr_ret = ret
+    s.found = 0
+    s.probe_k = 0
+    s.pc = PC_SR_PROBE_START
+
+
+@njit(inline="always")
+def _call_leg(s, heading: float, side: float) -> None:
+    s.leg_heading = heading
+    s.side = side
+    s.pc = PC_LEG_START
+
+
+@njit(inline="always")
+def _emit(events: np.ndarray, n_events: int, code: int, n_out: int) -> int:
+    if n_events < events.shape[0]:
+        events[n_events, 0] = code
+        events[n_events, 1] = n_out
+        return n_events + 1
+    return n_events
+
+
+@njit(inline="always")
+def _command(s, vx: float, vy: float, phase: int) -> bool:
+    s.cmd_vx = vx
+    s.cmd_vy = vy
+    s.cmd_phase = phase
+    return True
+
+
+@njit(cache=True)
+def _heading_from_gradient(gx: float, gy: float, side: float) -> float:
+    """Heading along the iso-line with higher values on the left (side=+1) or right."""
+    return math.atan2(-side * gx, side * gy)
+
+
+@njit(cache=True)
+def _found(s, recent: np.ndarray, cur_x: float, cur_y: float, cur_v: float,
+           cross_x: float, cross_y: float) -> None:
+    """Record where the level was crossed and the gradient there; return from the search."""
+    gx, gy, _ = fit_gradient(recent, s.rec_start, s.rec_len, s.gradient_window)
+    if s.has_prev:
+        # the bracketing pair gives the derivative along the last step: trust its sign
+        sx, sy = cur_x - s.prev_x, cur_y - s.prev_y
+        step = math.hypot(sx, sy)
+        dv = cur_v - s.prev_v
+        if step > 1e-9:
+            ux, uy = sx / step, sy / step
+            along = dv / step
+            gfit_along = gx * ux + gy * uy
+            if math.hypot(gx, gy) < 1e-12 or gfit_along * along <= 0.0:
+                # the fit disagrees with the crossing itself: use the step direction
+                gx, gy = along * ux, along * uy
+    s.found = 1
+    s.f_x = cross_x
+    s.f_y = cross_y
+    s.f_gx = gx
+    s.f_gy = gy
+    s.pc = s.sr_ret
+
+
+@njit(cache=True)
+def _bracketed(s, recent: np.ndarray, x: float, y: float, v: float) -> bool:
+    """If the level lies between the previous and this sample: found (True)."""
+    if s.has_prev:
+        level = s.sr_level
+        e0, e1 = s.prev_v - level, v - level
+        if e1 == 0.0:
+            _found(s, recent, x, y, v, x, y)
+            return True
+        if e0 * e1 < 0.0:
+            t = e0 / (e0 - e1)
+            _found(s, recent, x, y, v, s.prev_x + t * (x - s.prev_x),
+                   s.prev_y + t * (y - s.prev_y))
+            return True
+    return False
+
+
+@njit(cache=True)
+def _tick_budget(s, b) -> int:
+    """Trace tick budget: ``budget_factor`` region perimeters (plus ``max_length_m``) at
+    half the cruise speed."""
+    perimeter = 2.0 * ((b.xmax - b.xmin) + (b.ymax - b.ymin))
+    budget_m = s.budget_factor * perimeter + max(s.max_length_m, 0.0)
+    cruise = min(s.speed_mps, b.max_speed_mps)
+    return int(budget_m / (0.5 * cruise) / b.dt_s) + 200
+
+
+@njit(cache=True)
+def trace_tick_budget(body: np.ndarray, state: np.ndarray) -> int:
+    """The tick budget of the trace task in ``state`` (sizes its turn-history buffer)."""
+    return _tick_budget(state[0], body[0])
+
+
+@njit(cache=True)
+def _spiral_point(s, b, th: float) -> tuple[float, float]:
+    m = _shrink_m(b, 0.5)
+    r = s.pitch * th
+    x = s.sr_cx + r * math.cos(th + s.phi0)
+    y = s.sr_cy + r * math.sin(th + s.phi0)
+    return min(max(x, b.xmin + m), b.xmax - m), min(max(y, b.ymin + m), b.ymax - m)
+
+
+@njit(cache=True)
+def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_events: int,
+         n_out: int) -> tuple[bool, int]:
+    """Run the state machine until it issues a velocity command (True) or the task ends.
+
+    Returns ``(commanded, n_events)``.
+    """
+    while True:
+        pc = s.pc
+        if pc == PC_DONE:
+            return False, n_events
+
+        # ---------------------------------------------------------------- fly to
+        if pc == PC_FT:
+            if s.ft_k >= s.ft_max:
+                s.ft_ok = 1 if math.hypot(s.ft_x - b.x_m, s.ft_y - b.y_m) <= s.ft_tol else 0
+                s.pc = s.ft_ret
+                continue
+            ex, ey = s.ft_x - b.x_m, s.ft_y - b.y_m
+            dist = math.hypot(ex, ey)
+            if dist <= s.ft_tol:
+                s.ft_ok = 1
+                s.pc = s.ft_ret
+                continue
+            # brake so as to stop at the target; small floor so we always get there
+            v = min(s.ft_speed, math.sqrt(2.0 * 0.6 * b.max_accel_mps2 * dist),
+                    max(2.0 * dist, 0.3))
+            v = max(v, min(0.3, s.ft_speed))
+            s.ft_k += 1
+            return _command(s, v * ex / dist, v * ey / dist, s.ft_phase), n_events
+        if pc == PC_FT_END:
+            s.status = REACHED if s.ft_ok else UNREACHABLE
+            s.pc = PC_DONE
+            continue
+
+        # ---------------------------------------------------------------- search
+        if pc == PC_SR_PROBE_START:
+            if s.probe_k == 0:
+                v_search = min(s.search_speed_mps, b.max_speed_mps)
+                s.v_search = v_search
+                s.v_min = min(s.approach_speed_mps, v_search)
+                if s.rec_len > 0:
+                    k = (s.rec_start + s.rec_len - 1) % recent.shape[0]
+                    s.has_prev = 1
+                    s.prev_x, s.prev_y, s.prev_v = recent[k, 0], recent[k, 1], recent[k, 2]
+                else:
+                    s.has_prev = 0
+                # probe: a short leg across the arrival direction (two if still degenerate)
+                s.arrival = 0.0
+                if s.rec_len >= 2:
+                    k1 = (s.rec_start + s.rec_len - 1) % recent.shape[0]
+                    k0 = (s.rec_start + s.rec_len - 2) % recent.shape[0]
+                    dx = recent[k1, 0] - recent[k0, 0]
+                    dy = recent[k1, 1] - recent[k0, 1]
+                    if math.hypot(dx, dy) > 1e-6:
+                        s.arrival = math.atan2(dy, dx)
+            elif s.probe_k >= 2:
+                s.pc = PC_SR_DESCENT_START
+                continue
+            else:
+                _, _, spread = fit_gradient(recent, s.rec_start, s.rec_len, s.gradient_window)
+                if spread >= s.min_spread_m:
+                    s.pc = PC_SR_DESCENT_START
+                    continue
+            ang = s.arrival + 0.5 * math.pi if s.probe_k == 0 else s.arrival
+            ux, uy = math.cos(ang), math.sin(ang)
+            # turn toward the interior if the leg would leave the region
+            m = _shrink_m(b, 0.5)
+            if _ray_to_edge_m(b.xmin + m, b.xmax - m, b.ymin + m, b.ymax - m, b.x_m, b.y_m,
+                              ux, uy) < 2.0 * s.probe_leg_m:
+                ux, uy = -ux, -uy
+            s.probe_ux, s.probe_uy = ux, uy
+            s.probe_x0, s.probe_y0 = b.x_m, b.y_m
+            s.v_probe = max(s.v_min, 0.5 * s.v_search)
+            s.probe_j = 0
+            s.probe_n = int(10.0 / b.dt_s)
+            s.pc = PC_SR_PROBE
+            continue
+        if pc == PC_SR_PROBE:
+            if s.probe_j >= s.probe_n or (
+                    math.hypot(b.x_m - s.probe_x0, b.y_m - s.probe_y0) >= s.probe_leg_m):
+                s.probe_k += 1
+                s.pc = PC_SR_PROBE_START
+                continue
+            s.probe_j += 1
+            return _command(s, s.v_probe * s.probe_ux, s.v_probe * s.probe_uy,
+                            _SEARCH), n_events
+        if pc == PC_SR_DESCENT_START:
+            # gradient descent toward the level
+            s.best = math.inf
+            s.since_best = 0
+            s.path0 = b.odometer_m - s.odo0_m
+            s.max_path = 3.0 * s.sr_radius + 10.0
+            s.pc = PC_SR_DESCENT
+            continue
+        if pc == PC_SR_DESCENT:
+            if not s.has_prev:
+                s.pc = PC_SR_SPIRAL_START
+                continue
+            gx, gy, _ = fit_gradient(recent, s.rec_start, s.rec_len, max(s.gradient_window, 30))
+            gn = math.hypot(gx, gy)
+            e = s.prev_v - s.sr_level
+            if gn < 1e-9:
+                s.pc = PC_SR_SPIRAL_START
+                continue
+            sgn = -1.0 if e > 0 else 1.0
+            ux, uy = sgn * gx / gn, sgn * gy / gn
+            pred_m = abs(e) / gn
+            v = min(max(s.approach_gain_hz * pred_m, s.v_min), s.v_search)
+            return _command(s, v * ux, v * uy, _SEARCH), n_events
+        if pc == PC_SR_SPIRAL_START:
+            # expanding Archimedean spiral around the start point
+            s.pitch = s.spiral_spacing_m / (2.0 * math.pi)
+            s.phi0 = math.atan2(b.y_m - s.sr_cy, b.x_m - s.sr_cx)
+            s.theta = 2.0 * math.pi
+            r = s.sr_radius
+            s.sp_max = int((math.pi * r**2 / s.spiral_spacing_m + 4.0 * r + 50.0)
+                           / (0.5 * s.v_min) / b.dt_s) + 100
+            s.sp_k = 0
+            s.pc = PC_SR_SPIRAL
+            continue
+        if pc == PC_SR_SPIRAL:
+            lookahead_m = 2.0
+            if s.sp_k >= s.sp_max or s.pitch * s.theta > s.sr_radius:
+                s.found = 0
+                s.pc = s.sr_ret
+                continue
+            s.sp_k += 1
+            px, py = _spiral_point(s, b, s.theta)
+            while (math.hypot(px - b.x_m, py - b.y_m) < lookahead_m
+                   and s.pitch * s.theta <= s.sr_radius):
+                r = s.pitch * s.theta
+                s.theta += 0.3 / math.hypot(r, s.pitch)
+                px, py = _spiral_point(s, b, s.theta)
+            r = s.pitch * s.theta
+            v = min(s.v_search, max(s.v_min, math.sqrt(0.5 * b.max_accel_mps2 * r)))
+            ex, ey = px - b.x_m, py - b.y_m
+            dist = math.hypot(ex, ey)
+            if dist < 1e-9:
+                s.theta += 0.3 / math.hypot(r, s.pitch)
+                continue
+            return _command(s, v * ex / dist, v * ey / dist, _SEARCH), n_events
+
+        # ---------------------------------------------------------------- trace leg
+        if pc == PC_LEG_START:
+            cruise = min(s.speed_mps, b.max_speed_mps)
+            v_floor = min(s.approach_speed_mps, cruise)
+            s.psi = s.leg_heading
+            s.kappa = 0.0
+            s.lspeed = min(max(_speed(b), v_floor), cruise)
+            e0 = 0.0
+            if s.rec_len > 0:
+                k = (s.rec_start + s.rec_len - 1) % recent.shape[0]
+                e0 = recent[k, 2] - s.level
+            s.d_f = s.side * e0 / s.grad_mag
+            s.dd_f = 0.0
+            s.lost_s = 0.0
+            s.has_prev_dist = 0
+            s.n_fit = 0
+            s.turned = 0.0
+            s.th_start = 0
+            s.th_len = 0
+            s.win_start = 0
+            s.win_len = 0
+            s.turn_k = 0
+            s.turn_n = int(3.0 / b.dt_s) + 1
+            s.pc = PC_LEG_TURN
+            continue
+        if pc == PC_LEG_TURN:
+            # turn onto the initial heading slowly before the controller takes over
+            if s.turn_k >= s.turn_n or _speed(b) < 0.5 or (
+                    abs(wrap_angle_rad(_heading(b) - s.psi)) < math.radians(15)):
+                s.pc = PC_LEG_MAIN_START
+                continue
+            if s.ticks_left <= 0:
+                s.leg_status = BUDGET
+                s.pc = PC_TR_AFTER_LEG
+                continue
+            s.ticks_left -= 1
+            s.turn_k += 1
+            v_floor = min(s.approach_speed_mps, min(s.speed_mps, b.max_speed_mps))
+            return _command(s, v_floor * math.cos(s.psi), v_floor * math.sin(s.psi),
+                            _TRACE), n_events
+        if pc == PC_LEG_MAIN_START:
+            cruise = min(s.speed_mps, b.max_speed_mps)
+            v_floor = min(s.approach_speed_mps, cruise)
+            s.lspeed = min(max(_speed(b), v_floor), cruise)
+            s.pc = PC_LEG_MAIN
+            continue
+        if pc == PC_LEG_MAIN:
+            if s.ticks_left <= 0:
+                s.leg_status = BUDGET
+                s.pc = PC_TR_AFTER_LEG
+                continue
+            s.ticks_left -= 1
+            dt = b.dt_s
+            cruise = min(s.speed_mps, b.max_speed_mps)
+            v_floor = min(s.approach_speed_mps, cruise)
+            lat_accel = s.lateral_accel_fraction * b.max_accel_mps2
+            turn_max = math.radians(b.max_turn_rate_dps)
+            p = min(s.trace_bandwidth_rps, 0.3 / dt)
+            speed = s.lspeed
+            # --- lateral PID (integral state = path curvature)
+            kp = 3.0 * p * p / speed
+            kd = 3.0 * p / speed
+            ki = p**3 / speed
+            d_clip = 1.5 * s.lost_offset_m
+            d_c = max(-d_clip, min(d_clip, s.d_f))
+            w_max = min(turn_max, lat_accel / speed)
+            omega = speed * s.kappa - kp * d_c - kd * s.dd_f
+            k_need = max(abs(s.kappa), abs(omega) / speed)  # curvature the controller asks for
+            omega = max(-w_max, min(w_max, omega))
+            kappa = s.kappa - ki / speed * d_c * dt
+            k_max = w_max / speed
+            s.kappa = max(-k_max, min(k_max, kappa))
+            if _speed(b) >= 0.5:
+                s.psi = _heading(b)
+            s.psi += omega * dt
+            ux, uy = math.cos(s.psi), math.sin(s.psi)
+            # --- speed: cruise, slowed in bends and when the boundary is ahead
+            v_target = cruise
+            s.heading_before = _heading(b)
+            if k_need > 1e-9:
+                v_target = min(v_target, math.sqrt(0.7 * lat_accel / k_need))
+            edge = _ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, b.x_m, b.y_m, ux, uy)
+            v_target = min(v_target, math.sqrt(2.0 * 0.5 * b.max_accel_mps2
+                                               * max(edge - s.boundary_margin_m, 0.0)) + 0.5)
+            v_target = max(v_target, v_floor if edge > 2.0 * s.boundary_margin_m else 0.5)
+            if v_target > speed:
+                speed = min(v_target, speed + s.trace_accel_mps2 * dt)
+            else:
+                speed = max(v_target, speed - 0.6 * b.max_accel_mps2 * dt)
+            s.lspeed = speed
+            s.ux, s.uy = ux, uy
+            return _command(s, speed * ux, speed * uy, _TRACE), n_events
+
+        # ---------------------------------------------------------------- trace task
+        if pc == PC_TR_START:
+            m = _shrink_m(b, 0.5)
+            sx = min(max(s.task_x_m, b.xmin + m), b.xmax - m)
+            sy = min(max(s.task_y_m, b.ymin + m), b.ymax - m)
+            s.sr_cx, s.sr_cy = sx, sy
+            _call_fly_to(s, b, sx, sy, _TRANSIT, 1.0, s.transit_speed_mps, PC_TR_SEARCH)
+            continue
+        if pc == PC_TR_SEARCH:
+            _call_search(s, s.level, s.sr_cx, s.sr_cy, s.search_radius_m, PC_TR_AFTER_SEARCH)
+            continue
+        if pc == PC_TR_AFTER_SEARCH:
+            if not s.found:
+                n_events = _emit(events, n_events, EV_NOT_FOUND, n_out)
+                s.status = NOT_FOUND
+                s.pc = PC_DONE
+                continue
+            n_events = _emit(events, n_events, EV_FOUND, n_out)
+            g0 = max(math.hypot(s.f_gx, s.f_gy), 1e-9)
+            s.start_x, s.start_y = s.f_x, s.f_y
+            s.away_max = 0.0
+            s.grad_mag = g0
+            s.grad_mag0 = g0
+            s.ticks_left = _tick_budget(s, b)
+            s.heading0 = _heading_from_gradient(s.f_gx, s.f_gy, 1.0)
+            s.reacquired = 0
+            _call_leg(s, s.heading0, 1.0)
+            continue
+        if pc == PC_TR_AFTER_LEG:
+            status = s.leg_status
+            if status == LOST and s.reacquired < s.max_reacquire:
+                s.reacquired += 1
+                n_events = _emit(events, n_events, EV_LOST_SEARCHING, n_out)
+                _call_search(s, s.level, b.x_m, b.y_m, s.reacquire_radius_m,
+                             PC_TR_AFTER_REACQUIRE)
+                continue
+            if status == BOUNDARY and s.side > 0:
+                n_events = _emit(events, n_events, EV_BOUNDARY_OTHER, n_out)
+                _call_fly_to(s, b, s.start_x, s.start_y, _TRANSIT, 0.5, s.transit_speed_mps,
+                             PC_TR_AFTER_RETURN)
+                continue
+            s.status = status
+            s.pc = PC_TR_END
+            continue
+        if pc == PC_TR_AFTER_REACQUIRE:
+            if s.found:
+                n_events = _emit(events, n_events, EV_REACQUIRED, n_out)
+                _call_leg(s, _heading_from_gradient(s.f_gx, s.f_gy, s.side), s.side)
+                continue
+            s.status = LOST
+            s.pc = PC_TR_END
+            continue
+        if pc == PC_TR_AFTER_RETURN:
+            s.away_max = 0.0
+            _call_leg(s, s.heading0 + math.pi, -1.0)
+            continue
+        if pc == PC_TR_END:
+            if s.status == BUDGET:
+                n_events = _emit(events, n_events, EV_BUDGET, n_out)
+                s.status = LOST
+            code = EV_LOST
+            if s.status == CLOSED:
+                code = EV_CLOSED
+            elif s.status == BOUNDARY:
+                code = EV_BOUNDARY
+            elif s.status == LENGTH_LIMIT:
+                code = EV_LENGTH_LIMIT
+            n_events = _emit(events, n_events, code, n_out)
+            s.pc = PC_DONE
+            continue
+        raise AssertionError("tracer state machine: unknown program counter")
+
+
+@njit(inline="always")
+def _leg_end(s, status: int) -> None:
+    s.leg_status = status
+    s.pc = PC_TR_AFTER_LEG
+
+
+@njit(cache=True)
+def _post(s, b, recent: np.ndarray, window: np.ndarray, turns: np.ndarray,
+          x: float, y: float, v: float) -> None:
+    """What the loop that issued the command does with the new sample."""
+    pc = s.pc
+    if pc in (PC_SR_PROBE, PC_SR_SPIRAL):
+        if not _bracketed(s, recent, x, y, v):
+            s.has_prev, s.prev_x, s.prev_y, s.prev_v = 1, x, y, v
+        return
+    if pc == PC_SR_DESCENT:
+        if _bracketed(s, recent, x, y, v):
+            return
+        s.has_prev, s.prev_x, s.prev_y, s.prev_v = 1, x, y, v
+        err = abs(v - s.sr_level)
+        if err < s.best * 0.999:
+            s.best, s.since_best = err, 0
+        else:
+            s.since_best += 1
+        m = _shrink_m(b, 0.5)
+        if (s.since_best > 20 or math.hypot(x - s.sr_cx, y - s.sr_cy) > s.sr_radius
+                or (b.odometer_m - s.odo0_m) - s.path0 > s.max_path
+                or not _contains(b.xmin + m, b.xmax - m, b.ymin + m, b.ymax - m, x, y)):
+            s.pc = PC_SR_SPIRAL_START
+        return
+    if pc == PC_LEG_TURN:
+        s.win_start, s.win_len = _ring_push(window, s.win_start, s.win_len, x, y, v)
+        s.d_f = s.side * (v - s.level) / s.grad_mag
+        return
+    if pc != PC_LEG_MAIN:
+        return
+    # --- measurement update
+    s.win_start, s.win_len = _ring_push(window, s.win_start, s.win_len, x, y, v)
+    s.n_fit += 1
+    if s.n_fit % 4 == 0 and s.win_len >= max(6, s.gradient_window // 2):
+        gn, spread = fit_cross_gradient(window, s.win_start, s.win_len)
+        if spread >= s.min_spread_m and gn > 0.0:
+            g_new = 0.8 * s.grad_mag + 0.2 * gn
+            s.grad_mag = min(max(g_new, 0.25 * s.grad_mag0), 4.0 * s.grad_mag0)
+    dt = b.dt_s
+    d_meas = s.side * (v - s.level) / s.grad_mag
+    d_pred = s.d_f + s.dd_f * dt
+    resid = d_meas - d_pred
+    s.d_f = d_pred + s.filter_alpha * resid
+    s.dd_f += s.filter_beta / dt * resid
+    # --- termination checks
+    if s.max_length_m > 0.0 and s.traced_m >= s.max_length_m:
+        _leg_end(s, LENGTH_LIMIT)
+        return
+    dist = math.hypot(x - s.start_x, y - s.start_y)
+    s.away_max = max(s.away_max, dist)
+    if s.away_max >= max(s.closure_min_away_m, s.closure_radius_m) and (
+            dist <= s.closure_radius_m and s.has_prev_dist and dist > s.prev_dist):
+        _leg_end(s, CLOSED)
+        return
+    s.has_prev_dist, s.prev_dist = 1, dist
+    if not _contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y) or (
+            _ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, x, y, s.ux, s.uy)
+            < s.boundary_margin_m):
+        _leg_end(s, BOUNDARY)
+        return
+    s.turned += wrap_angle_rad(_heading(b) - s.heading_before)
+    k = s.th_start + s.th_len
+    if k >= turns.shape[0]:  # compact the history (only its tail is alive)
+        turns[: s.th_len] = turns[s.th_start: k].copy()
+        s.th_start, k = 0, s.th_len
+    turns[k, 0] = b.odometer_m
+    turns[k, 1] = s.turned
+    s.th_len += 1
+    orbit_m = 2.0 * math.pi * s.min_loop_radius_m
+    while b.odometer_m - turns[s.th_start, 0] > orbit_m:
+        s.th_start += 1
+        s.th_len -= 1
+    if abs(s.turned - turns[s.th_start, 1]) >= 2.0 * math.pi:
+        _leg_end(s, LOST)
+        return
+    s.lost_s = s.lost_s + dt if abs(d_meas) > s.lost_offset_m else 0.0
+    if s.lost_s > s.lost_time_s:
+        _leg_end(s, LOST)
+
+
+@njit(cache=True)
+def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarray,
+            fcy: np.ndarray, finv: np.ndarray, fw: np.ndarray, fscale: float, foffset: float,
+            recent: np.ndarray, window: np.ndarray, turns: np.ndarray, out: np.ndarray,
+            noise: np.ndarray, ext_value: float, events: np.ndarray) -> tuple[int, int, int]:
+    """Run the task in ``state`` on ``body`` for at most ``out.shape[0]`` ticks.
+
+    Parameters
+    ----------
+    body, state
+        One-record arrays of :data:`BODY` and :data:`STATE`.
+    field_kind
+        1: the field is the Gaussian sum ``foffset + fscale * sum(...)`` of the arrays
+        ``fcx, fcy, finv, fw`` (read here); 0: read by the caller (see module docstring).
+    recent, window, turns
+        The task's sample buffers: ``(RECENT_SAMPLES, 3)``, ``(gradient_window, 3)`` and
+        ``(n, 2)`` with ``n`` more than the trace's tick budget.
+    out
+        ``(n, 5)``: one row ``t_s, x_m, y_m, value, phase`` per tick.
+    noise
+        Additive sensor noise for each tick of this call (empty for none).
+    ext_value
+        The field value at the body's position when resuming with ``await_value`` set.
+    events
+        ``(m, 2)`` buffer for ``(code, samples before it)``.
+
+    Returns
+    -------
+    n_out, n_events, noise_used
+        Rows written to ``out``, events written, noise values used.
+    """
+    b = body[0]
+    s = state[0]
+    n_out = 0
+    n_events = 0
+    n_max = out.shape[0]
+    while True:
+        if s.await_value:
+            s.await_value = 0
+            value = ext_value
+        else:
+            if n_out >= n_max:
+                break
+            commanded, n_events = _pre(s, b, recent, window, events, n_events, n_out)
+            if not commanded:
+                break
+            if not (math.isfinite(s.cmd_vx) and math.isfinite(s.cmd_vy)):
+                raise ValueError("tracer: non-finite velocity command")
+            s.odo_before = b.odometer_m
+            body_move(b, s.cmd_vx, s.cmd_vy)
+            if field_kind == 0:
+                s.await_value = 1
+                break
+            value = foffset + fscale * gaussian_sum_at(b.x_m, b.y_m, fcx, fcy, finv, fw)
+        if n_out < noise.shape[0]:
+            value += noise[n_out]
+        if s.cmd_phase == _TRACE:
+            s.traced_m += b.odometer_m - s.odo_before
+        s.rec_start, s.rec_len = _ring_push(recent, s.rec_start, s.rec_len, b.x_m, b.y_m,
+                                            value)
+        out[n_out, 0] = b.t0_s + b.ticks * b.dt_s
+        out[n_out, 1] = b.x_m
+        out[n_out, 2] = b.y_m
+        out[n_out, 3] = value
+        out[n_out, 4] = s.cmd_phase
+        n_out += 1
+        _post(s, b, recent, window, turns, b.x_m, b.y_m, value)
+    return n_out, n_events, min(n_out, noise.shape[0])
+
+
+@njit(cache=True)
+def start_task(body: np.ndarray, state: np.ndarray) -> None:
+    """Begin the task set up in ``state``: a fly-to (``kind`` 1, from the ``wp_*`` and
+    ``task_*`` fields) or a trace (``kind`` 2: fly to the start, search, trace)."""
+    b = body[0]
+    s = state[0]
+    s.odo0_m = b.odometer_m
+    s.traced_m = 0.0
+    s.rec_start = s.rec_len = 0
+    s.await_value = 0
+    if s.kind == KIND_TRACE:
+        s.pc = PC_TR_START
+    else:
+        _call_fly_to(s, b, s.task_x_m, s.task_y_m, s.wp_phase, s.wp_tolerance_m,
+                     s.wp_speed_mps, PC_FT_END)
+
+
+@contextlib.contextmanager
+def cache_lock() -> Iterator[None]:
+    """Hold an exclusive lock on the compiled cache (processes starting together take
+    turns: one compiles, the others load its result). No lock where the cache directory
+    cannot be written."""
+    cache_path = advance.stats.cache_path
+    try:
+        f = (Path(cache_path) / "machine.lock").open("a") if cache_path else None
+    except OSError:
+        f = None
+    if f is None:
+        yield
+        return
+    with f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield
+
+
+def _drop_stale_cache() -> None:
+    """Forget this module's cached machine code when a kernel it inlines has changed.
+
+    numba checks a cached function against its own source file only, but the code here
+    inlines :func:`~econdor_gcs.core.fields.gaussian_sum_at` and the kinematics: after an
+    edit of those files alone the cache would still hand out the old code. A digest of
+    the three files, kept beside the cache, decides.
+    """
+    sources = (Path(__file__), Path(_kinematics.__file__), Path(_fields.__file__))
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
+    caches = [getattr(d, "_cache", None) for d in globals().values()
+              if isinstance(d, CPUDispatcher)]
+    if advance.stats.cache_path is None:
+        return
+    stamp = Path(advance.stats.cache_path) / "machine-sources.sha256"
+    try:
+        with cache_lock():
+            if stamp.is_file() and stamp.read_text(encoding="ascii") == digest:
+                return
+            for cache in caches:
+                if cache is not None:
+                    cache.flush()
+            stamp.write_text(digest, encoding="ascii")
+    except OSError as exc:  # a read-only cache: numba itself then compiles in memory
+        log.warning("tracer: cannot check the compiled cache at %s: %s", stamp.parent, exc)
+
+
+_drop_stale_cache()
