@@ -30,10 +30,13 @@ from econdor_gcs.core.tasks import (
 from econdor_gcs.core.waypoints import task_waypoints
 from econdor_gcs.dfc import Dfc, Progress, RunResult
 from econdor_gcs.errors import RunError
+from econdor_gcs.gcs import FENCE_MARGIN_M
+from econdor_gcs.link.mission import fence_items
 from econdor_gcs.mission import Mission
 from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
 from sim_vehicle.body import Sample, SimBody
 from sim_vehicle.executor import run_plan, run_task
+from sim_vehicle.fence import Fence
 from sim_vehicle.kinematics import VehicleLimits
 from sim_vehicle.tracer import TracerParams
 
@@ -52,7 +55,8 @@ class InProcessExecutor:
 
     Vehicles start at the area's origin corner (their home), transit at cruise speed, come
     to rest where their plan ended and keep that position between iterations, and fly home
-    at the end, as the MAVLink vehicles do.
+    at the end, as the MAVLink vehicles do. They fly inside the fence ``econdor run``
+    uploads (the area plus ``FENCE_MARGIN_M``), read from the very items it sends.
     """
 
     def __init__(self, mission: Mission, field: Field, n_vehicles: int | None = None,
@@ -68,10 +72,12 @@ class InProcessExecutor:
         rng = np.random.default_rng(seed + 7919)
         # like the MAVLink vehicle: transits at the cruise speed (its SPEED_MPS), not max speed
         self.params = TracerParams(speed_mps=v.speed_mps, transit_speed_mps=v.speed_mps)
+        self.fence = Fence.from_items(
+            fence_items(mission.origin, mission.region, FENCE_MARGIN_M), mission.origin)
         self.bodies = [
             SimBody(field, mission.region, *self.home, limits=limits,
                     sample_rate_hz=v.sample_rate_hz, noise_std=v.noise_std,
-                    rng=np.random.default_rng(rng.integers(2**32)))
+                    rng=np.random.default_rng(rng.integers(2**32)), fence=self.fence)
             for _ in range(self.n_vehicles)
         ]
 

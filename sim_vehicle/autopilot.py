@@ -19,6 +19,10 @@ DO_SET_MISSION_CURRENT, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE,
 REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION; anything else -> MAV_RESULT_UNSUPPORTED.
 Uploading or clearing the mission while it runs makes the vehicle hold.
 
+Geofence (PX4's way): an uploaded FENCE applies at once (:mod:`sim_vehicle.fence`; the flight
+logic brakes before it, whatever the vehicle is doing). MISSION_START is DENIED, with a
+STATUSTEXT "Geofence violation for waypoint N", while an item to be flown lies outside it.
+
 Parameters (REAL32): SPEED_MPS, SAMPLE_HZ, SEARCH_RAD_M, TEL_RATE_HZ, NOISE_STD, ALT_M,
 SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when idle).
 """
@@ -43,7 +47,8 @@ from econdor_gcs.core.tasks import (
 )
 
 from .body import Sample
-from .mission_server import MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
+from .fence import Fence
+from .mission_server import FENCE, MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
 from .navigator import Activity, ModeFlow, Navigator
 from .state import PARAM_NAMES, FlightMode, VehicleSettings, VehicleState
 from .telemetry import Outbox, Telemetry
@@ -196,6 +201,7 @@ class Autopilot:
                           (st.alt_rel_m - a0) / dt)
         if sample is not None and st.sampling:
             self.telemetry.sample(sample)
+        self.telemetry.watch_fence()
 
     def next_deadline(self) -> float | None:
         return self.server.next_deadline()
@@ -234,6 +240,10 @@ class Autopilot:
         st = self.state
         while self.server.events:
             ev = self.server.events.pop(0)
+            if ev.mission_type == FENCE:
+                st.set_fence(Fence.from_items(self.server.stores[FENCE], st.origin))
+                self.outbox.statustext(f"fence: {st.fence.describe()}")
+                continue
             if ev.mission_type != MISSION:
                 continue
             if ev.kind in ("uploaded", "cleared"):
@@ -389,6 +399,12 @@ class Autopilot:
             last = n - 1
         if not 0 <= first <= last:
             return DENIED, []
+        for it in self.server.mission[first:last + 1]:  # PX4's mission feasibility check
+            xy = self.navigator.item_xy(it)
+            if xy is not None and not self.state.fence.contains(*xy):
+                self.outbox.statustext(f"Geofence violation for waypoint {it.seq}",
+                                       mavlink.MAV_SEVERITY_CRITICAL)
+                return DENIED, []
         self.start_mission(first, last)
         return ACCEPTED, []
 

@@ -5,7 +5,9 @@ optionally with additive Gaussian noise. Nothing else in the simulated vehicle m
 evaluate the field.
 
 The body's state lives in one :data:`~sim_vehicle.machine.BODY` record that the compiled
-tracer (:mod:`sim_vehicle.machine`) advances in place; the properties here read it.
+tracer (:mod:`sim_vehicle.machine`) advances in place; the properties here read it. The
+body also carries the geofence (:mod:`sim_vehicle.fence`) the machine's guard keeps it in,
+and that guard's counters.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from econdor_gcs.core.fields import GaussianSumField, gaussian_sum_at
 from econdor_gcs.core.geometry import Region
 
+from .fence import FENCE_MARGIN_M, NO_FENCE, Fence
 from .kinematics import VehicleLimits, check_step
 from .machine import BODY, body_move
 
@@ -33,6 +36,9 @@ _X, _Y, _VX, _VY = _SLOT["x_m"], _SLOT["y_m"], _SLOT["vx_mps"], _SLOT["vy_mps"]
 _ODO, _HDG, _T0, _DT = (_SLOT["odometer_m"], _SLOT["last_heading_rad"], _SLOT["t0_s"],
                         _SLOT["dt_s"])
 _TICKS = _SLOT["ticks"]
+_FENCE_ATTEMPTS, _FENCE_BREACHES, _FENCE_OUTSIDE, _FENCE_LIMITED, _FENCE_EVENT = (
+    _SLOT["fence_attempts"], _SLOT["fence_breaches"], _SLOT["fence_outside"],
+    _SLOT["fence_limited"], _SLOT["fence_event_tick"])
 
 
 class Sample(NamedTuple):
@@ -69,6 +75,9 @@ class SimBody:
         Random generator for the noise; a fresh ``np.random.default_rng()`` if None.
     t_s
         Initial sim time.
+    fence
+        The geofence the flight logic keeps the body inside (:mod:`sim_vehicle.fence`);
+        see :meth:`set_fence`.
     """
 
     def __init__(
@@ -82,6 +91,7 @@ class SimBody:
         noise_std: float = 0.0,
         rng: np.random.Generator | None = None,
         t_s: float = 0.0,
+        fence: Fence = NO_FENCE,
     ) -> None:
         if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0.0):
             raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz!r}")
@@ -107,6 +117,10 @@ class SimBody:
         s["max_turn_rate_dps"] = limits.max_turn_rate_dps
         s["xmin"], s["xmax"], s["ymin"], s["ymax"] = (region.xmin, region.xmax, region.ymin,
                                                       region.ymax)
+        s["fence_margin_m"] = FENCE_MARGIN_M
+        s["fence_last_tick"] = -(1 << 40)  # long ago: the first limiting is a new episode
+        self.fence = fence
+        self.fence_terms = fence.arrays
         if isinstance(field, GaussianSumField):
             self.field_terms = (1, field.cx_m, field.cy_m, field.inv2s2, field.weights,
                                 field.scale, field.offset)
@@ -160,6 +174,37 @@ class SimBody:
     def ticks(self) -> int:
         """Number of ticks taken so far."""
         return self._i.item(_TICKS)
+
+    def set_fence(self, fence: Fence) -> None:
+        """Fly inside ``fence`` from the next tick on (:data:`~sim_vehicle.fence.NO_FENCE`:
+        none)."""
+        self.fence = fence
+        self.fence_terms = fence.arrays
+
+    @property
+    def fence_attempts(self) -> int:
+        """Episodes in which the guard braked or slowed down before the fence."""
+        return self._i.item(_FENCE_ATTEMPTS)
+
+    @property
+    def fence_breaches(self) -> int:
+        """How often the body got outside the fence."""
+        return self._i.item(_FENCE_BREACHES)
+
+    @property
+    def fence_outside(self) -> bool:
+        """Outside the fence at the last guarded tick."""
+        return bool(self._i.item(_FENCE_OUTSIDE))
+
+    @property
+    def fence_limited(self) -> bool:
+        """The guard limited the last command because of the fence."""
+        return bool(self._i.item(_FENCE_LIMITED))
+
+    @property
+    def fence_event_t_s(self) -> float:
+        """Sim time of the latest breach attempt or breach."""
+        return self._f.item(_T0) + self._i.item(_FENCE_EVENT) * self._f.item(_DT)
 
     def noise_ahead(self, n: int) -> np.ndarray:
         """The sensor noise of the next ``n`` ticks (empty without noise), drawn ahead in

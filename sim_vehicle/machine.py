@@ -44,7 +44,9 @@ from numba.core.registry import CPUDispatcher
 from econdor_gcs.core import fields as _fields
 from econdor_gcs.core.fields import gaussian_sum_at
 
+from . import fence as _fence
 from . import kinematics as _kinematics
+from .fence import FENCE_HARD_MARGIN_M, fence_contains, fence_ray_exit
 from .kinematics import point_step, wrap_angle_rad
 
 log = logging.getLogger(__name__)
@@ -56,6 +58,10 @@ BODY = np.dtype([
     ("last_heading_rad", "f8"), ("ticks", "i8"), ("t0_s", "f8"), ("dt_s", "f8"), ("n_sub", "i8"),
     ("max_speed_mps", "f8"), ("max_accel_mps2", "f8"), ("max_turn_rate_dps", "f8"),
     ("xmin", "f8"), ("xmax", "f8"), ("ymin", "f8"), ("ymax", "f8"),
+    # the guard (see _guard): fence margin, breach attempts and breaches, hard brakes
+    ("fence_margin_m", "f8"), ("fence_limited", "i8"), ("fence_attempts", "i8"),
+    ("fence_last_tick", "i8"), ("fence_outside", "i8"), ("fence_breaches", "i8"),
+    ("fence_event_tick", "i8"), ("fence_stuck", "i8"), ("guard_brakes", "i8"),
 ])
 """The simulated vehicle's state (one record, shared by Python and compiled code)."""
 
@@ -76,7 +82,7 @@ STATE = np.dtype([
     ("budget_factor", _F),
     # control
     ("pc", _I), ("status", _I), ("await_value", _I), ("cmd_vx", _F), ("cmd_vy", _F),
-    ("cmd_phase", _I), ("odo_before", _F),
+    ("cmd_phase", _I), ("odo_before", _F), ("area_guard", _I),
     # meter: the whole task
     ("odo0_m", _F), ("traced_m", _F), ("rec_start", _I), ("rec_len", _I),
     # fly_to
@@ -117,7 +123,21 @@ STATUS_NAMES = {REACHED: "reached", UNREACHABLE: "unreachable", CLOSED: "closed"
 
 # events (see sim_vehicle.tracer.TracerEvent)
 (EV_FOUND, EV_NOT_FOUND, EV_LOST_SEARCHING, EV_REACQUIRED, EV_BOUNDARY_OTHER, EV_BUDGET,
- EV_CLOSED, EV_BOUNDARY, EV_LENGTH_LIMIT, EV_LOST) = range(1, 11)
+ EV_CLOSED, EV_BOUNDARY, EV_LENGTH_LIMIT, EV_LOST, EV_FENCE) = range(1, 12)
+
+# the guard
+GUARD_SOFT_ACCEL_FRACTION = 0.7
+"""The guard's soft limit slows a command so that the vehicle could stop before the
+boundary ahead with this fraction of its acceleration limit (the fly-to brakes with 0.6,
+so a fly-to to a point inside is never slowed by it)."""
+AREA_HARD_MARGIN_M = 1e-3
+"""A trace task can always stop at least this far inside the mission area."""
+FENCE_STUCK_S = 2.0
+"""A fly-to held at the fence this long (command and speed near zero) gives up."""
+PROBE_BLOCKED_M = 0.1
+"""A probe leg ends this close to the area boundary (or the fence margin) ahead."""
+FENCE_EPISODE_GAP_S = 1.0
+"""Fence limiting after this long without any counts as a new breach attempt."""
 
 # program counter
 PC_DONE = 0
@@ -201,6 +221,132 @@ def _ray_to_edge_m(xmin: float, xmax: float, ymin: float, ymax: float, x_m: floa
     elif uy < -1e-12:
         dist = min(dist, (ymin - y_m) / uy)
     return dist
+
+
+@njit(cache=True)
+def _edge_ahead_m(b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, x_m: float, y_m: float,
+                  ux: float, uy: float) -> float:
+    """Distance along ``(ux, uy)`` to the area boundary or to ``fence_margin_m`` before
+    the fence, whichever comes first (0 outside the area)."""
+    edge = _ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, x_m, y_m, ux, uy)
+    if fr.shape[0] > 0 or fc.shape[0] > 0:
+        edge = min(edge, fence_ray_exit(fv, fr, fc, x_m, y_m, ux, uy) - b.fence_margin_m)
+    return edge
+
+
+# ----------------------------------------------------------------------------- guard
+
+
+@njit(cache=True)
+def _predict(b, vx_cmd_mps: float, vy_cmd_mps: float) -> tuple[float, float, float, float]:
+    """Position and velocity after one tick with the command (:func:`body_move` without
+    moving)."""
+    sub_dt_s = b.dt_s / b.n_sub
+    x, y, vx, vy, odo, hdg = b.x_m, b.y_m, b.vx_mps, b.vy_mps, 0.0, b.last_heading_rad
+    for _ in range(b.n_sub):
+        x, y, vx, vy, odo, hdg = point_step(x, y, vx, vy, odo, hdg, sub_dt_s, vx_cmd_mps,
+                                            vy_cmd_mps, b.max_speed_mps, b.max_accel_mps2,
+                                            b.max_turn_rate_dps)
+    return x, y, vx, vy
+
+
+@njit(cache=True)
+def _stops_in_area(b, x: float, y: float, vx: float, vy: float) -> bool:
+    """Braking from ``(x, y)`` at ``(vx, vy)`` stops inside the area (a zero command brakes
+    along a straight line with the full acceleration limit)."""
+    if not _contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y):
+        return False
+    v = math.hypot(vx, vy)
+    if v < 1e-9:
+        return True
+    return (_ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, x, y, vx / v, vy / v)
+            >= v * v / (2.0 * b.max_accel_mps2) + AREA_HARD_MARGIN_M)
+
+
+@njit(cache=True)
+def _stops_in_fence(b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, x: float, y: float,
+                    vx: float, vy: float) -> bool:
+    """Braking from ``(x, y)`` at ``(vx, vy)`` stops ``FENCE_HARD_MARGIN_M`` inside the
+    fence."""
+    v = math.hypot(vx, vy)
+    if v < 1e-9:
+        return fence_contains(fv, fr, fc, x, y)
+    return (fence_ray_exit(fv, fr, fc, x, y, vx / v, vy / v)
+            >= v * v / (2.0 * b.max_accel_mps2) + FENCE_HARD_MARGIN_M)
+
+
+@njit(cache=True)
+def _guard(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray) -> None:
+    """Change the command in ``s`` so the vehicle stays inside the fence (always) and the
+    mission area (during a trace task, while it is inside it).
+
+    Two stages, for each boundary the vehicle is inside of:
+
+    * soft (in the spirit of ArduPilot's AC_Avoid): the command's speed is limited to
+      ``sqrt(2 a d)`` with ``a`` = ``GUARD_SOFT_ACCEL_FRACTION`` of the acceleration limit
+      and ``d`` the distance along the command to the area boundary or to
+      ``fence_margin_m`` before the fence, so the vehicle slows down smoothly;
+    * hard: one tick with the (limited) command is predicted with the kinematics
+      themselves; if braking from there (a zero command: a straight line at the full
+      acceleration limit) would not stop inside (``AREA_HARD_MARGIN_M`` /
+      ``FENCE_HARD_MARGIN_M``), the vehicle brakes now instead. Braking from a state that
+      passed this check passes it again, so a vehicle that starts a task able to stop
+      inside never leaves.
+
+    Outside a boundary nothing is limited (so a vehicle can fly back in; AC_Avoid does the
+    same). Fence limiting is counted (``fence_attempts``, one per episode), so is being
+    outside (``fence_breaches``); ``fence_stuck`` counts the ticks the fence has held a
+    vehicle still.
+    """
+    vx, vy = s.cmd_vx, s.cmd_vy
+    x, y = b.x_m, b.y_m
+    area_on = s.area_guard != 0 and _contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y)
+    fence_on = False
+    if fr.shape[0] > 0 or fc.shape[0] > 0:
+        fence_on = fence_contains(fv, fr, fc, x, y)
+        if not fence_on and b.fence_outside == 0:
+            b.fence_breaches += 1
+            b.fence_event_tick = b.ticks
+        b.fence_outside = 0 if fence_on else 1
+    fence_limited = False
+    if area_on or fence_on:
+        speed = math.hypot(vx, vy)
+        if speed > 0.0:
+            ux, uy = vx / speed, vy / speed
+            a_soft = GUARD_SOFT_ACCEL_FRACTION * b.max_accel_mps2
+            v_max = speed
+            if area_on:
+                d = _ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, x, y, ux, uy)
+                v_max = min(v_max, math.sqrt(2.0 * a_soft * d))
+            if fence_on:
+                d = fence_ray_exit(fv, fr, fc, x, y, ux, uy) - b.fence_margin_m
+                v_fence = math.sqrt(2.0 * a_soft * max(d, 0.0))
+                if v_fence < speed - 1e-6:
+                    fence_limited = True
+                v_max = min(v_max, v_fence)
+            if v_max < speed:
+                vx, vy = vx * (v_max / speed), vy * (v_max / speed)
+        px, py, pvx, pvy = _predict(b, vx, vy)
+        brake = area_on and not _stops_in_area(b, px, py, pvx, pvy)
+        if fence_on and not _stops_in_fence(b, fv, fr, fc, px, py, pvx, pvy):
+            brake = True
+            fence_limited = True
+        if brake:
+            vx = vy = 0.0
+            b.guard_brakes += 1
+    if fence_limited:
+        if (b.ticks - b.fence_last_tick) * b.dt_s > FENCE_EPISODE_GAP_S:
+            b.fence_attempts += 1
+            b.fence_event_tick = b.ticks
+        b.fence_last_tick = b.ticks
+        if math.hypot(vx, vy) < 0.1 and _speed(b) < 0.2:
+            b.fence_stuck += 1
+        else:
+            b.fence_stuck = 0
+    else:
+        b.fence_stuck = 0
+    b.fence_limited = 1 if fence_limited else 0
+    s.cmd_vx, s.cmd_vy = vx, vy
 
 
 # ----------------------------------------------------------------------------- fits
@@ -377,6 +523,7 @@ def _call_fly_to(s, b, x: float, y: float, phase: int, tol: float, speed: float,
     s.ft_max = int(3.0 * (dist0 / max(s.ft_speed, 0.1) + 10.0) / b.dt_s) + 100
     s.ft_k = 0
     s.ft_ret = ret
+    b.fence_stuck = 0
     s.pc = PC_FT
 
 
@@ -490,8 +637,9 @@ def _spiral_point(s, b, th: float) -> tuple[float, float]:
 
 
 @njit(cache=True)
-def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_events: int,
-         n_out: int) -> tuple[bool, int]:
+def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarray,
+         window: np.ndarray, events: np.ndarray, n_events: int, n_out: int
+         ) -> tuple[bool, int]:
     """Run the state machine until it issues a velocity command (True) or the task ends.
 
     Returns ``(commanded, n_events)``.
@@ -511,6 +659,12 @@ def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_eve
             dist = math.hypot(ex, ey)
             if dist <= s.ft_tol:
                 s.ft_ok = 1
+                s.pc = s.ft_ret
+                continue
+            if b.fence_stuck * b.dt_s >= FENCE_STUCK_S:  # held at the fence: give up
+                if s.kind == KIND_TRACE:
+                    n_events = _emit(events, n_events, EV_FENCE, n_out)
+                s.ft_ok = 0
                 s.pc = s.ft_ret
                 continue
             # brake so as to stop at the target; small floor so we always get there
@@ -555,10 +709,17 @@ def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_eve
                     continue
             ang = s.arrival + 0.5 * math.pi if s.probe_k == 0 else s.arrival
             ux, uy = math.cos(ang), math.sin(ang)
-            # turn toward the interior if the leg would leave the region
+            # turn toward the interior if the leg would leave the region (unless the other
+            # way has even less room: just outside the shrunk region both are 0)
             m = _shrink_m(b, 0.5)
-            if _ray_to_edge_m(b.xmin + m, b.xmax - m, b.ymin + m, b.ymax - m, b.x_m, b.y_m,
-                              ux, uy) < 2.0 * s.probe_leg_m:
+            ahead = _ray_to_edge_m(b.xmin + m, b.xmax - m, b.ymin + m, b.ymax - m, b.x_m,
+                                   b.y_m, ux, uy)
+            if fr.shape[0] > 0 or fc.shape[0] > 0:
+                ahead = min(ahead, fence_ray_exit(fv, fr, fc, b.x_m, b.y_m, ux, uy)
+                            - b.fence_margin_m)
+            if ahead < 2.0 * s.probe_leg_m and (
+                    _edge_ahead_m(b, fv, fr, fc, b.x_m, b.y_m, -ux, -uy)
+                    >= _edge_ahead_m(b, fv, fr, fc, b.x_m, b.y_m, ux, uy)):
                 ux, uy = -ux, -uy
             s.probe_ux, s.probe_uy = ux, uy
             s.probe_x0, s.probe_y0 = b.x_m, b.y_m
@@ -569,7 +730,9 @@ def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_eve
             continue
         if pc == PC_SR_PROBE:
             if s.probe_j >= s.probe_n or (
-                    math.hypot(b.x_m - s.probe_x0, b.y_m - s.probe_y0) >= s.probe_leg_m):
+                    math.hypot(b.x_m - s.probe_x0, b.y_m - s.probe_y0) >= s.probe_leg_m) or (
+                    _edge_ahead_m(b, fv, fr, fc, b.x_m, b.y_m, s.probe_ux, s.probe_uy)
+                    < PROBE_BLOCKED_M):
                 s.probe_k += 1
                 s.pc = PC_SR_PROBE_START
                 continue
@@ -713,7 +876,7 @@ def _pre(s, b, recent: np.ndarray, window: np.ndarray, events: np.ndarray, n_eve
             s.heading_before = _heading(b)
             if k_need > 1e-9:
                 v_target = min(v_target, math.sqrt(0.7 * lat_accel / k_need))
-            edge = _ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, b.x_m, b.y_m, ux, uy)
+            edge = _edge_ahead_m(b, fv, fr, fc, b.x_m, b.y_m, ux, uy)
             v_target = min(v_target, math.sqrt(2.0 * 0.5 * b.max_accel_mps2
                                                * max(edge - s.boundary_margin_m, 0.0)) + 0.5)
             v_target = max(v_target, v_floor if edge > 2.0 * s.boundary_margin_m else 0.5)
@@ -805,8 +968,8 @@ def _leg_end(s, status: int) -> None:
 
 
 @njit(cache=True)
-def _post(s, b, recent: np.ndarray, window: np.ndarray, turns: np.ndarray,
-          x: float, y: float, v: float) -> None:
+def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarray,
+          window: np.ndarray, turns: np.ndarray, x: float, y: float, v: float) -> None:
     """What the loop that issued the command does with the new sample."""
     pc = s.pc
     if pc in (PC_SR_PROBE, PC_SR_SPIRAL):
@@ -860,8 +1023,7 @@ def _post(s, b, recent: np.ndarray, window: np.ndarray, turns: np.ndarray,
         return
     s.has_prev_dist, s.prev_dist = 1, dist
     if not _contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y) or (
-            _ray_to_edge_m(b.xmin, b.xmax, b.ymin, b.ymax, x, y, s.ux, s.uy)
-            < s.boundary_margin_m):
+            _edge_ahead_m(b, fv, fr, fc, x, y, s.ux, s.uy) < s.boundary_margin_m):
         _leg_end(s, BOUNDARY)
         return
     s.turned += wrap_angle_rad(_heading(b) - s.heading_before)
@@ -887,6 +1049,7 @@ def _post(s, b, recent: np.ndarray, window: np.ndarray, turns: np.ndarray,
 @njit(cache=True)
 def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarray,
             fcy: np.ndarray, finv: np.ndarray, fw: np.ndarray, fscale: float, foffset: float,
+            fence_verts: np.ndarray, fence_rings: np.ndarray, fence_circles: np.ndarray,
             recent: np.ndarray, window: np.ndarray, turns: np.ndarray, out: np.ndarray,
             noise: np.ndarray, ext_value: float, events: np.ndarray) -> tuple[int, int, int]:
     """Run the task in ``state`` on ``body`` for at most ``out.shape[0]`` ticks.
@@ -898,6 +1061,8 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
     field_kind
         1: the field is the Gaussian sum ``foffset + fscale * sum(...)`` of the arrays
         ``fcx, fcy, finv, fw`` (read here); 0: read by the caller (see module docstring).
+    fence_verts, fence_rings, fence_circles
+        The geofence (:attr:`sim_vehicle.fence.Fence.arrays`; empty arrays for none).
     recent, window, turns
         The task's sample buffers: ``(RECENT_SAMPLES, 3)``, ``(gradient_window, 3)`` and
         ``(n, 2)`` with ``n`` more than the trace's tick budget.
@@ -927,11 +1092,13 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
         else:
             if n_out >= n_max:
                 break
-            commanded, n_events = _pre(s, b, recent, window, events, n_events, n_out)
+            commanded, n_events = _pre(s, b, fence_verts, fence_rings, fence_circles,
+                                       recent, window, events, n_events, n_out)
             if not commanded:
                 break
             if not (math.isfinite(s.cmd_vx) and math.isfinite(s.cmd_vy)):
                 raise ValueError("tracer: non-finite velocity command")
+            _guard(s, b, fence_verts, fence_rings, fence_circles)
             s.odo_before = b.odometer_m
             body_move(b, s.cmd_vx, s.cmd_vy)
             if field_kind == 0:
@@ -950,7 +1117,8 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
         out[n_out, 3] = value
         out[n_out, 4] = s.cmd_phase
         n_out += 1
-        _post(s, b, recent, window, turns, b.x_m, b.y_m, value)
+        _post(s, b, fence_verts, fence_rings, fence_circles, recent, window, turns, b.x_m,
+              b.y_m, value)
     return n_out, n_events, min(n_out, noise.shape[0])
 
 
@@ -964,6 +1132,7 @@ def start_task(body: np.ndarray, state: np.ndarray) -> None:
     s.traced_m = 0.0
     s.rec_start = s.rec_len = 0
     s.await_value = 0
+    s.area_guard = 1 if s.kind == KIND_TRACE else 0
     if s.kind == KIND_TRACE:
         s.pc = PC_TR_START
     else:
@@ -993,11 +1162,12 @@ def _drop_stale_cache() -> None:
     """Forget this module's cached machine code when a kernel it inlines has changed.
 
     numba checks a cached function against its own source file only, but the code here
-    inlines :func:`~econdor_gcs.core.fields.gaussian_sum_at` and the kinematics: after an
-    edit of those files alone the cache would still hand out the old code. A digest of
-    the three files, kept beside the cache, decides.
+    inlines :func:`~econdor_gcs.core.fields.gaussian_sum_at`, the kinematics and the fence
+    tests: after an edit of those files alone the cache would still hand out the old code.
+    A digest of the four files, kept beside the cache, decides.
     """
-    sources = (Path(__file__), Path(_kinematics.__file__), Path(_fields.__file__))
+    sources = (Path(__file__), Path(_kinematics.__file__), Path(_fields.__file__),
+               Path(_fence.__file__))
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
     caches = [getattr(d, "_cache", None) for d in globals().values()
               if isinstance(d, CPUDispatcher)]

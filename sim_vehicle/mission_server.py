@@ -23,6 +23,8 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
   MAV_MISSION_UNSUPPORTED (the contour item only when a companion computer runs the tracer).
 * MISSION_CLEAR_ALL -> MISSION_ACK (of the upload's type, or of type ALL, it also ends a running
   upload); MISSION_SET_CURRENT -> MISSION_CURRENT.
+* FENCE uploads are checked item by item and as a whole (:func:`sim_vehicle.fence.check_fence`)
+  and refused with the ``MAV_MISSION_RESULT`` that says why; RALLY items are stored as given.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from .fence import check_fence, check_fence_item
 
 MISSION = mavlink.MAV_MISSION_TYPE_MISSION
 FENCE = mavlink.MAV_MISSION_TYPE_FENCE
@@ -122,8 +126,10 @@ def item_from_msg(msg: Any) -> StoredItem:
 
 def check_item(item: StoredItem, accepted: frozenset[int] = SUPPORTED_COMMANDS) -> int:
     """MAV_MISSION_ACCEPTED, or the MAV_MISSION_RESULT that rejects ``item``."""
+    if item.mission_type == FENCE:
+        return check_fence_item(item)
     if item.mission_type != MISSION:
-        return mavlink.MAV_MISSION_ACCEPTED  # fence / rally: stored as given
+        return mavlink.MAV_MISSION_ACCEPTED  # rally: stored as given
     if item.command not in accepted:
         return mavlink.MAV_MISSION_UNSUPPORTED
     if item.command in NAV_COMMANDS:
@@ -280,6 +286,9 @@ class MissionServer:
             up.deadline = now + self.timeout_s
             return [self._request(up)]
         self.upload = None
+        if mtype == FENCE and (result := check_fence(up.items)) != mavlink.MAV_MISSION_ACCEPTED:
+            self.counters["uploads_failed"] += 1
+            return [self._ack(peer, result, mtype)]
         self._store(mtype, up.items)
         self._last_done = (mtype, peer, up.count)
         self.counters["uploads"] += 1

@@ -23,6 +23,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
 
 from .body import SimBody
+from .fence import NO_FENCE, Fence
 from .kinematics import VehicleLimits
 
 PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD",
@@ -97,6 +98,8 @@ class VehicleState:
             "NOISE_STD": s.noise_std, "ALT_M": s.altitude_m, "SPEEDUP": s.speedup,
         }
         self._rng = np.random.default_rng(s.seed * 1000 + s.sysid)
+        self.fence = NO_FENCE
+        """The uploaded geofence (kept when the body is rebuilt)."""
         self.body = self.make_body(hx, hy, 0.0)
         self.odo_base_m = 0.0
         self.body_dirty = False
@@ -118,7 +121,13 @@ class VehicleState:
                                max_turn_rate_dps=s.max_turn_rate_dps)
         return SimBody(self.field, self.region, x_m, y_m, limits,
                        sample_rate_hz=self.params["SAMPLE_HZ"],
-                       noise_std=self.params["NOISE_STD"], rng=self._rng, t_s=t_s)
+                       noise_std=self.params["NOISE_STD"], rng=self._rng, t_s=t_s,
+                       fence=self.fence)
+
+    def set_fence(self, fence: Fence) -> None:
+        """Fly inside ``fence`` from the next tick on."""
+        self.fence = fence
+        self.body.set_fence(fence)
 
     def rebuild_body(self, t_s: float) -> None:
         """A new body at the same place (new sample rate / noise), the odometer carried on."""

@@ -22,6 +22,10 @@ sample's ``time_boot_ms`` (a stock autopilot's payload knows no phases); the end
 is a
 ``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
 :mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
+
+Geofence: with a fence loaded, ``FENCE_STATUS`` (:class:`~sim_vehicle.fence.FenceMonitor`) goes
+out at 1 Hz and at once whenever the vehicle braked before the fence or got outside it (with
+a STATUSTEXT for people), and SYS_STATUS shows the GEOFENCE sensor (unhealthy while outside).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import PHASE_NAME, TRACE_REPORT_NAME, TraceReport
 
 from .body import Sample
+from .fence import FenceMonitor
 from .mission_server import MissionServer
 from .state import VehicleState
 
@@ -62,7 +67,8 @@ CAPABILITIES = (
 )
 DATA_STREAMS: dict[int, tuple[int, ...]] = {
     mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (mavlink.MAVLINK_MSG_ID_SYS_STATUS,
-                                              mavlink.MAVLINK_MSG_ID_MISSION_CURRENT),
+                                              mavlink.MAVLINK_MSG_ID_MISSION_CURRENT,
+                                              mavlink.MAVLINK_MSG_ID_FENCE_STATUS),
     mavlink.MAV_DATA_STREAM_POSITION: (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
                                        mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
     mavlink.MAV_DATA_STREAM_EXTRA1: (mavlink.MAVLINK_MSG_ID_ATTITUDE,),
@@ -319,6 +325,7 @@ class Telemetry:
         self._last_sent_sim: dict[str, float] = {}
         self.phase: int | None = None
         """Phase of the last sample sent (None before the first)."""
+        self.fence = FenceMonitor()
         self._builders: dict[str, Callable[[], Any]] = {
             "GLOBAL_POSITION_INT": self.global_position_int,
             "LOCAL_POSITION_NED": self.local_position_ned,
@@ -334,11 +341,18 @@ class Telemetry:
             mavlink.MAV_TYPE_QUADROTOR, self.modes.autopilot_type, base, custom, status, 3)
 
     def sys_status(self) -> Any:
-        health = SENSORS if self.modes.prearm_ok() else \
-            SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
-        health |= mavlink.MAV_SYS_STATUS_GEOFENCE  # no fence, so no breach
+        present = healthy = SENSORS
+        if not self.modes.prearm_ok():
+            healthy &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if not self.state.fence.empty:
+            present |= mavlink.MAV_SYS_STATUS_GEOFENCE
+            if not self.fence.outside:
+                healthy |= mavlink.MAV_SYS_STATUS_GEOFENCE
         return mavlink.MAVLink_sys_status_message(
-            SENSORS, SENSORS, health, 100, 16000, 1000, 90, 0, 0, 0, 0, 0, 0)
+            present, present, healthy, 100, 16000, 1000, 90, 0, 0, 0, 0, 0, 0)
+
+    def fence_status(self) -> Any:
+        return self.fence.message()
 
     def extended_sys_state(self) -> Any:
         return mavlink.MAVLink_extended_sys_state_message(
@@ -395,6 +409,7 @@ class Telemetry:
             mavlink.MAVLINK_MSG_ID_HOME_POSITION: self.home_position,
             mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.extended_sys_state,
             mavlink.MAVLINK_MSG_ID_STATUSTEXT: self.counters_text,
+            mavlink.MAVLINK_MSG_ID_FENCE_STATUS: self.fence_status,
         }
 
     # -- rates ---------------------------------------------------------------------------------
@@ -443,6 +458,26 @@ class Telemetry:
         if self.server.mission and self.streaming(mavlink.MAVLINK_MSG_ID_MISSION_CURRENT):
             self.outbox.put(self.server.mission_current_msg(self.state.mission_active,
                                                             self.state.mission_complete))
+        if not self.state.fence.empty and self.streaming(mavlink.MAVLINK_MSG_ID_FENCE_STATUS):
+            self.outbox.put(self.fence_status())
+
+    def watch_fence(self) -> None:
+        """After a tick: FENCE_STATUS and a STATUSTEXT when the guard braked before the
+        fence or the vehicle got outside it (or back inside)."""
+        change = self.fence.update(self.state.body)
+        if not change:
+            return
+        body = self.state.body
+        where = f"at ({body.x_m:.1f}, {body.y_m:.1f}) m"
+        if change.breached:
+            self.outbox.statustext(f"fence: outside the fence {where}",
+                                   mavlink.MAV_SEVERITY_CRITICAL)
+        elif change.attempts:
+            self.outbox.statustext(f"fence: braking before the fence {where}",
+                                   mavlink.MAV_SEVERITY_WARNING)
+        if change.returned:
+            self.outbox.statustext(f"fence: back inside {where}", mavlink.MAV_SEVERITY_INFO)
+        self.outbox.put(self.fence_status())
 
     def periodic(self, wall: float) -> None:
         """Queue the periodic streams that are due at sim time now and wall time ``wall``."""

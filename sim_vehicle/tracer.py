@@ -57,6 +57,7 @@ class TracerEvent(StrEnum):
     BOUNDARY = "boundary reached"
     LENGTH_LIMIT = "length limit"
     LOST = "contour lost"
+    FENCE = "stopped at the fence"
 
 
 _EVENTS = {m.EV_FOUND: TracerEvent.FOUND, m.EV_NOT_FOUND: TracerEvent.NOT_FOUND,
@@ -65,7 +66,7 @@ _EVENTS = {m.EV_FOUND: TracerEvent.FOUND, m.EV_NOT_FOUND: TracerEvent.NOT_FOUND,
            m.EV_BOUNDARY_OTHER: TracerEvent.BOUNDARY_OTHER_DIRECTION,
            m.EV_BUDGET: TracerEvent.BUDGET_EXHAUSTED, m.EV_CLOSED: TracerEvent.CLOSED,
            m.EV_BOUNDARY: TracerEvent.BOUNDARY, m.EV_LENGTH_LIMIT: TracerEvent.LENGTH_LIMIT,
-           m.EV_LOST: TracerEvent.LOST}
+           m.EV_LOST: TracerEvent.LOST, m.EV_FENCE: TracerEvent.FENCE}
 
 EventCallback = Callable[[TracerEvent], None]
 
@@ -200,6 +201,7 @@ class _TaskRun:
         with the number of rows before each."""
         body = self.body
         kind, cx, cy, inv, w, scale, offset = body.field_terms
+        fence_verts, fence_rings, fence_circles = body.fence_terms
         out = np.empty((n, 5))
         events: list[tuple[TracerEvent, int]] = []
         done = 0
@@ -207,8 +209,9 @@ class _TaskRun:
         while done < n and not self.done:
             noise = body.noise_ahead(n - done)
             k, n_ev, used = m.advance(body.state, self.state, kind, cx, cy, inv, w, scale,
-                                      offset, self.recent, self.window, self.turns,
-                                      out[done:], noise, value, self.events)
+                                      offset, fence_verts, fence_rings, fence_circles,
+                                      self.recent, self.window, self.turns, out[done:],
+                                      noise, value, self.events)
             body.noise_used(used)
             events.extend((_EVENTS[int(c)], done + int(i)) for c, i in self.events[:n_ev])
             done += k

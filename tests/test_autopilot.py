@@ -280,10 +280,11 @@ def test_a_resent_command_is_answered_not_run_again():
 
 def test_samples_are_archived_and_resent_on_request():
     """The recovery commands: the count of a time range, then its samples again (with the
-    phase in force), as the same GLOBAL_POSITION_INT + FIELD pairs."""
+    phase in force: the companion reports phases), as the same GLOBAL_POSITION_INT + FIELD
+    pairs."""
     from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND
 
-    ap = make(sample_rate_hz=10.0)
+    ap = make(sample_rate_hz=10.0, companion=True)
     upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
                 item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 0), 10)])
     command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)

@@ -102,13 +102,16 @@ def test_legacy_item_upload_round_trips_floats_and_types_are_separate():
     assert ack[0].type == mavlink.MAV_MISSION_ACCEPTED
     back = s.receive(rx(mavlink.MAVLink_mission_request_message(1, 1, 0, 0)), 0.2)[0]
     assert (back.x, back.y, back.frame) == (rx(legacy).x, rx(legacy).y, legacy.frame)
-    # a fence upload does not touch the mission
-    fence = [item_int(0, mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, 47.39, 8.54,
-                      p1=3)]
-    fence[0].mission_type = mavlink.MAV_MISSION_TYPE_FENCE
-    s.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, 1, 1)), 1.0)
-    assert s.receive(rx(fence[0]), 1.0)[0].type == mavlink.MAV_MISSION_ACCEPTED
-    assert len(s.mission) == 1 and len(s.stores[1]) == 1
+    # a fence upload (a triangle) does not touch the mission
+    fence = [item_int(k, mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, lat, lon, p1=3,
+                      frame=mavlink.MAV_FRAME_GLOBAL_INT)
+             for k, (lat, lon) in enumerate([(47.39, 8.54), (47.40, 8.54), (47.40, 8.55)])]
+    s.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, 3, 1)), 1.0)
+    for it in fence:
+        it.mission_type = mavlink.MAV_MISSION_TYPE_FENCE
+        replies = s.receive(rx(it), 1.0)
+    assert replies[0].type == mavlink.MAV_MISSION_ACCEPTED
+    assert len(s.mission) == 1 and len(s.stores[1]) == 3
 
 
 def test_clear_all_and_count_zero():
