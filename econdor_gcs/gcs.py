@@ -401,6 +401,10 @@ class VehicleState:
     style: TaskStyle | None = None
     """How this vehicle gets contour pieces: trace items until it refuses one (None: it has
     not been given any yet)."""
+    tasks_flown: dict[str, int] = field(
+        default_factory=lambda: {"trace": 0, "waypoints": 0, "legs": 0})
+    """Tasks flown to an outcome (since this station started): contour pieces as ``trace``
+    items or as ``waypoints`` polylines, and plain waypoint ``legs`` (initiation, survey)."""
     phases: PhaseTrack = field(default_factory=PhaseTrack)
     last_text: str = ""
     """The vehicle's last STATUSTEXT, for people."""
@@ -786,7 +790,12 @@ class MavlinkExecutor:
             return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self._position(v.sysid),
                                 0.0)
         self._settle(v, f)
-        return build_report(f)
+        report = build_report(f)
+        for o in report.outcomes:
+            if o.status != OutcomeStatus.UNREPORTED:
+                way = f.style.value if isinstance(o.task, TraceTask) else "legs"
+                v.tasks_flown[way] += 1
+        return report
 
     def _settle(self, v: VehicleState, f: Flight) -> None:
         """Put a flight's samples in time order (resent ones arrive late), give each the
@@ -1316,9 +1325,11 @@ class MavlinkExecutor:
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
                       ) -> list[dict[str, Any]]:
-        """Per vehicle: system id, autopilot (from its heartbeat), the kind this run started
-        (None for vehicles started elsewhere) and how it was given contour pieces
-        (``trace`` items, ``waypoints`` polylines, or None if it was given none)."""
+        """Per vehicle: system id, ``autopilot`` (from its HEARTBEAT), the kind this run
+        started (``started_as``, None for vehicles started elsewhere), ``mode``: how it was
+        given contour pieces (``trace`` items, ``waypoints`` polylines, or None if it was
+        given none), and ``tasks_flown``: how many tasks it flew to an outcome each way
+        (:attr:`VehicleState.tasks_flown`)."""
         out = []
         for i, (sysid, v) in enumerate(self.vehicles.items()):
             link = self.router.vehicles.get(sysid)
@@ -1326,7 +1337,8 @@ class MavlinkExecutor:
                 "sysid": sysid,
                 "autopilot": AutopilotKind.of(link.autopilot).value if link else None,
                 "started_as": str(started[i]) if started else None,
-                "task_style": v.style.value if v.style else None,
+                "mode": v.style.value if v.style else None,
+                "tasks_flown": dict(v.tasks_flown),
             })
         return out
 

@@ -231,8 +231,13 @@ def test_mixed_fleet_started_elsewhere(tmp_path: Path,
         assert code == 0, err  # inside: the vehicles' logs are shown if not
     summary = json.loads((out / "summary.json").read_text())
     assert summary["fleet"] == [
-        {"sysid": 1, "autopilot": "px4", "started_as": None, "task_style": "trace"},
-        {"sysid": 2, "autopilot": "ardupilot", "started_as": None, "task_style": "waypoints"}]
+        {"sysid": 1, "autopilot": "px4", "started_as": None, "mode": "trace",
+         "tasks_flown": {"trace": summary["fleet"][0]["tasks_flown"]["trace"],
+                         "waypoints": 0, "legs": 2}},
+        {"sysid": 2, "autopilot": "ardupilot", "started_as": None, "mode": "waypoints",
+         "tasks_flown": {"trace": 0, "waypoints": summary["fleet"][1]["tasks_flown"]["waypoints"],
+                         "legs": 2}}]
+    assert all(sum(v["tasks_flown"].values()) > 1 for v in summary["fleet"])
     msgs = read_tlog(out / "telemetry.tlog")
     # the GCS's items, by target: vehicle 2 refused the first contour item it was offered
     # (MISSION_ACK UNSUPPORTED) and was never offered another
@@ -251,6 +256,42 @@ def test_mixed_fleet_started_elsewhere(tmp_path: Path,
     assert any(r["outcomes"].get("reached", 0) > 0 for r in rows[1:])
     assert math.isfinite(summary["final_mae_db"]) and summary["contour_distance_m"] > 0
     assert (out / "next_batch.json").exists() and (out / "mission.yaml").exists()
+
+
+def test_mixed_fleet_started_by_the_run(tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``--autopilot ardupilot,px4+companion``: the stock ArduPilot flies the contour pieces as
+    waypoint polylines, the PX4 with the tracer on board as trace items; summary.json says so
+    per vehicle with the tasks flown each way, and no sample is missing."""
+    mission = write_mission(tmp_path, iterations=2)
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
+                           "--autopilot", "ardupilot,px4+companion", "--quiet")
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert "error" not in summary
+    fleet = {v["sysid"]: v for v in summary["fleet"]}
+    assert [(fleet[s]["autopilot"], fleet[s]["started_as"], fleet[s]["mode"]) for s in (1, 2)] \
+        == [("ardupilot", "ardupilot", "waypoints"), ("px4", "px4+companion", "trace")]
+    stock, tracer = fleet[1]["tasks_flown"], fleet[2]["tasks_flown"]
+    assert stock["trace"] == 0 and stock["waypoints"] > 0
+    assert tracer["waypoints"] == 0 and tracer["trace"] > 0
+    assert stock["legs"] == tracer["legs"] == 2  # one diagonal each: its start, its end
+    # every contour piece the iterations account for was flown one way or the other
+    rows = json.loads((out / "iterations.json").read_text())
+    assert len(rows) == 3  # the diagonals, then two iterations
+    accounted = sum(n for r in rows[1:] for st, n in r["outcomes"].items()
+                    if st != "unreported")
+    assert accounted == sum(fleet[s]["tasks_flown"][w] for s in (1, 2)
+                            for w in ("trace", "waypoints")) > 0
+    # all samples: each vehicle's own count arrived, and is in samples.csv
+    rec = summary["sample_recovery"]
+    for sysid in ("1", "2"):
+        assert rec[sysid]["missing"] == 0 and not rec[sysid]["lost"], rec[sysid]
+        assert rec[sysid]["received"] == rec[sysid]["vehicle_count"] > 0, rec[sysid]
+    n_samples = sum(rec[s]["received"] for s in ("1", "2"))
+    assert len(csv_rows(out / "samples.csv")) == n_samples == summary["samples"]
+    assert math.isfinite(summary["final_mae_db"])
 
 
 def test_vehicle_rejecting_the_mission(tmp_path: Path,

@@ -136,7 +136,9 @@ def test_run_with_three_stock_ardupilots_and_mavproxy_watching(tmp_path):
         stop(mavproxy)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["final_mae_db"] <= -20.0
-    assert [v["task_style"] for v in summary["fleet"]] == ["waypoints"] * 3
+    assert [v["mode"] for v in summary["fleet"]] == ["waypoints"] * 3
+    assert all(v["tasks_flown"]["trace"] == 0 < v["tasks_flown"]["waypoints"]
+               for v in summary["fleet"])
     assert [v["autopilot"] for v in summary["fleet"]] == ["ardupilot"] * 3
     fwd = summary["forward"]
     assert fwd["forwarded"] > 1000 and fwd["relayed"] == 0
