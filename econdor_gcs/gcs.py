@@ -139,6 +139,11 @@ SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
 LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+UPLOAD_ATTEMPTS = 3
+"""Uploads of one mission to a vehicle that says no transfer is running (MAV_MISSION_RESULT
+INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
+RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR})
+"""MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
 RECOVERY_ROUNDS = 200
 """At most this many rounds of resend requests for one vehicle's missing samples ..."""
 RECOVERY_STALLED_ROUNDS = 4
@@ -866,10 +871,17 @@ class MavlinkExecutor:
                                round_no: int) -> None:
         """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
         refused a trace item (the flight begins first: a failed upload leaves its tasks
-        unfinished, for the others)."""
+        unfinished, for the others).
+
+        A vehicle's refusal is its MISSION_ACK to the refused item; when that ACK is lost we
+        send the item again and a vehicle with no transfer running answers INVALID_SEQUENCE
+        (ERROR: it gave up waiting). Either starts the upload again, up to
+        :data:`UPLOAD_ATTEMPTS` times."""
         style = v.style or TaskStyle.TRACE
         f: Flight | None = None
+        attempts = 0
         while True:
+            attempts += 1
             plan = plan_mission(self.origin, tasks, self.altitude_m, style=style,
                                 tolerance_m=self.tolerance_m, home=self.home,
                                 speed_mps=self.mission.vehicles.speed_mps, end="none")
@@ -884,11 +896,15 @@ class MavlinkExecutor:
             except MissionRejected as exc:
                 refused_trace = (exc.result == mavlink.MAV_MISSION_UNSUPPORTED
                                  and exc.command == MAV_CMD_WAYPOINT_USER_1)
+                if exc.result in RESTART_RESULTS and attempts < UPLOAD_ATTEMPTS:
+                    log.warning("vehicle %d: %s; uploading the mission again", v.sysid, exc)
+                    continue
                 if not (refused_trace and style == TaskStyle.TRACE):
                     raise
                 log.info("vehicle %d refused a contour item: its pieces go as waypoints",
                          v.sysid)
                 style = v.style = TaskStyle.WAYPOINTS
+                attempts = 0
                 continue
             if any(isinstance(t, TraceTask) for t in tasks):
                 v.style = style

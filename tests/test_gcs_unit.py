@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 from types import SimpleNamespace
@@ -20,8 +21,9 @@ from econdor_gcs.core.tasks import (
     TraceTask,
     Waypoint,
 )
-from econdor_gcs.errors import ProtocolError, VehicleTimeout
+from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.gcs import (
+    UPLOAD_ATTEMPTS,
     Flight,
     MavlinkExecutor,
     StatusAssembler,
@@ -438,3 +440,48 @@ def test_a_landed_vehicle_is_not_late_while_the_others_come_home() -> None:
     router.vehicles[1].time_boot_ms = 10**7  # hours of its time later
     ex._check_progress([v])
     assert v.lost is None
+
+
+def _scripted_uploads(ex: Any, answers: list[int | None]) -> list[list[int]]:
+    """Replace the executor's upload with one that answers each attempt from ``answers``
+    (a MAV_MISSION_RESULT refusing item 3, or None: accepted); returns the commands sent."""
+    sent: list[list[int]] = []
+
+    async def upload(v: Any, items: list[Any]) -> None:
+        sent.append([it.command for it in items])
+        result = answers[len(sent) - 1]
+        if result is not None:
+            raise MissionRejected(f"vehicle {v.sysid} rejected mission item 3", result, 3,
+                                  items[3].command)
+
+    ex._upload = upload
+    return sent
+
+
+def test_a_lost_refusal_of_a_contour_item_restarts_the_upload() -> None:
+    """A stock vehicle's UNSUPPORTED for the contour item is lost; the item sent again meets
+    no transfer (INVALID_SEQUENCE): the upload starts again, meets the refusal, and the
+    pieces go as waypoints."""
+    m = _mission()
+    ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
+    sent = _scripted_uploads(ex, [mavlink.MAV_MISSION_INVALID_SEQUENCE,
+                                  mavlink.MAV_MISSION_UNSUPPORTED,
+                                  mavlink.MAV_MISSION_ERROR, None])
+    route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
+    v = ex.vehicles[1]
+    asyncio.run(ex._plan_and_upload(
+        v, [TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route)], 1, 0))
+    trace, wp = mavlink.MAV_CMD_WAYPOINT_USER_1, mavlink.MAV_CMD_NAV_WAYPOINT
+    assert [trace in c for c in sent] == [True, True, False, False]
+    assert all(c[3:] == [wp] * 3 for c in sent[2:])
+    assert v.style == TaskStyle.WAYPOINTS
+    assert v.flight is not None and v.flight.style == TaskStyle.WAYPOINTS
+
+
+def test_an_upload_refused_again_and_again_fails() -> None:
+    m = _mission()
+    ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
+    sent = _scripted_uploads(ex, [mavlink.MAV_MISSION_INVALID_SEQUENCE] * 5)
+    with pytest.raises(MissionRejected, match="rejected mission item 3"):
+        asyncio.run(ex._plan_and_upload(ex.vehicles[1], [Waypoint(5.0, 0.0)] * 3, 1, 0))
+    assert len(sent) == UPLOAD_ATTEMPTS
