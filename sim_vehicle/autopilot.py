@@ -248,6 +248,9 @@ class Autopilot:
                 continue
             if ev.kind in ("uploaded", "cleared"):
                 st.mission_complete = False
+                # a command after a new mission is new, even if it repeats the last one (the
+                # MISSION_START of the next flight, resent because the first was lost)
+                self._last_command = None
             if ev.kind in ("uploaded", "cleared") and st.mission_active:
                 # the mission under execution is gone: hold where we are
                 self.set_hold()

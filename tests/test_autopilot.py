@@ -278,6 +278,25 @@ def test_a_resent_command_is_answered_not_run_again():
     assert _resend(ap, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0) == mavlink.MAV_RESULT_DENIED
 
 
+def test_a_mission_start_resent_after_a_new_upload_runs():
+    """The next flight's MISSION_START is lost and resent (``confirmation`` 1) with the same
+    parameters as the last flight's: after a new mission it is a new command, not a repeat."""
+    ap = make(sample_rate_hz=10.0)
+    first = [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
+             item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 0), 10)]
+    upload(ap, first)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert _resend(ap, mavlink.MAV_CMD_MISSION_START, 0, 1) == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                 for m in ms))
+    upload(ap, [first[0], item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 40), 10)])
+    assert _resend(ap, mavlink.MAV_CMD_MISSION_START, 1, 1) == mavlink.MAV_RESULT_ACCEPTED
+    assert ap.counters["commands_repeated"] == 0
+    msgs = run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                        for m in ms))
+    assert msgs  # the second mission was flown to its end
+
+
 def test_samples_are_archived_and_resent_on_request():
     """The recovery commands: the count of a time range, then its samples again (with the
     phase in force: the companion reports phases), as the same GLOBAL_POSITION_INT + FIELD
