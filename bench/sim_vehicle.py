@@ -241,7 +241,7 @@ def run_config(count: int, speedup: float, window: float) -> dict:
     r = Router()
     exe = [sys.executable, "-m", "sim_vehicle.cli"]
     procs = [subprocess.Popen([*exe, "--sysid", str(i + 1), "--mission", str(MISSION),
-                               "--speedup", str(speedup),
+                               "--speedup", str(speedup), "--companion",
                                "--connect", f"udpout:127.0.0.1:{r.port}"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
              for i in range(count)]

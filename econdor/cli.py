@@ -39,6 +39,23 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _non_negative_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v >= 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return v
+
+
+def _sysid(text: str) -> int:
+    v = _positive_int(text)
+    if v > 254:
+        raise argparse.ArgumentTypeError(f"system id must be within 1..254, got {v}")
+    return v
+
+
 def _planner_list(text: str) -> list[str]:
     """``"adaptive,lawnmower"`` -> the planners in that order; ``"all"`` -> every planner."""
     if text == "all":
@@ -88,6 +105,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
     run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
+    run.add_argument("--autopilot", default=None, metavar="KINDS",
+                     help="the simulated vehicles this run starts: px4, ardupilot, "
+                          "px4+companion or ardupilot+companion, or a comma list given to "
+                          "vehicles 1, 2, ... in turn (default px4+companion: the tracer on "
+                          "board); a vehicle without companion gets contours as waypoints")
+    run.add_argument("--tolerance-m", type=_positive_float, default=1.0,
+                     help="Douglas-Peucker tolerance of the waypoint polylines (default 1)")
+    run.add_argument("--forward", default=None, metavar="udpout:HOST:PORT",
+                     help="send every vehicle message to a watcher (QGroundControl, "
+                          "MAVProxy --master=udpin:HOST:PORT)")
+    run.add_argument("--forward-commands", action="store_true",
+                     help="relay what the watcher sends to the vehicles (dropped otherwise)")
     run.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
                      help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
                           "(hashed with SHA-256, as MAVProxy does)")
@@ -134,13 +163,51 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--web", default=WEB_DEFAULT, metavar="[HOST:]PORT",
                     help=f"where to serve it (default {WEB_DEFAULT})")
 
-    ex = sub.add_parser("export", help="export the missions of a run for real autopilots")
-    ex.add_argument("run_dir", type=Path)
+    ex = sub.add_parser("export", help="missions for real aircraft from a run directory or a "
+                                       "mission YAML (or a run's flown paths as GeoJSON)")
+    ex.add_argument("source", type=Path, help="a run directory or a mission YAML")
     ex.add_argument("--format", choices=("wpl", "plan", "geojson"), required=True)
     ex.add_argument("--out", required=True,
                     help="a file, or a directory (existing or ending in /) for one file per mission")
-    ex.add_argument("--iteration", type=int, default=None)
-    ex.add_argument("--vehicle", type=int, default=None)
+    ex.add_argument("--style", choices=("waypoints", "trace"), default="waypoints",
+                    help="contour pieces as waypoint polylines (any autopilot, the default) or "
+                         "as contour items for an onboard tracer")
+    ex.add_argument("--alt-m", type=_positive_float, default=None,
+                    help="flight altitude above home (default: the mission's)")
+    ex.add_argument("--speed-mps", type=_positive_float, default=None,
+                    help="DO_CHANGE_SPEED ground speed (default: the mission's)")
+    ex.add_argument("--tolerance-m", type=_positive_float, default=1.0,
+                    help="Douglas-Peucker tolerance of the waypoint polylines (default 1)")
+    ex.add_argument("--vehicles", type=_positive_int, default=1,
+                    help="split over this many aircraft (default 1)")
+    ex.add_argument("--spacing-m", type=_positive_float, default=None,
+                    help="mission YAML: a north-south survey at this spacing instead of the "
+                         "diagonals")
+    ex.add_argument("--fence-margin-m", type=_non_negative_float, default=10.0,
+                    help=".plan: geofence this far outside the area (default 10)")
+    ex.add_argument("--iteration", default=None, metavar="N|all",
+                    help="run directory: the missions planned for iteration N (or all) instead "
+                         "of the next batch")
+    ex.add_argument("--vehicle", type=int, default=None,
+                    help="with --iteration: only this vehicle's mission")
+
+    im = sub.add_parser("import", help="read a QGC WPL or .plan mission file back, check it, "
+                                       "say what it holds")
+    im.add_argument("path", type=Path)
+    im.add_argument("--json", action="store_true",
+                    help="print the items (mission, fence, rally) as JSON")
+
+    up = sub.add_parser("upload", help="upload a mission file to a MAVLink autopilot, read it "
+                                       "back and verify it; optionally start it")
+    up.add_argument("path", type=Path)
+    up.add_argument("--connect", required=True,
+                    help="GCS endpoint the vehicle talks to, e.g. udpin:0.0.0.0:14550")
+    up.add_argument("--sysid", type=_sysid, default=None,
+                    help="the vehicle's system id (default: the first that appears)")
+    up.add_argument("--start", action="store_true",
+                    help="then set the mode, arm (when the pre-arm checks pass) and start it")
+    up.add_argument("--timeout", type=_positive_float, default=30.0,
+                    help="seconds to wait for the vehicle and each step (default 30)")
     return p
 
 
@@ -255,6 +322,30 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return export_cli(args)
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    import dataclasses
+    import json
+
+    from econdor_gcs.mission_files import describe, read_mission_file
+
+    mfile = read_mission_file(args.path, int_frames=False)
+    if args.json:
+        doc = {name: [dataclasses.asdict(it) for it in getattr(mfile, name)]
+               for name in ("items", "fence", "rally")}
+        print(json.dumps(doc, indent=1, allow_nan=True))
+        return 0
+    print(f"{args.path}: a valid mission file")
+    for line in describe(mfile):
+        print(line)
+    return 0
+
+
+def _cmd_upload(args: argparse.Namespace) -> int:
+    from econdor_gcs.upload import upload_cli
+
+    return upload_cli(args)
+
+
 def _cmd_relay(args: argparse.Namespace) -> int:
     import asyncio
 
@@ -275,7 +366,8 @@ def _cmd_relay(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"relay": _cmd_relay, "study": _cmd_study, "report": _cmd_report, "run": _cmd_run,
-            "export": _cmd_export, "view": _cmd_view}
+            "export": _cmd_export, "view": _cmd_view, "import": _cmd_import,
+            "upload": _cmd_upload}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,6 +9,8 @@
     ├── LinkError                MAVLink transport or protocol failure
     │   ├── VehicleTimeout       a vehicle stopped answering (or never appeared)
     │   └── ProtocolError        a peer answered with an error (e.g. MISSION_ACK != ACCEPTED)
+    │       ├── MissionRejected  a mission (item) refused: ``result``, ``seq``, ``command``
+    │       └── CommandRejected  a command refused: ``command``, ``result``
     ├── RunError                 a DFC run that cannot go on (carries the run directory)
     ├── ControlError             an operator's request that does not apply now (resume while running)
     └── WebError                 the web page cannot be served (address, run directory)
@@ -45,6 +47,33 @@ class VehicleTimeout(LinkError):
 
 class ProtocolError(LinkError):
     """A peer answered a protocol step with an error."""
+
+
+class MissionRejected(ProtocolError):
+    """The vehicle refused a mission upload (MISSION_ACK with an error result).
+
+    ``result`` is the MAV_MISSION_RESULT, ``seq`` the item it refused (None: the whole
+    mission, e.g. no space), ``command`` that item's MAV_CMD (None when unknown).
+    """
+
+    def __init__(self, message: str, result: int, seq: int | None = None,
+                 command: int | None = None) -> None:
+        super().__init__(message)
+        self.result = result
+        self.seq = seq
+        self.command = command
+
+
+class CommandRejected(ProtocolError):
+    """The vehicle answered a command with a result other than ACCEPTED / IN_PROGRESS.
+
+    ``command`` is the MAV_CMD, ``result`` the MAV_RESULT.
+    """
+
+    def __init__(self, message: str, command: int, result: int) -> None:
+        super().__init__(message)
+        self.command = command
+        self.result = result
 
 
 class RunError(EcondorError):

@@ -1,41 +1,34 @@
-"""Export a run's missions for ordinary tools: QGC WPL 110, QGroundControl ``.plan``, GeoJSON.
+"""``econdor export``: missions for real aircraft, and GeoJSON of a run.
 
-The MAVLink run saves every mission it sends as ``missions/iter{NN}_v{sysid}.json`` (a JSON list
-of :class:`~econdor_gcs.link.mission.MissionItemSpec` dicts, absolute lat/lon in degE7), so the
-exports need no mission YAML.
+SOURCE is a run directory or a mission YAML:
 
-Formats
--------
-QGC WPL 110 (``.waypoints``, the plain-text format of mavlink.io/en/file_formats and of
-``pymavlink.mavwp.MAVWPLoader``, which MAVProxy's ``wp load`` uses)::
+* run directory, no ``--iteration``: the batch the planner would fly next, from the run's last
+  estimate (``next_batch.json``), split over ``--vehicles`` aircraft (default 1) as the DFC
+  would split it: nearest-neighbour order from home, each contour piece entered at its point
+  nearest to where the aircraft comes from;
+* run directory, ``--iteration N|all [--vehicle S]``: the tasks each vehicle was given in that
+  iteration (``missions/iterNN_vS.tasks.json``);
+* mission YAML: the initiation, the two main diagonals split over ``--vehicles``, or with
+  ``--spacing-m`` a north-south survey at that spacing.
 
-    QGC WPL 110
-    INDEX  CURRENT  FRAME  COMMAND  P1  P2  P3  P4  LAT/X  LON/Y  ALT/Z  AUTOCONTINUE
+``--style waypoints`` (the default for wpl and plan) flies each contour piece of the estimate
+as a NAV_WAYPOINT polyline simplified to ``--tolerance-m`` (Douglas-Peucker,
+:mod:`econdor_gcs.core.waypoints`): any stock autopilot flies it. ``--style trace`` gives each
+piece as a contour item (``MAV_CMD_WAYPOINT_USER_1``) for an aircraft whose companion computer
+runs the tracer. Every mission is: item 0 home, takeoff to ``--alt-m``, DO_CHANGE_SPEED to
+``--speed-mps``, the tasks, return to launch. A ``.plan`` also carries an inclusion geofence
+around the area (``--fence-margin-m`` outside it) and a rally point at home.
 
-one tab-separated line per item.  The file holds float ``MISSION_ITEM`` values, so the ``_INT``
-frames are written as their float twins (``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT`` 6 -> 3,
-``MAV_FRAME_GLOBAL_INT`` 5 -> 0, ``MAV_FRAME_GLOBAL_TERRAIN_ALT_INT`` 11 -> 10); MAVProxy uploads
-the file's frame as is.  Latitude / longitude get 8 decimals (degE7 is exact), params and
-altitude the shortest text that reads back to the same float (``nan`` allowed).
-
-QGroundControl ``.plan`` (JSON, docs.qgroundcontrol.com "Plan File Format"): item 0, the home
-item, becomes ``mission.plannedHomePosition`` ``[lat, lon, alt]`` and is not in ``items``;
-every other item is a ``SimpleItem`` with ``params`` ``[p1, p2, p3, p4, lat, lon, alt]`` (NaN
-written as ``null``, as QGC does), a 1-based ``doJumpId`` and the float frame.  The contour
-command ``MAV_CMD_WAYPOINT_USER_1`` (31000) is kept as a plain ``SimpleItem`` with its params
-and position: QGC has no editor for it and shows it as an unknown/user command, but loads,
-keeps and uploads it unchanged.
-
-GeoJSON (RFC 7946, positions ``[lon, lat]``): one ``LineString`` per vehicle from
-``samples.csv``, ``Point`` features for mission waypoints and trace start points, and the area
-boundary ``Polygon`` when the run directory tells it.
+The formats themselves (QGC WPL 110, QGroundControl ``.plan``) are in
+:mod:`econdor_gcs.mission_files`; GeoJSON (RFC 7946, positions ``[lon, lat]``) is here: one
+``LineString`` per vehicle from ``samples.csv``, ``Point`` features for mission waypoints and
+trace start points, and the area boundary ``Polygon`` when the run directory tells it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
@@ -45,334 +38,34 @@ from typing import Any
 import numpy as np
 import pymap3d
 
-from .errors import EcondorError
-from .link.mission import MissionItemSpec
+from .core.assignment import assign_jobs
+from .core.geodesy import Origin
+from .core.geometry import Region
+from .core.planners import Job, diagonal_jobs, survey_jobs
+from .core.tasks import Task, TaskStyle
+from .errors import EcondorError, MissionError
+from .link.codec import mavlink
+from .link.mission import MissionItemSpec, plan_mission
+from .mission import Mission, load_mission
+from .mission_files import is_global_frame, is_home_item, write_plan, write_wpl
+from .plans import read_next_batch, read_tasks
 
 __all__ = [
+    "ExportedMission",
     "SavedMission",
     "export_cli",
+    "export_missions",
     "find_missions",
     "geojson_for_run",
-    "items_to_plan",
-    "items_to_wpl",
     "load_mission_file",
-    "plan_to_items",
-    "read_plan",
-    "read_wpl",
     "write_geojson",
-    "write_plan",
-    "write_wpl",
 ]
 
-WPL_HEADER = "QGC WPL 110"
-_WPL_HEADERS = ("QGC WPL 110", "QGC WPL 120")  # 120 (mavros) has the same columns
-
-MAV_CMD_NAV_WAYPOINT = 16
-MAV_CMD_NAV_LOITER_UNLIM = 17
-MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
-MAV_CMD_NAV_TAKEOFF = 22
-MAV_CMD_WAYPOINT_USER_1 = 31000
-MAV_AUTOPILOT_GENERIC = 0
-MAV_AUTOPILOT_PX4 = 12
-MAV_TYPE_QUADROTOR = 2
-
-# MAV_FRAME: _INT frame -> float frame (the files hold float MISSION_ITEM values)
-_INT_TO_FLOAT = {5: 0, 6: 3, 11: 10}
-_FLOAT_TO_INT = {v: k for k, v in _INT_TO_FLOAT.items()}
-_GLOBAL_FRAMES = frozenset((0, 3, 5, 6, 10, 11))
-# QGC's AltitudeMode: 1 relative to home, 2 absolute (AMSL), 4 terrain frame
-_ALTITUDE_MODE = {0: 2, 5: 2, 3: 1, 6: 1, 10: 4, 11: 4}
+MAV_CMD_NAV_WAYPOINT = mavlink.MAV_CMD_NAV_WAYPOINT
+MAV_CMD_NAV_LOITER_UNLIM = mavlink.MAV_CMD_NAV_LOITER_UNLIM
+MAV_CMD_WAYPOINT_USER_1 = mavlink.MAV_CMD_WAYPOINT_USER_1
 
 PathLike = str | Path
-
-
-# --------------------------------------------------------------------------------------------
-# QGC WPL 110
-
-
-def _num(v: float) -> str:
-    """Shortest text that reads back (``float(text)``) to the same value."""
-    v = float(v)
-    return "nan" if math.isnan(v) else repr(v)
-
-
-def _is_global(frame: int) -> bool:
-    return frame in _GLOBAL_FRAMES
-
-
-def items_to_wpl(items: Sequence[MissionItemSpec]) -> str:
-    """The mission as QGC WPL 110 text (header line + one tab-separated line per item).
-
-    ``_INT`` frames are written as their float twins (6 -> 3, 5 -> 0, 11 -> 10); for global
-    frames x / y (degE7) become latitude / longitude with 8 decimals, otherwise x / y are
-    written as they are.
-    """
-    lines = [WPL_HEADER]
-    for it in items:
-        if _is_global(it.frame):
-            x, y = f"{it.x / 1e7:.8f}", f"{it.y / 1e7:.8f}"
-        else:
-            x, y = _num(it.x), _num(it.y)
-        cols = [str(int(it.seq)), str(int(it.current)), str(_INT_TO_FLOAT.get(it.frame, it.frame)),
-                str(int(it.command)), _num(it.param1), _num(it.param2), _num(it.param3),
-                _num(it.param4), x, y, _num(it.z), str(int(it.autocontinue))]
-        lines.append("\t".join(cols))
-    return "\n".join(lines) + "\n"
-
-
-def write_wpl(path: PathLike, items: Sequence[MissionItemSpec]) -> Path:
-    path = Path(path)
-    path.write_text(items_to_wpl(items), encoding="utf-8")
-    return path
-
-
-def _text_and_name(path_or_text: PathLike) -> tuple[str, str]:
-    if isinstance(path_or_text, Path) or "\n" not in path_or_text:
-        path = Path(path_or_text)
-        try:
-            return path.read_text(encoding="utf-8"), str(path)
-        except OSError as exc:
-            raise EcondorError(f"{path}: cannot read ({exc.strerror or exc})") from None
-        except UnicodeDecodeError:
-            raise EcondorError(f"{path}: not a text file") from None
-    return path_or_text, "<text>"
-
-
-_FLOAT32_MAX = 3.4028234663852886e38
-_UINT = {"seq": 0xFFFF, "command": 0xFFFF, "frame": 0xFF, "current": 0xFF,
-         "autocontinue": 0xFF}
-
-
-def _checked(item: MissionItemSpec, where: str) -> MissionItemSpec:
-    """``item`` if it fits a MISSION_ITEM_INT (and its position is on the globe), else an
-    :class:`EcondorError` naming the field.
-
-    >>> _checked(MissionItemSpec(0, 6, 16, x=900_000_001), "f line 2")
-    Traceback (most recent call last):
-    ...
-    econdor_gcs.errors.EcondorError: f line 2: latitude 90.0000001 out of range [-90, 90]
-    """
-    for name, top in _UINT.items():
-        v = getattr(item, name)
-        if not 0 <= v <= top:
-            raise EcondorError(f"{where}: {name} {v} out of range [0, {top}]")
-    for name in ("param1", "param2", "param3", "param4", "z"):
-        v = getattr(item, name)
-        if math.isfinite(v) and abs(v) > _FLOAT32_MAX:
-            raise EcondorError(f"{where}: {name} {v:g} does not fit a float32")
-    if _is_global(item.frame):
-        if not -90 * 10**7 <= item.x <= 90 * 10**7:
-            raise EcondorError(f"{where}: latitude {item.x / 1e7} out of range [-90, 90]")
-        if not -180 * 10**7 <= item.y <= 180 * 10**7:
-            raise EcondorError(f"{where}: longitude {item.y / 1e7} out of range [-180, 180]")
-    for name in ("x", "y"):
-        v = getattr(item, name)
-        if not -(2**31) <= v < 2**31:
-            raise EcondorError(f"{where}: {name} {v} does not fit an int32")
-    return item
-
-
-def read_wpl(path_or_text: PathLike, *, int_frames: bool = False) -> list[MissionItemSpec]:
-    """Parse QGC WPL 110 (a path, or the text itself if it contains a newline).
-
-    The file's frame is kept (3 stays 3) unless ``int_frames`` is set, which maps the float
-    global frames back to the ``_INT`` ones (3 -> 6, 0 -> 5, 10 -> 11), giving back exactly what
-    :func:`items_to_wpl` was given.  Latitude / longitude of global frames become degE7 ints.
-    Like MAVProxy, values may be separated by any whitespace, and blank lines and ``#`` comment
-    lines are skipped.  Errors name the file and line.
-    """
-    text, name = _text_and_name(path_or_text)
-    lines = text.splitlines()
-    header = lines[0].strip() if lines else ""
-    if header not in _WPL_HEADERS:
-        raise EcondorError(
-            f"{name} line 1: not a QGC WPL 110 file (header {header[:40]!r}, "
-            f"expected {WPL_HEADER!r})")
-    items: list[MissionItemSpec] = []
-    for lineno, raw in enumerate(lines[1:], start=2):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        cols = line.split()
-        if len(cols) != 12:
-            raise EcondorError(
-                f"{name} line {lineno}: expected 12 tab-separated values, got {len(cols)}")
-        try:
-            seq, current, frame, command = (int(c) for c in cols[:4])
-            p1, p2, p3, p4, x, y, z = (float(c) for c in cols[4:11])
-            autocontinue = int(cols[11])
-        except ValueError:
-            raise EcondorError(f"{name} line {lineno}: not a number in {line[:60]!r}") from None
-        if _is_global(frame):
-            if not (math.isfinite(x) and math.isfinite(y)):
-                raise EcondorError(f"{name} line {lineno}: latitude/longitude must be finite")
-            xi, yi = round(x * 1e7), round(y * 1e7)
-        else:
-            xi, yi = round(x) if math.isfinite(x) else 0, round(y) if math.isfinite(y) else 0
-        if int_frames:
-            frame = _FLOAT_TO_INT.get(frame, frame)
-        items.append(_checked(MissionItemSpec(
-            seq=seq, frame=frame, command=command, current=current, autocontinue=autocontinue,
-            param1=p1, param2=p2, param3=p3, param4=p4, x=int(xi), y=int(yi), z=z),
-            f"{name} line {lineno}"))
-    return items
-
-
-# --------------------------------------------------------------------------------------------
-# QGroundControl .plan
-
-
-def _is_home(items: Sequence[MissionItemSpec]) -> bool:
-    """Item 0 is the home item (DESIGN.md §4: seq 0, a NAV_WAYPOINT in a global frame)."""
-    return bool(items) and items[0].seq == 0 and items[0].command == MAV_CMD_NAV_WAYPOINT \
-        and _is_global(items[0].frame)
-
-
-def _json_num(v: float) -> float | int | None:
-    v = float(v)
-    if not math.isfinite(v):
-        return None
-    return int(v) if v == int(v) and abs(v) < 1e15 else v
-
-
-def items_to_plan(
-    items: Sequence[MissionItemSpec], *, firmware_type: int = MAV_AUTOPILOT_PX4,
-    vehicle_type: int = MAV_TYPE_QUADROTOR, cruise_speed: float = 15.0,
-    hover_speed: float = 5.0, home_alt_amsl_m: float | None = None,
-) -> dict[str, Any]:
-    """The mission as a QGroundControl ``.plan`` document (a JSON-ready dict).
-
-    Item 0, if it is the home item, becomes ``plannedHomePosition`` ``[lat, lon, alt]`` (alt =
-    ``home_alt_amsl_m`` if given, QGC's convention, else the item's own z) and is left out of
-    ``items``; without a home item the first positioned item gives ``plannedHomePosition``.
-    """
-    home_alt = home_alt_amsl_m
-    body = list(items)
-    if _is_home(body):
-        home = body.pop(0)
-        planned = [home.x / 1e7, home.y / 1e7, float(home.z if home_alt is None else home_alt)]
-    else:
-        first = next((it for it in body if _is_global(it.frame) and (it.x or it.y)), None)
-        planned = ([first.x / 1e7, first.y / 1e7, float(home_alt or 0.0)] if first
-                   else [0.0, 0.0, float(home_alt or 0.0)])
-    plan_items: list[dict[str, Any]] = []
-    for jump_id, it in enumerate(body, start=1):
-        glob = _is_global(it.frame)
-        lat = it.x / 1e7 if glob else float(it.x)
-        lon = it.y / 1e7 if glob else float(it.y)
-        entry: dict[str, Any] = {}
-        if glob and it.command != MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            entry.update(AMSLAltAboveTerrain=None, Altitude=_json_num(it.z),
-                         AltitudeMode=_ALTITUDE_MODE[it.frame])
-        entry.update(
-            autoContinue=bool(it.autocontinue), command=int(it.command), doJumpId=jump_id,
-            frame=_INT_TO_FLOAT.get(it.frame, it.frame),
-            params=[_json_num(it.param1), _json_num(it.param2), _json_num(it.param3),
-                    _json_num(it.param4), lat, lon, _json_num(it.z)],
-            type="SimpleItem")
-        plan_items.append(entry)
-    return {
-        "fileType": "Plan",
-        "geoFence": {"circles": [], "polygons": [], "version": 2},
-        "groundStation": "QGroundControl",
-        "mission": {
-            "cruiseSpeed": cruise_speed,
-            "firmwareType": firmware_type,
-            "globalPlanAltitudeMode": 1,
-            "hoverSpeed": hover_speed,
-            "items": plan_items,
-            "plannedHomePosition": planned,
-            "vehicleType": vehicle_type,
-            "version": 2,
-        },
-        "rallyPoints": {"points": [], "version": 2},
-        "version": 1,
-    }
-
-
-def write_plan(path: PathLike, items: Sequence[MissionItemSpec], **kwargs: Any) -> Path:
-    """Write :func:`items_to_plan` as indented JSON (keyword arguments as there)."""
-    path = Path(path)
-    doc = items_to_plan(items, **kwargs)
-    path.write_text(json.dumps(doc, indent=4, allow_nan=False) + "\n", encoding="utf-8")
-    return path
-
-
-def _float(v: Any, where: str) -> float:
-    if v is None:
-        return math.nan
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        raise EcondorError(f"{where}: expected a number, got {v!r}")
-    return float(v)
-
-
-def plan_to_items(doc: Any, *, name: str = "<plan>",
-                  int_frames: bool = False) -> list[MissionItemSpec]:
-    """Mission items of a ``.plan`` document (see :func:`read_plan`)."""
-    if not isinstance(doc, dict) or doc.get("fileType") != "Plan":
-        raise EcondorError(f"{name}: not a QGroundControl plan (fileType is not \"Plan\")")
-    mission = doc.get("mission")
-    if not isinstance(mission, dict) or not isinstance(mission.get("items"), list):
-        raise EcondorError(f"{name}: plan has no mission.items list")
-
-    def frame_of(f: int) -> int:
-        return _FLOAT_TO_INT.get(f, f) if int_frames else f
-
-    items: list[MissionItemSpec] = []
-    home = mission.get("plannedHomePosition")
-    if home is not None:
-        if not (isinstance(home, list) and len(home) == 3):
-            raise EcondorError(f"{name}: mission.plannedHomePosition must be [lat, lon, alt]")
-        lat = _float(home[0], f"{name}: plannedHomePosition")
-        lon = _float(home[1], f"{name}: plannedHomePosition")
-        if not (math.isfinite(lat) and math.isfinite(lon)):
-            raise EcondorError(f"{name}: mission.plannedHomePosition needs a finite latitude "
-                               "and longitude")
-        items.append(_checked(MissionItemSpec(0, frame_of(3), MAV_CMD_NAV_WAYPOINT, current=1,
-                                              x=round(lat * 1e7), y=round(lon * 1e7), z=0.0),
-                              f"{name}: mission.plannedHomePosition"))
-    for i, entry in enumerate(mission["items"]):
-        where = f"{name}: mission.items[{i}]"
-        if not isinstance(entry, dict):
-            raise EcondorError(f"{where}: not an object")
-        if entry.get("type") != "SimpleItem":
-            raise EcondorError(
-                f"{where}: {entry.get('type')!r} items are not supported (only SimpleItem)")
-        params = entry.get("params")
-        if not isinstance(params, list) or len(params) != 7:
-            raise EcondorError(f"{where}: params must be a list of 7 values")
-        try:
-            frame, command = int(entry["frame"]), int(entry["command"])
-        except (KeyError, TypeError, ValueError, OverflowError):
-            raise EcondorError(f"{where}: needs integer frame and command") from None
-        p = [_float(v, where) for v in params]
-        scale = 1e7 if _is_global(frame) else 1.0
-        x, y = (round(v * scale) if math.isfinite(v) else 0 for v in p[4:6])
-        items.append(_checked(MissionItemSpec(
-            seq=len(items), frame=frame_of(frame), command=command,
-            current=1 if not items else 0, autocontinue=int(bool(entry.get("autoContinue", True))),
-            param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=int(x), y=int(y),
-            z=p[6] if math.isfinite(p[6]) else 0.0), where))
-    return items
-
-
-def read_plan(path_or_doc: PathLike | dict[str, Any], *,
-              int_frames: bool = False) -> list[MissionItemSpec]:
-    """Read a ``.plan`` back into mission items.
-
-    ``plannedHomePosition`` becomes item 0 (a ``NAV_WAYPOINT`` with ``current = 1`` at 0 m
-    above home, the shape of :func:`~econdor_gcs.link.mission.home_item`), the ``SimpleItem``\\ s
-    follow in order, renumbered.  Frames as in the file unless ``int_frames`` (3 -> 6, ...);
-    ``null`` params read as NaN (altitude: 0).  ComplexItems (surveys, ...) are refused.
-    """
-    if isinstance(path_or_doc, dict):
-        return plan_to_items(path_or_doc, int_frames=int_frames)
-    text, name = _text_and_name(Path(path_or_doc))
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise EcondorError(f"{name} line {exc.lineno}: not valid JSON ({exc.msg})") from None
-    return plan_to_items(doc, name=name, int_frames=int_frames)
 
 
 # --------------------------------------------------------------------------------------------
@@ -482,7 +175,7 @@ def _origin_of(run_dir: Path, summary: dict[str, Any],
         return float(o["lat_deg"]), float(o["lon_deg"]), float(o.get("alt_m", 0.0) or 0.0)
     for m in missions:  # the home item sits at the ENU origin (vehicles start there)
         items = load_mission_file(m.path)
-        if _is_home(items):
+        if is_home_item(items):
             return items[0].x / 1e7, items[0].y / 1e7, 0.0
     return None
 
@@ -590,7 +283,7 @@ def geojson_for_run(run_dir: PathLike, *, iteration: int | None = None,
     for m in chosen:
         items = load_mission_file(m.path)
         for it in items:
-            if not _is_global(it.frame) or (it.seq == 0 and _is_home(items)):
+            if not is_global_frame(it.frame) or (it.seq == 0 and is_home_item(items)):
                 continue
             if it.command == MAV_CMD_WAYPOINT_USER_1:
                 kind, level, piece = "trace_start", it.param1, int(it.param4)
@@ -627,7 +320,147 @@ def write_geojson(path: PathLike, run_dir: PathLike, **kwargs: Any) -> Path:
 
 
 # --------------------------------------------------------------------------------------------
-# CLI
+# missions for aircraft
+
+
+@dataclass
+class ExportedMission:
+    """One aircraft's mission: its file stem and items."""
+
+    stem: str
+    items: list[MissionItemSpec]
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """How to turn tasks into a mission (None: the mission YAML's value)."""
+
+    style: TaskStyle = TaskStyle.WAYPOINTS
+    alt_m: float | None = None
+    speed_mps: float | None = None
+    tolerance_m: float = 1.0
+    vehicles: int = 1
+    spacing_m: float | None = None
+
+
+def _mission_items(mission: Mission, tasks: Sequence[Task], opts: ExportOptions
+                   ) -> list[MissionItemSpec]:
+    alt = opts.alt_m if opts.alt_m is not None else mission.vehicles.altitude_m
+    speed = opts.speed_mps if opts.speed_mps is not None else mission.vehicles.speed_mps
+    try:
+        return plan_mission(mission.origin, tasks, alt, style=opts.style,
+                            tolerance_m=opts.tolerance_m, speed_mps=speed, end="rtl").items
+    except ValueError as exc:
+        raise EcondorError(f"cannot build the mission: {exc}") from None
+
+
+def _split(jobs: list[Job], mission: Mission, n: int, first_piece_id: int) -> list[list[Task]]:
+    """The jobs over ``n`` aircraft starting at home, as the DFC assigns them."""
+    homes = [(0.0, 0.0)] * n
+    return assign_jobs(jobs, homes, mission.algorithm.search_radius_m,
+                       first_piece_id=first_piece_id)
+
+
+def _from_yaml(mission: Mission, opts: ExportOptions) -> list[ExportedMission]:
+    n = opts.vehicles
+    if opts.spacing_m is not None:
+        r = mission.region
+        xs = np.arange(r.xmin, r.xmax + 1e-9, opts.spacing_m)
+        plans = _split(survey_jobs(r, xs), mission, n, 0)
+        what = "survey"
+    else:
+        jobs = diagonal_jobs(mission.region, n)
+        plans = [list(j.tasks) for j in jobs]
+        what = "diagonals"
+    return [ExportedMission(f"{mission.name}_{what}_v{k + 1}", _mission_items(mission, p, opts))
+            for k, p in enumerate(plans) if p]
+
+
+def _run_mission(run_dir: Path) -> Mission:
+    path = run_dir / "mission.yaml"
+    if not path.exists():
+        raise EcondorError(f"{run_dir}: no mission.yaml (runs before it was kept cannot be "
+                           "re-planned; export a saved mission with --iteration N --style trace)")
+    return load_mission(path)
+
+
+def _next_batch(run_dir: Path, opts: ExportOptions) -> list[ExportedMission]:
+    path = run_dir / "next_batch.json"
+    if not path.exists():
+        raise EcondorError(f"{run_dir}: no next_batch.json (the run did not finish, or "
+                           "predates it); pick a saved mission with --iteration N")
+    mission = _run_mission(run_dir)
+    iteration, jobs = read_next_batch(path)
+    if not jobs:
+        raise EcondorError(f"{path}: the next batch is empty (nothing left to fly)")
+    plans = _split(jobs, mission, opts.vehicles, 1000 * iteration)
+    return [ExportedMission(f"next{iteration:02d}_v{k + 1}", _mission_items(mission, p, opts))
+            for k, p in enumerate(plans) if p]
+
+
+def _saved(run_dir: Path, iteration: str, vehicle: int | None,
+           opts: ExportOptions) -> list[ExportedMission]:
+    missions = find_missions(run_dir)
+    if not missions:
+        raise EcondorError(f"{run_dir}: no missions saved (only MAVLink runs save them; "
+                           "in-process and study runs do not)")
+    number = None if iteration == "all" else _iteration_number(iteration)
+    chosen = _select(run_dir, missions, number, vehicle)
+    out = []
+    for m in chosen:
+        tasks_path = m.path.with_suffix(".tasks.json")
+        if tasks_path.exists():
+            items = _mission_items(_run_mission(run_dir), read_tasks(tasks_path), opts)
+        elif opts.style == TaskStyle.TRACE:
+            items = load_mission_file(m.path)  # as it was sent
+        else:
+            raise EcondorError(f"{m.path}: no {tasks_path.name} beside it (the estimated "
+                               "contours were not saved): only --style trace can export it")
+        out.append(ExportedMission(m.stem, items))
+    return out
+
+
+def _iteration_number(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise EcondorError(f"--iteration: expected a number or 'all', got {text!r}") from None
+    if n < 0:
+        raise EcondorError(f"--iteration: must be >= 0, got {n}")
+    return n
+
+
+def export_missions(source: PathLike, opts: ExportOptions, iteration: str | None = None,
+                    vehicle: int | None = None) -> tuple[list[ExportedMission], Mission | None]:
+    """The missions SOURCE gives (see the module docstring) and the mission YAML behind them
+    (for the geofence; None when a run directory does not keep it)."""
+    src = Path(source)
+    if src.is_file():
+        if iteration is not None or vehicle is not None:
+            raise EcondorError("--iteration and --vehicle apply to a run directory, not a "
+                               "mission YAML")
+        mission = load_mission(src)
+        return _from_yaml(mission, opts), mission
+    _check_run_dir(src)
+    if opts.spacing_m is not None:
+        raise EcondorError("--spacing-m applies to a mission YAML, not a run directory")
+    if iteration is not None or vehicle is not None:
+        found = _saved(src, iteration or "all", vehicle, opts)
+        kept = src / "mission.yaml"
+        return found, load_mission(kept) if kept.exists() else None
+    return _next_batch(src, opts), _run_mission(src)
+
+
+def fence_polygon(region: Region, origin: Origin, margin_m: float) -> list[tuple[float, float]]:
+    """The area's rectangle, ``margin_m`` outside it, as ``(lat, lon)`` vertices."""
+    x0, x1 = region.xmin - margin_m, region.xmax + margin_m
+    y0, y1 = region.ymin - margin_m, region.ymax + margin_m
+    corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    out = []
+    for x, y in corners:
+        lat, lon, _ = origin.to_global(x, y)
+        out.append((round(lat, 7), round(lon, 7)))
+    return out
 
 
 _SUFFIX = {"wpl": ".waypoints", "plan": ".plan", "geojson": ".geojson"}
@@ -639,53 +472,78 @@ def _is_dir_target(out: PathLike) -> bool:
 
 
 def export_cli(args: argparse.Namespace) -> int:
-    """``econdor export RUN_DIR --format wpl|plan|geojson --out PATH [--iteration N]
-    [--vehicle ID]``; prints the paths written."""
-    run_dir = Path(args.run_dir)
+    """``econdor export SOURCE --format wpl|plan|geojson --out PATH [--style waypoints|trace]
+    [--alt-m A] [--speed-mps S] [--tolerance-m T] [--vehicles N] [--spacing-m D]
+    [--iteration N|all] [--vehicle S] [--fence-margin-m M]``; prints the paths written."""
+    source = Path(args.source)
     fmt = args.format
-    out_arg = args.out
-    iteration = getattr(args, "iteration", None)
-    vehicle = getattr(args, "vehicle", None)
-    _check_run_dir(run_dir)
-    to_dir = _is_dir_target(out_arg)
-    out = Path(out_arg)
     if fmt not in _SUFFIX:
         raise EcondorError(f"unknown export format {fmt!r} (wpl, plan or geojson)")
-
+    out = Path(args.out)
+    to_dir = _is_dir_target(args.out)
+    iteration = getattr(args, "iteration", None)
+    vehicle = getattr(args, "vehicle", None)
     if fmt == "geojson":
+        if not source.is_dir():
+            raise EcondorError(f"{source}: GeoJSON is made from a run directory")
         target = out / "run.geojson" if to_dir else out
         target.parent.mkdir(parents=True, exist_ok=True)
-        print(write_geojson(target, run_dir, iteration=iteration, vehicle=vehicle))
+        number = None if iteration in (None, "all") else _iteration_number(iteration)
+        print(write_geojson(target, source, iteration=number, vehicle=vehicle))
         return 0
-
-    missions = find_missions(run_dir)
-    if not missions:
-        raise EcondorError(f"{run_dir}: no missions saved (only MAVLink runs save them; "
-                           "in-process and study runs do not)")
-    chosen = _select(run_dir, missions, iteration, vehicle)
-    if len(chosen) > 1 and not to_dir:
+    style = TaskStyle(getattr(args, "style", None) or TaskStyle.WAYPOINTS)
+    opts = ExportOptions(style=style, alt_m=getattr(args, "alt_m", None),
+                         speed_mps=getattr(args, "speed_mps", None),
+                         tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
+                         vehicles=getattr(args, "vehicles", None) or 1,
+                         spacing_m=getattr(args, "spacing_m", None))
+    try:
+        missions, mission = export_missions(source, opts, iteration, vehicle)
+    except MissionError as exc:
+        raise EcondorError(f"{source}: {exc}") from None
+    if len(missions) > 1 and not to_dir:
         raise EcondorError(
-            f"{len(chosen)} missions match; pick one with --iteration and --vehicle, or give "
-            "--out an existing directory (or a path ending in '/') to write them all")
-    summary = _read_summary(run_dir)
-    origin = summary.get("origin")
-    if not isinstance(origin, dict):
-        origin = {}
-    written = []
+            f"{len(missions)} missions match; pick one with --iteration and --vehicle (or "
+            "--vehicles 1), or give --out an existing directory (or a path ending in '/') to "
+            "write them all")
     if to_dir:
         out.mkdir(parents=True, exist_ok=True)
-    for m in chosen:
-        items = load_mission_file(m.path)
+    written = []
+    for m in missions:
         target = out / f"{m.stem}{_SUFFIX[fmt]}" if to_dir else out
         target.parent.mkdir(parents=True, exist_ok=True)
         if fmt == "wpl":
-            write_wpl(target, items)
+            write_wpl(target, m.items)
         else:
-            alt = origin.get("alt_m")
-            write_plan(target, items,
-                       home_alt_amsl_m=float(alt) if isinstance(alt, int | float) else None)
+            written_plan(target, m.items, mission, getattr(args, "fence_margin_m", None),
+                         _home_alt(source, mission))
         written.append(target)
     for p in written:
         print(p)
     return 0
 
+
+def _home_alt(source: Path, mission: Mission | None) -> float | None:
+    """Home altitude AMSL: the mission's origin, else a run's summary.json origin."""
+    if mission is not None:
+        return mission.origin.alt_m
+    if source.is_dir():
+        origin = _read_summary(source).get("origin")
+        alt = origin.get("alt_m") if isinstance(origin, dict) else None
+        if isinstance(alt, int | float):
+            return float(alt)
+    return None
+
+
+def written_plan(target: Path, items: list[MissionItemSpec], mission: Mission | None,
+                 margin_m: float | None, home_alt_amsl_m: float | None = None) -> Path:
+    """A ``.plan`` with the geofence and rally point when the mission YAML is known."""
+    if mission is None:
+        return write_plan(target, items, home_alt_amsl_m=home_alt_amsl_m)
+    o = mission.origin
+    margin = 10.0 if margin_m is None else margin_m
+    alt = next((it.z for it in items if it.command == mavlink.MAV_CMD_NAV_TAKEOFF),
+               mission.vehicles.altitude_m)
+    return write_plan(target, items, home_alt_amsl_m=o.alt_m,
+                      fence_polygons=[fence_polygon(mission.region, o, margin)],
+                      rally_points=[(round(o.lat_deg, 7), round(o.lon_deg, 7), float(alt))])

@@ -1,7 +1,9 @@
 """Start and stop a fleet of simulated vehicles (``sim-vehicle`` processes) for ``econdor run``.
 
 One process per vehicle, system ids 1..N, each with its log in ``LOG_DIR/v{sysid}.log``.
-:meth:`Fleet.stop` always ends them: SIGTERM, wait, then SIGKILL.
+:meth:`Fleet.stop` always ends them: SIGTERM, wait, then SIGKILL. Each vehicle is a
+:class:`VehicleKind`: a PX4 or ArduPilot personality, with or without the companion computer
+that runs the contour tracer (``econdor run --autopilot ardupilot,px4+companion``).
 """
 
 from __future__ import annotations
@@ -10,7 +12,59 @@ import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+
+from .errors import EcondorError
+
+AUTOPILOT_NAMES = ("px4", "ardupilot")
+
+
+@dataclass(frozen=True)
+class VehicleKind:
+    """A simulated vehicle's personality and whether a companion computer runs the tracer.
+
+    >>> VehicleKind.parse("ardupilot+companion")
+    VehicleKind(autopilot='ardupilot', companion=True)
+    >>> str(VehicleKind("px4", False))
+    'px4'
+    """
+
+    autopilot: str = "px4"
+    companion: bool = True
+
+    @classmethod
+    def parse(cls, text: str) -> VehicleKind:
+        name, plus, extra = text.strip().partition("+")
+        if name not in AUTOPILOT_NAMES or (plus and extra != "companion"):
+            raise EcondorError(f"--autopilot: {text!r} is not one of px4, ardupilot, "
+                               "px4+companion, ardupilot+companion")
+        return cls(name, bool(plus))
+
+    def args(self) -> list[str]:
+        """The ``sim-vehicle`` options for this kind."""
+        return ["--autopilot", self.autopilot, *(["--companion"] if self.companion else [])]
+
+    def __str__(self) -> str:
+        return self.autopilot + ("+companion" if self.companion else "")
+
+
+DEFAULT_KIND = VehicleKind("px4", True)
+"""Without ``--autopilot``: PX4 habits with the tracer on board (the simulated vehicle)."""
+
+
+def parse_kinds(text: str) -> list[VehicleKind]:
+    """A comma list of kinds, assigned to vehicles 1, 2, ... in turn (cycled)."""
+    kinds = [VehicleKind.parse(t) for t in text.split(",") if t.strip()]
+    if not kinds:
+        raise EcondorError("--autopilot: empty list")
+    return kinds
+
+
+def kinds_for(n: int, kinds: Sequence[VehicleKind]) -> list[VehicleKind]:
+    """The kind of each of ``n`` vehicles: ``kinds`` repeated in turn."""
+    return [kinds[i % len(kinds)] for i in range(n)]
 
 
 def sim_vehicle_command() -> list[str]:
@@ -30,12 +84,15 @@ class Fleet:
     def start(self, count: int, connect: str, *, speedup: float | None = None,
               seed: int | None = None, first_sysid: int = 1,
               extra: dict[int, list[str]] | None = None,
+              kinds: Sequence[VehicleKind] = (DEFAULT_KIND,),
               signing_key_file: str | Path | None = None) -> None:
-        """Launch ``count`` vehicles sending to ``connect`` (``udpout:HOST:PORT``)."""
+        """Launch ``count`` vehicles sending to ``connect`` (``udpout:HOST:PORT``), of
+        ``kinds`` in turn."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        for sysid in range(first_sysid, first_sysid + count):
+        for i, sysid in enumerate(range(first_sysid, first_sysid + count)):
             cmd = [*sim_vehicle_command(), "--sysid", str(sysid), "--mission",
-                   str(self.mission_path), "--connect", connect]
+                   str(self.mission_path), "--connect", connect,
+                   *kinds[i % len(kinds)].args()]
             if speedup is not None:
                 cmd += ["--speedup", repr(float(speedup))]
             if seed is not None:

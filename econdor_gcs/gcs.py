@@ -15,9 +15,11 @@ Pieces, from the bottom up:
     sample, message and router event), not on polling.
 :class:`MavlinkExecutor`
     The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
-    :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home, takeoff,
-    one item per task" is uploaded, the vehicle armed and started with
-    ``MAV_CMD_MISSION_START`` from item 1, and its samples collected until it reports
+    :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home,
+    takeoff, DO_CHANGE_SPEED, the tasks" is uploaded (:func:`~.link.mission.plan_mission`;
+    a contour piece as a trace item, or as the waypoint polyline of the estimated contour for
+    a vehicle that refused trace items), the vehicle started the autopilot's way
+    (:func:`~.link.autopilots.start_mission`), and its samples collected until it reports
     ``MISSION_ITEM_REACHED`` for its last task item.
 :func:`run_mission_cli`
     The ``econdor run`` command: run directory, simulated fleet (or ``--connect``), live
@@ -25,7 +27,7 @@ Pieces, from the bottom up:
 
 Conventions and choices (see also DESIGN.md §4):
 
-* **No end item.** The missions end with the last task (``build_mission(end="none")``):
+* **No end item.** The missions end with the last task (``plan_mission(end="none")``):
   a vehicle that completes its mission holds where it is (AUTO.LOITER), exactly like the
   in-process vehicles keep their position between iterations. A ``LOITER_UNLIM`` at the
   last task's *point* would send a tracer back to the start of its contour piece (traces
@@ -35,7 +37,9 @@ Conventions and choices (see also DESIGN.md §4):
   reports no phases (a stock autopilot) gets the phase its mission item implies.
 * **Distances.** ``traced_m`` and trace outcomes come from the vehicle's
   ``DEBUG_FLOAT_ARRAY("TRACE")`` reports (:class:`~.core.tasks.TraceReport`); STATUSTEXT is
-  for people only (the live display shows the last one). ``flown_m`` is the path
+  for people only (the live display shows the last one). A contour flown as waypoints is
+  ``reached`` when its last waypoint is, and its traced distance is the path flown after its
+  first waypoint. ``flown_m`` is the path
   length of the reported sample positions, starting at the vehicle's position when the
   flight began (the vehicle reports no odometer; samples come every sensor tick of
   horizontal motion, so this misses only the braking drift while hovering).
@@ -64,7 +68,7 @@ import time
 from collections.abc import Callable, Coroutine, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -79,17 +83,27 @@ from .core.tasks import (
     SampleLog,
     Task,
     TaskOutcome,
+    TaskStyle,
     TraceReport,
     TraceTask,
 )
-from .errors import EcondorError, LinkError, ProtocolError, RunError, VehicleTimeout
-from .export import write_wpl
+from .errors import (
+    EcondorError,
+    LinkError,
+    MissionRejected,
+    ProtocolError,
+    RunError,
+    VehicleTimeout,
+)
+from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import MAVLinkMessage, mavlink
+from .link.forward import Forwarder
 from .link.mission import (
     MAV_CMD_WAYPOINT_USER_1,
     MissionItemSpec,
-    build_mission,
+    MissionPlan,
     fence_items,
+    plan_mission,
 )
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import (
@@ -101,8 +115,12 @@ from .link.router import (
 )
 from .link.tlog import TlogWriter
 from .mission import Mission
+from .mission_files import write_wpl
 from .rundir import RunDirMode, RunLog, Severity
 from .signing import SigningKey, load_signing_key
+
+if TYPE_CHECKING:
+    from .fleet import VehicleKind
 
 __all__ = [
     "MavlinkExecutor",
@@ -121,6 +139,11 @@ SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
 LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+UPLOAD_ATTEMPTS = 3
+"""Uploads of one mission to a vehicle that says no transfer is running (MAV_MISSION_RESULT
+INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
+RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR})
+"""MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
 RECOVERY_ROUNDS = 200
 """At most this many rounds of resend requests for one vehicle's missing samples ..."""
 RECOVERY_STALLED_ROUNDS = 4
@@ -183,12 +206,19 @@ class StatusAssembler:
 
 @dataclass
 class Flight:
-    """What one vehicle did for one mission, as seen from the ground."""
+    """What one vehicle did for one mission, as seen from the ground.
+
+    ``task_seqs[k]`` is the ``(first, last)`` mission seq of task ``k`` (default: one item
+    per task from ``first_seq``); ``style`` how its contour pieces were given (trace items,
+    or waypoint polylines of the estimated contours).
+    """
 
     index: int
     sysid: int
     tasks: list[Task]
     first_seq: int = 2              # mission seq of the first task (0 home, 1 takeoff)
+    task_seqs: list[tuple[int, int]] = field(default_factory=list)
+    style: TaskStyle = TaskStyle.TRACE
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_ms: int | None = None
     rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
@@ -203,9 +233,23 @@ class Flight:
     reached: set[int] = field(default_factory=set)
     """Mission items the vehicle reported reached."""
 
+    def __post_init__(self) -> None:
+        if not self.task_seqs:
+            self.task_seqs = [(self.first_seq + k, self.first_seq + k)
+                              for k in range(len(self.tasks))]
+        if len(self.task_seqs) != len(self.tasks):
+            raise ValueError(f"{len(self.tasks)} tasks but {len(self.task_seqs)} item ranges")
+
     @property
     def last_seq(self) -> int:
-        return self.first_seq + len(self.tasks) - 1
+        return self.task_seqs[-1][1] if self.task_seqs else -1
+
+    def task_at(self, seq: int) -> Task | None:
+        """The task mission item ``seq`` belongs to (None for home, takeoff, speed)."""
+        for task, (first, last) in zip(self.tasks, self.task_seqs, strict=True):
+            if first <= seq <= last:
+                return task
+        return None
 
 
 def build_report(flight: Flight) -> FlightReport:
@@ -224,16 +268,22 @@ def build_report(flight: Flight) -> FlightReport:
         flown = 0.0
         end = flight.start_xy
     outcomes: list[TaskOutcome] = []
-    for k, task in enumerate(flight.tasks):
-        item_m = flight.item_flown_m.get(flight.first_seq + k, 0.0)
-        if isinstance(task, TraceTask):
+    flown_on = flight.item_flown_m
+    for task, (first, last) in zip(flight.tasks, flight.task_seqs, strict=True):
+        item_m = sum(flown_on.get(seq, 0.0) for seq in range(first, last + 1))
+        reached = flight.done or last in flight.reached
+        if isinstance(task, TraceTask) and flight.style == TaskStyle.WAYPOINTS:
+            # the estimated contour, flown as waypoints: along it from the first waypoint on
+            along_m = sum(flown_on.get(seq, 0.0) for seq in range(first + 1, last + 1))
+            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
+            outcomes.append(TaskOutcome(task, status, item_m, along_m if reached else 0.0))
+        elif isinstance(task, TraceTask):
             rep = flight.pieces.get(task.piece_id)
             if rep is None:
                 outcomes.append(TaskOutcome(task, OutcomeStatus.UNREPORTED, item_m, 0.0))
             else:
                 outcomes.append(TaskOutcome(task, rep.status, rep.flown_m, rep.traced_m))
         else:
-            reached = flight.done or flight.first_seq + k in flight.reached
             status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
             outcomes.append(TaskOutcome(task, status, item_m))
     traced = float(sum(o.traced_m for o in outcomes))
@@ -349,8 +399,17 @@ class VehicleState:
     sysid: int
     current_seq: int | None = None
     items: list[MissionItemSpec] = field(default_factory=list)
+    item_phases: dict[int, Phase] = field(default_factory=dict)
+    """The phase each item of the uploaded mission implies (for vehicles that report none)."""
     item_phase: Phase = Phase.TRANSIT
-    """The phase the current mission item implies (for vehicles that report none)."""
+    """The phase the current mission item implies."""
+    style: TaskStyle | None = None
+    """How this vehicle gets contour pieces: trace items until it refuses one (None: it has
+    not been given any yet)."""
+    tasks_flown: dict[str, int] = field(
+        default_factory=lambda: {"trace": 0, "waypoints": 0, "legs": 0})
+    """Tasks flown to an outcome (since this station started): contour pieces as ``trace``
+    items or as ``waypoints`` polylines, and plain waypoint ``legs`` (initiation, survey)."""
     phases: PhaseTrack = field(default_factory=PhaseTrack)
     last_text: str = ""
     """The vehicle's last STATUSTEXT, for people."""
@@ -445,10 +504,18 @@ class MavlinkExecutor:
     timeout_s:
         Per-message timeout of commands / transfers is the link layer's; this bounds a whole
         mission transfer and the wait for the first position.
+    tolerance_m:
+        Douglas-Peucker tolerance of the waypoint polylines given to vehicles that refuse
+        contour items (stock autopilots).
+
+    Each vehicle gets contour pieces as trace items until it refuses one with
+    ``MAV_MISSION_UNSUPPORTED``; from then on (that mission included) it gets the estimated
+    contour of each piece as a waypoint polyline (:attr:`VehicleState.style`).
     """
 
     def __init__(self, station: Station, mission: Mission, sysids: Sequence[int],
-                 missions_dir: Path | None = None, timeout_s: float = 20.0) -> None:
+                 missions_dir: Path | None = None, timeout_s: float = 20.0,
+                 tolerance_m: float = 1.0) -> None:
         self.station = station
         self.router = station.router
         self.mission = mission
@@ -456,6 +523,7 @@ class MavlinkExecutor:
         self.n_vehicles = len(self.sysids)
         self.missions_dir = missions_dir
         self.timeout_s = timeout_s
+        self.tolerance_m = tolerance_m
         self.origin = mission.origin
         self._changed = asyncio.Event()
         """Set by every sample, message and event from the vehicles (on the loop thread, which
@@ -557,9 +625,7 @@ class MavlinkExecutor:
                 v.current_seq = msg.seq
                 v.item_since = time.monotonic()
                 v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
-                is_trace = (0 <= msg.seq < len(v.items)
-                            and v.items[msg.seq].command == MAV_CMD_WAYPOINT_USER_1)
-                v.item_phase = Phase.SEARCH if is_trace else Phase.TRANSIT
+                v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
         elif kind == "MISSION_ITEM_REACHED":
             if f is not None:
                 f.reached.add(msg.seq)
@@ -623,12 +689,24 @@ class MavlinkExecutor:
         self.station.call(self._wait_positions())
 
     async def _wait_positions(self) -> None:
-        for sysid in self.sysids:
-            with contextlib.suppress(LinkError):
-                self.router.request_data_streams(sysid)
+        """Ask for the streams (ArduPilot sends only heartbeats until asked; the request is
+        repeated each second in case it was lost) and wait for a position from everyone."""
+        requested = {"at": -math.inf}
+
+        def ask() -> None:
+            now = time.monotonic()
+            if now - requested["at"] < 1.0:
+                return
+            requested["at"] = now
+            for sysid in self.sysids:
+                if self.router.vehicles[sysid].lat_deg is None:
+                    self.router.request_data_streams(sysid)
+
         deadline = time.monotonic() + self.timeout_s
+        ask()
         if not await self._until(lambda: all(self.router.vehicles[s].lat_deg is not None
-                                             for s in self.sysids), deadline=deadline):
+                                             for s in self.sysids), on_tick=ask,
+                                 deadline=deadline):
             missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
             raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
                                  f"{self.timeout_s:g} s")
@@ -694,12 +772,15 @@ class MavlinkExecutor:
         return self.station.call(self._finish())
 
     # -- the flights ----------------------------------------------------------------------------
-    def _begin(self, v: VehicleState, tasks: list[Task]) -> Flight:
+    def _begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
+               ) -> Flight:
         self._convert(v)  # samples so far belong to the previous state
         link = self.router.vehicles[v.sysid]
         # where it hovers now (the in-process vehicles also start from rest after braking)
         start = self._position(v.sysid)
-        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms)
+        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
+                   task_seqs=list(plan.task_seqs) if plan else [],
+                   style=plan.style if plan else TaskStyle.TRACE)
         f.rows.extend(v.stray)  # nothing is ever dropped
         f.row_seqs.extend([LATE] * len(v.stray))
         v.stray.clear()
@@ -714,7 +795,12 @@ class MavlinkExecutor:
             return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self._position(v.sysid),
                                 0.0)
         self._settle(v, f)
-        return build_report(f)
+        report = build_report(f)
+        for o in report.outcomes:
+            if o.status != OutcomeStatus.UNREPORTED:
+                way = f.style.value if isinstance(o.task, TraceTask) else "legs"
+                v.tasks_flown[way] += 1
+        return report
 
     def _settle(self, v: VehicleState, f: Flight) -> None:
         """Put a flight's samples in time order (resent ones arrive late), give each the
@@ -762,9 +848,13 @@ class MavlinkExecutor:
         return SampleLog.concat(logs)
 
     def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
-                      round_no: int = 0) -> None:
+                      tasks: Sequence[Task], round_no: int = 0) -> None:
+        """``iter{NN}_v{sysid}.json`` (items), ``.waypoints`` (QGC WPL) and ``.tasks.json``
+        (the tasks, with the estimated contours, for ``econdor export --iteration``)."""
         if self.missions_dir is None:
             return
+        from .plans import write_tasks
+
         self.missions_dir.mkdir(parents=True, exist_ok=True)
         # a second round (pieces of a lost vehicle) in the same iteration gets its own file
         suffix = f"_r{round_no}" if round_no else ""
@@ -772,9 +862,53 @@ class MavlinkExecutor:
         try:
             stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
             write_wpl(stem.with_suffix(".waypoints"), items)
+            write_tasks(stem.with_suffix(".tasks.json"), tasks)
         except OSError as exc:
             raise RunError(f"cannot save the mission of vehicle {sysid} in {stem.parent}: "
                            f"{exc.strerror or exc}") from exc
+
+    async def _plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
+                               round_no: int) -> None:
+        """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
+        refused a trace item (the flight begins first: a failed upload leaves its tasks
+        unfinished, for the others).
+
+        A vehicle's refusal is its MISSION_ACK to the refused item; when that ACK is lost we
+        send the item again and a vehicle with no transfer running answers INVALID_SEQUENCE
+        (ERROR: it gave up waiting). Either starts the upload again, up to
+        :data:`UPLOAD_ATTEMPTS` times."""
+        style = v.style or TaskStyle.TRACE
+        f: Flight | None = None
+        attempts = 0
+        while True:
+            attempts += 1
+            plan = plan_mission(self.origin, tasks, self.altitude_m, style=style,
+                                tolerance_m=self.tolerance_m, home=self.home,
+                                speed_mps=self.mission.vehicles.speed_mps, end="none")
+            self._save_mission(iteration, v.sysid, plan.items, tasks, round_no)
+            if f is None:
+                f = self._begin(v, tasks, plan)
+            else:
+                f.task_seqs, f.style = list(plan.task_seqs), plan.style
+            v.item_phases = dict(plan.item_phases)
+            try:
+                await self._upload(v, plan.items)
+            except MissionRejected as exc:
+                refused_trace = (exc.result == mavlink.MAV_MISSION_UNSUPPORTED
+                                 and exc.command == MAV_CMD_WAYPOINT_USER_1)
+                if exc.result in RESTART_RESULTS and attempts < UPLOAD_ATTEMPTS:
+                    log.warning("vehicle %d: %s; uploading the mission again", v.sysid, exc)
+                    continue
+                if not (refused_trace and style == TaskStyle.TRACE):
+                    raise
+                log.info("vehicle %d refused a contour item: its pieces go as waypoints",
+                         v.sysid)
+                style = v.style = TaskStyle.WAYPOINTS
+                attempts = 0
+                continue
+            if any(isinstance(t, TraceTask) for t in tasks):
+                v.style = style
+            return
 
     async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
         v.status = "uploading"
@@ -795,10 +929,8 @@ class MavlinkExecutor:
         await self.router.return_to_launch(v.sysid)
 
     async def _start(self, v: VehicleState) -> None:
-        v.status = "arming"
-        await self.router.arm(v.sysid)
         v.status = "starting"
-        await self.router.start_mission(v.sysid, 1, 0)
+        await start_mission(self.router, v.sysid, 1, self.timeout_s)
         v.status = "flying"
 
     @staticmethod
@@ -856,12 +988,11 @@ class MavlinkExecutor:
         if f is not None and not f.tasks:  # home, then down
             return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S + \
                 2 * self.altitude_m / DESCENT_RATE_MPS
-        if f is not None and seq is not None and f.first_seq <= seq <= f.last_seq:
-            task = f.tasks[seq - f.first_seq]
-            if isinstance(task, TraceTask):
-                # the search, then the trace (up to its limit; a closed one fits the area)
-                length += 2 * math.pi * task.search_radius_m + (
-                    task.max_length_m if task.max_length_m > 0 else 4 * length)
+        task = f.task_at(seq) if f is not None and seq is not None else None
+        if isinstance(task, TraceTask) and f is not None and f.style == TaskStyle.TRACE:
+            # the search, then the trace (up to its limit; a closed one fits the area)
+            length += 2 * math.pi * task.search_radius_m + (
+                task.max_length_m if task.max_length_m > 0 else 4 * length)
         return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S
 
     def _check_progress(self, flying: list[VehicleState]) -> None:
@@ -963,12 +1094,9 @@ class MavlinkExecutor:
             v = self.vehicles[sysid]
             if not tasks or v.lost is not None:
                 continue
-            items = build_mission(self.origin, tasks, self.altitude_m, home=self.home,
-                                  end="none")
-            self._save_mission(iteration, sysid, items, round_no)
-            self._begin(v, tasks)
             flying.append(v)
-            jobs.append(self._tolerant(v, self._upload(v, items)))
+            jobs.append(self._tolerant(v, self._plan_and_upload(v, tasks, iteration,
+                                                                 round_no)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await self._all(jobs)
@@ -1140,8 +1268,8 @@ class MavlinkExecutor:
     async def _recover_reports(self, v: VehicleState, first: int, last: int) -> None:
         """Ask again for the TRACE reports of trace items that have none (lost on the way)."""
         f = v.flight
-        if f is None:
-            return
+        if f is None or f.style != TaskStyle.TRACE:
+            return  # contours flown as waypoints have no TRACE reports
         for _ in range(RECOVERY_ROUNDS):
             missing = [t.piece_id for t in f.tasks
                        if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
@@ -1211,6 +1339,25 @@ class MavlinkExecutor:
             ))
         return rows
 
+    def fleet_summary(self, started: Sequence[VehicleKind] | None = None
+                      ) -> list[dict[str, Any]]:
+        """Per vehicle: system id, ``autopilot`` (from its HEARTBEAT), the kind this run
+        started (``started_as``, None for vehicles started elsewhere), ``mode``: how it was
+        given contour pieces (``trace`` items, ``waypoints`` polylines, or None if it was
+        given none), and ``tasks_flown``: how many tasks it flew to an outcome each way
+        (:attr:`VehicleState.tasks_flown`)."""
+        out = []
+        for i, (sysid, v) in enumerate(self.vehicles.items()):
+            link = self.router.vehicles.get(sysid)
+            out.append({
+                "sysid": sysid,
+                "autopilot": AutopilotKind.of(link.autopilot).value if link else None,
+                "started_as": str(started[i]) if started else None,
+                "mode": v.style.value if v.style else None,
+                "tasks_flown": dict(v.tasks_flown),
+            })
+        return out
+
     @staticmethod
     def _phase_now(v: VehicleState) -> Phase:
         return v.phases.latest if v.phases.known else v.item_phase
@@ -1261,8 +1408,18 @@ def run_mission(
     signing_key_file: Path | None = None,
     web: str | None = None,
     announce: Callable[[str], None] | None = None,
+    autopilots: Sequence[VehicleKind] | None = None,
+    tolerance_m: float = 1.0,
+    forward: str | None = None,
+    forward_commands: bool = False,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
+
+    ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
+    PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
+    waypoint polylines for vehicles that refuse contour items. ``forward`` is a watcher's
+    ``udpout:HOST:PORT`` that gets every vehicle message (:mod:`.link.forward`); what it sends
+    back reaches the vehicles only with ``forward_commands``.
 
     ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
     resume a run use :func:`resume_mission`. With ``signing_key_file`` (see
@@ -1275,7 +1432,8 @@ def run_mission(
     (samples so far, tlog, ``summary.json`` with ``"error"``).
     """
     from .dfc import Dfc
-    from .fleet import Fleet
+    from .fleet import DEFAULT_KIND, Fleet, kinds_for
+    from .plans import save_next_batch
     from .rundir import RunDir, read_checkpoint
 
     wall0 = time.perf_counter()
@@ -1286,6 +1444,7 @@ def run_mission(
     planner = planner or mission.algorithm.planner
     mission = mission.with_vehicles(count=n, speedup=speed)
     out = Path(out)
+    kinds = list(autopilots or [DEFAULT_KIND])
     resume = mode == RunDirMode.RESUME
     replay = read_checkpoint(out) if resume else []
     rd = RunDir(out, mode, grid=mission.grid)
@@ -1297,11 +1456,14 @@ def run_mission(
             "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
             "mission_path": str(mission_path.resolve()) if mission_path else None,
             "signed": signing is not None,
+            "autopilots": [str(k) for k in kinds] if connect is None else None,
+            "tolerance_m": tolerance_m,
         }, mission_text)
     tlog = TlogWriter(out / "telemetry.tlog", append=resume)
     station = Station(connect or "udpin:127.0.0.1:0", tlog,
                       heartbeat_timeout_s=min(timeout_s, LOSS_SILENCE_S), signing=signing)
     _log_station(station.router, runlog)
+    forwarder: Forwarder | None = None
     fleet: Fleet | None = None
     executor: MavlinkExecutor | None = None
     dfc: Dfc | None = None
@@ -1336,12 +1498,15 @@ def run_mission(
                 if announce is not None:
                     announce(url)
             host, port = station.start()
+            if forward is not None:
+                forwarder = station.call(
+                    Forwarder(station.router, forward, forward_commands).start())
             if connect is None:
                 if mission_path is None:
                     raise RunError("run_mission: mission_path is needed to start vehicles")
                 fleet = Fleet(mission_path, out / "vehicles")
                 fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed,
-                            signing_key_file=signing_key_file)
+                            signing_key_file=signing_key_file, kinds=kinds)
                 sysids = list(range(1, n + 1))
                 try:
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
@@ -1350,7 +1515,8 @@ def run_mission(
             else:
                 sysids = station.call(_wait_count(station.router, n, timeout_s))
             t_setup = time.perf_counter() - wall0
-            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s)
+            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
+                                       tolerance_m=tolerance_m)
             executor.wait_ready()
             truth = mission.build_field(seed)
             progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
@@ -1380,7 +1546,12 @@ def run_mission(
             result.wall_s = time.perf_counter() - wall0
             result.sim_s = executor.sim_s
             parser = station.router.parser
+            save_next_batch(out, dfc.planner, mission, result)
+            started = kinds_for(n, kinds) if connect is None else None
             extra = {**base, "sysids": sysids, "timings": timings,
+                     "fleet": executor.fleet_summary(started),
+                     "forward": ({"to": forward, "commands": forward_commands,
+                                  **forwarder.stats} if forwarder is not None else None),
                      "samples_dropped_unpaired": station.router.pairer.dropped,
                      "report_errors": executor.report_errors,
                      "sample_recovery": executor.sample_accounting(),
@@ -1417,6 +1588,8 @@ def run_mission(
             live.stop()
         if page is not None:
             page.close(None)
+        if forwarder is not None:
+            station.loop.call_soon_threadsafe(forwarder.close)
         station.close()
         if fleet is not None:
             fleet.stop()
@@ -1509,6 +1682,7 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
     ``connect`` (default: the run's own ``--connect``). Samples of the interrupted flight
     are kept in ``samples_interrupted.csv`` and not used.
     """
+    from .fleet import VehicleKind
     from .mission import parse_mission
     from .rundir import read_run_config
 
@@ -1534,7 +1708,9 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         connect=connect if connect is not None else config.get("connect"),
         timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
         quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
-        signing_key_file=signing_key_file)
+        signing_key_file=signing_key_file,
+        autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
+        tolerance_m=float(config.get("tolerance_m", 1.0)))
 
 
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
@@ -1600,10 +1776,22 @@ async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
 
 def run_mission_cli(args: Any) -> int:
     """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
+    from .fleet import parse_kinds
     from .mission import load_mission
 
     web = getattr(args, "web", None)
+    kinds = parse_kinds(args.autopilot) if getattr(args, "autopilot", None) else None
+    forward = getattr(args, "forward", None)
+    forward_commands = bool(getattr(args, "forward_commands", False))
+    if forward_commands and not forward:
+        raise EcondorError("--forward-commands needs --forward udpout:HOST:PORT")
+    if kinds is not None and args.connect:
+        raise EcondorError("--autopilot chooses the vehicles econdor starts; with --connect "
+                           "the vehicles are started elsewhere")
     if args.resume is not None:
+        if kinds is not None:
+            raise EcondorError("--autopilot: a resumed run starts the vehicles it started "
+                               "before (its run.json)")
         out = args.resume
         summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
                                  timeout_s=args.timeout, signing_key_file=args.signing_key)
@@ -1616,7 +1804,10 @@ def run_mission_cli(args: Any) -> int:
                               timeout_s=args.timeout, quiet=args.quiet,
                               mission_path=args.mission, mode=mode,
                               signing_key_file=args.signing_key, web=web,
-                              announce=lambda url: print(f"web: {url}", flush=True))
+                              announce=lambda url: print(f"web: {url}", flush=True),
+                              autopilots=kinds,
+                              tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
+                              forward=forward, forward_commands=forward_commands)
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "

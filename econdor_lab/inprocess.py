@@ -1,22 +1,41 @@
-"""The in-process executor: the same tracer as the MAVLink vehicle, called directly."""
+"""The in-process executor: the same tracer as the MAVLink vehicle, called directly.
+
+With ``style=TaskStyle.WAYPOINTS`` the vehicles fly as stock autopilots do in ``econdor run``:
+each contour piece as the waypoint polyline of its *estimated* contour
+(:func:`econdor_gcs.core.waypoints.task_waypoints`), the first waypoint reached in transit
+and the legs after it counted as traced (``Phase.TRACE``), exactly as the MAVLink station
+accounts for them.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from econdor_gcs.core.fields import Field
-from econdor_gcs.core.tasks import FlightReport, Phase, Task, Waypoint
+from econdor_gcs.core.tasks import (
+    FlightReport,
+    OutcomeStatus,
+    Phase,
+    SampleLog,
+    Task,
+    TaskOutcome,
+    TaskStyle,
+    TraceTask,
+    Waypoint,
+)
+from econdor_gcs.core.waypoints import task_waypoints
 from econdor_gcs.dfc import Dfc, Progress, RunResult
 from econdor_gcs.errors import RunError
 from econdor_gcs.gcs import FENCE_MARGIN_M
 from econdor_gcs.link.mission import fence_items
 from econdor_gcs.mission import Mission
 from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
-from sim_vehicle.body import SimBody
-from sim_vehicle.executor import run_plan
+from sim_vehicle.body import Sample, SimBody
+from sim_vehicle.executor import run_plan, run_task
 from sim_vehicle.fence import Fence
 from sim_vehicle.kinematics import VehicleLimits
 from sim_vehicle.tracer import TracerParams
@@ -41,8 +60,11 @@ class InProcessExecutor:
     """
 
     def __init__(self, mission: Mission, field: Field, n_vehicles: int | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, style: TaskStyle = TaskStyle.TRACE,
+                 tolerance_m: float = 1.0) -> None:
         v = mission.vehicles
+        self.style = style
+        self.tolerance_m = tolerance_m
         self.n_vehicles = n_vehicles or v.count
         self.home = (mission.region.xmin, mission.region.ymin)
         limits = VehicleLimits(max_speed_mps=v.max_speed_mps, max_accel_mps2=v.max_accel_mps2,
@@ -65,9 +87,47 @@ class InProcessExecutor:
     def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         reports = []
         for i, (body, tasks) in enumerate(zip(self.bodies, plans, strict=True)):
-            reports.append(run_plan(body, tasks, vehicle=i, params=self.params))
+            if self.style == TaskStyle.WAYPOINTS:
+                reports.append(self._fly_waypoints(body, tasks, i))
+            else:
+                reports.append(run_plan(body, tasks, vehicle=i, params=self.params))
             _brake(body)
         return reports
+
+    def _fly_waypoints(self, body: SimBody, tasks: list[Task], vehicle: int) -> FlightReport:
+        """Each task as waypoints (a trace task: its estimated contour, simplified)."""
+        t0_s, odo0_m = body.t_s, body.odometer_m
+        rows: list[tuple[float, float, float, float, int]] = []
+        outcomes: list[TaskOutcome] = []
+
+        def leg(wp: Waypoint, phase: Phase) -> tuple[float, OutcomeStatus]:
+            odo = body.odometer_m
+            gen: Generator[Sample, None, TaskOutcome] = run_task(body, wp, self.params)
+            while True:
+                try:
+                    s = next(gen)
+                except StopIteration as stop:
+                    return body.odometer_m - odo, stop.value.status
+                rows.append((s.t_s, s.x_m, s.y_m, s.value, int(phase)))
+
+        for task in tasks:
+            wps = task_waypoints(task, self.tolerance_m)
+            along = isinstance(task, TraceTask)
+            legs = [leg(wp, Phase.TRACE if along and k > 0 else Phase.TRANSIT)
+                    for k, wp in enumerate(wps)]
+            flown = [m for m, _ in legs]
+            # a leg whose time budget ran out makes the whole task unreachable
+            status = next((st for _, st in legs if st != OutcomeStatus.REACHED),
+                          OutcomeStatus.REACHED)
+            outcomes.append(TaskOutcome(task, status, sum(flown),
+                                        sum(flown[1:]) if along else 0.0))
+        a = np.asarray(rows, dtype=float).reshape(-1, 5)
+        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
+                        a[:, 4].astype(np.int8), np.full(len(a), vehicle, dtype=np.int16))
+        return FlightReport(vehicle=vehicle, samples=log, flown_m=body.odometer_m - odo0_m,
+                            traced_m=float(sum(o.traced_m for o in outcomes)),
+                            outcomes=outcomes, end_x_m=body.x_m, end_y_m=body.y_m,
+                            sim_s=body.t_s - t0_s)
 
     def state(self) -> dict[str, Any]:
         """The vehicles' state between flights (what a resumed run restores)."""
@@ -88,7 +148,8 @@ class InProcessExecutor:
 def run_inprocess(mission: Mission, out: str | Path, *, planner: str | None = None,
                   seed: int | None = None, n_vehicles: int | None = None,
                   mode: RunDirMode = RunDirMode.NEW, progress: Progress | None = None,
-                  extra: dict[str, Any] | None = None) -> RunResult:
+                  extra: dict[str, Any] | None = None, style: TaskStyle = TaskStyle.TRACE,
+                  tolerance_m: float = 1.0) -> RunResult:
     """One in-process DFC run into the run directory ``out``.
 
     With ``mode=RunDirMode.RESUME`` the run recorded in ``out`` (its ``run.json`` gives the
@@ -116,7 +177,8 @@ def run_inprocess(mission: Mission, out: str | Path, *, planner: str | None = No
             rd.write_run_config({"transport": "in-process", "mission": mission.name,
                                  "planner": planner, "seed": seed, "vehicles": n}, None)
         field = mission.build_field(seed)
-        executor = InProcessExecutor(mission, field, n_vehicles=n, seed=seed)
+        executor = InProcessExecutor(mission, field, n_vehicles=n, seed=seed, style=style,
+                                     tolerance_m=tolerance_m)
         dfc = Dfc(mission, executor, planner=planner, truth=field, seed=seed,
                   progress=progress, on_flight=rd.record_flight, replay=replay)
         result = dfc.run()

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from econdor_gcs.core.planners import PLANNER_NAMES as PLANNERS
+from econdor_gcs.core.tasks import TaskStyle
 from econdor_gcs.dfc import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import Mission
@@ -61,17 +62,23 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def run_seed(mission: Mission, seed: int, planner: str, out_dir: str | None,
-             n_vehicles: int | None = None) -> dict[str, Any]:
-    """One in-process run. Returns ``{"summary": ..., "rows": [...], "run_dir": ...}``."""
+             n_vehicles: int | None = None, style: TaskStyle = TaskStyle.TRACE,
+             tolerance_m: float = 1.0) -> dict[str, Any]:
+    """One in-process run. Returns ``{"summary": ..., "rows": [...], "run_dir": ...}``.
+
+    ``style`` is how the vehicles get contour pieces (``WAYPOINTS``: as stock autopilots,
+    the estimated contour simplified to ``tolerance_m``)."""
     run_dir = None
     if out_dir is not None:
         # a study owns its runs/ folder: a re-run of the same study replaces its runs
         run_dir = str(Path(out_dir) / "runs" / f"{planner}-{seed}")
         result = run_inprocess(mission, run_dir, planner=planner, seed=seed,
-                               n_vehicles=n_vehicles, mode=RunDirMode.FORCE)
+                               n_vehicles=n_vehicles, mode=RunDirMode.FORCE, style=style,
+                               tolerance_m=tolerance_m)
     else:
         field = mission.build_field(seed)
-        executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed)
+        executor = InProcessExecutor(mission, field, n_vehicles=n_vehicles, seed=seed,
+                                     style=style, tolerance_m=tolerance_m)
         result = Dfc(mission, executor, planner=planner, truth=field, seed=seed).run()
     rows = [study_row(seed, planner, r) for r in result.records]
     return {"summary": result.summary(), "rows": rows, "run_dir": run_dir,

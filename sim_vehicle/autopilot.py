@@ -48,8 +48,8 @@ from econdor_gcs.core.tasks import (
 
 from .body import Sample
 from .fence import Fence
-from .mission_server import FENCE, MISSION, MissionServer
-from .navigator import Activity, Navigator
+from .mission_server import FENCE, MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
+from .navigator import Activity, ModeFlow, Navigator
 from .state import PARAM_NAMES, FlightMode, VehicleSettings, VehicleState
 from .telemetry import Outbox, Telemetry
 from .tracer import TracerParams
@@ -61,10 +61,18 @@ MISSION_RETRIES = 20
 
 FORCE_DISARM = 21196
 """COMPONENT_ARM_DISARM param2 that allows disarming in the air."""
+FORCE_ARM = 2989
+"""COMPONENT_ARM_DISARM param2 that skips the pre-arm checks (ArduPilot's magic number)."""
 
 ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED
+FAILED = mavlink.MAV_RESULT_FAILED
 UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
+
+
+def _code(value: float) -> int | None:
+    """A command param holding an integer code (magic numbers), or None (NaN, inf)."""
+    return int(value) if math.isfinite(value) else None
 
 
 def _param_id(msg: Any) -> str:
@@ -89,22 +97,37 @@ class Autopilot:
         Base tracer tuning (speeds are overridden by SPEED_MPS).
     status_line
         The link counters as one line (answer to REQUEST_MESSAGE(STATUSTEXT)).
+    now
+        Wall-clock time of boot (the same clock as the ``now`` given to :meth:`receive`).
     """
 
+    name = "generic"
     autopilot_type = mavlink.MAV_AUTOPILOT_GENERIC
     flight_sw_version = 0
     boot_mode = FlightMode.HOLD
+    mode_flow = ModeFlow()
+    streams_on_request = False
+    """True: only HEARTBEAT until a GCS asks for streams (ArduPilot)."""
+    prearm_s = 0.0
+    """Default wall seconds after boot during which arming is refused."""
 
     def __init__(self, field: Callable[[float, float], float], region: Region, origin: Origin,
                  settings: VehicleSettings, home: tuple[float, float, float],
                  tracer_params: TracerParams | None = None,
-                 status_line: Callable[[], str] = lambda: "") -> None:
+                 status_line: Callable[[], str] = lambda: "", now: float = 0.0) -> None:
         self.state = VehicleState(field, region, origin, settings, home)
         self.state.mode = self.boot_mode
+        self.boot_wall = now
+        self.now = now
+        if settings.prearm_s is not None:
+            self.prearm_s = settings.prearm_s
         self.outbox = Outbox(origin, home[2])
-        self.server = MissionServer(timeout_s=MISSION_RETRY_S, max_retries=MISSION_RETRIES)
-        self.navigator = Navigator(self.state, self.server, self.outbox, tracer_params)
-        self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line)
+        accepted = SUPPORTED_COMMANDS if settings.companion else STOCK_COMMANDS
+        self.server = self.make_server(accepted)
+        self.navigator = Navigator(self.state, self.server, self.outbox, tracer_params,
+                                   self.mode_flow)
+        self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line,
+                                   streams_on_request=self.streams_on_request)
         self.activity: Activity | None = None
         self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
                                          "commands_repeated": 0}
@@ -114,6 +137,15 @@ class Autopilot:
         self.unhandled: dict[str, int] = {}
 
     # -- the personality's part ----------------------------------------------------------------
+
+    def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:
+        """The mission protocol server (PX4 timing: re-request every 0.25 s)."""
+        return MissionServer(timeout_s=MISSION_RETRY_S, max_retries=MISSION_RETRIES,
+                             accepted_commands=accepted_commands)
+
+    def prearm_ok(self) -> bool:
+        """The pre-arm checks pass: ``prearm_s`` wall seconds have passed since boot."""
+        return self.now - self.boot_wall >= self.prearm_s
 
     def custom_mode(self) -> int:
         """The current mode as this personality's ``custom_mode``."""
@@ -176,11 +208,18 @@ class Autopilot:
 
     def poll(self, now: float) -> None:
         """Mission transfer retries / timeouts due at ``now``."""
+        self.now = now
         for m in self.server.poll(now):
             self.outbox.put(m)
 
+    def one_hz(self, now: float) -> None:
+        """The 1 Hz (wall) telemetry."""
+        self.now = now
+        self.telemetry.one_hz()
+
     def receive(self, msg: Any, now: float) -> bool:
         """Handle one message addressed to this vehicle; False if it is not understood."""
+        self.now = now
         mtype = msg.get_type()
         if mtype.startswith("MISSION_"):
             for reply in self.server.receive(msg, now):
@@ -209,6 +248,9 @@ class Autopilot:
                 continue
             if ev.kind in ("uploaded", "cleared"):
                 st.mission_complete = False
+                # a command after a new mission is new, even if it repeats the last one (the
+                # MISSION_START of the next flight, resent because the first was lost)
+                self._last_command = None
             if ev.kind in ("uploaded", "cleared") and st.mission_active:
                 # the mission under execution is gone: hold where we are
                 self.set_hold()
@@ -318,8 +360,8 @@ class Autopilot:
                 return ACCEPTED, []
             if st.in_air:
                 return DENIED, []
-            return self.arm()
-        if st.in_air and int(p[1]) != FORCE_DISARM:
+            return self.arm(force=_code(p[1]) == FORCE_ARM)
+        if st.in_air and _code(p[1]) != FORCE_DISARM:
             return DENIED, []
         st.armed = False
         st.alt_rel_m = 0.0
@@ -330,8 +372,12 @@ class Autopilot:
         self.outbox.statustext("disarmed")
         return ACCEPTED, [self.telemetry.heartbeat()]
 
-    def arm(self) -> tuple[int, list[Any]]:
-        """Arm on the ground (the checks passed)."""
+    def arm(self, force: bool = False) -> tuple[int, list[Any]]:
+        """Arm on the ground; ``force`` skips the pre-arm checks."""
+        if not (force or self.prearm_ok()):
+            self.outbox.statustext("PreArm: waiting for sensors to settle",
+                                   mavlink.MAV_SEVERITY_CRITICAL)
+            return FAILED, []
         self.state.armed = True
         self.outbox.statustext("armed")
         return ACCEPTED, [self.telemetry.heartbeat()]
@@ -388,8 +434,8 @@ class Autopilot:
         return ACCEPTED, []
 
     def _cmd_set_mission_current(self, p: list[float]) -> tuple[int, list[Any]]:
-        seq = int(p[0])
-        if not 0 <= seq < len(self.server.mission):
+        seq = _code(p[0])
+        if seq is None or not 0 <= seq < len(self.server.mission):
             return DENIED, []
         self.server.set_current(seq)
         if self.state.mission_active:
@@ -397,11 +443,13 @@ class Autopilot:
         return ACCEPTED, [self.server.mission_current_msg(self.state.mission_active)]
 
     def _cmd_message_interval(self, p: list[float]) -> tuple[int, list[Any]]:
-        ok = self.telemetry.set_interval(int(p[0]), p[1])
+        mid = _code(p[0])
+        ok = mid is not None and math.isfinite(p[1]) and self.telemetry.set_interval(mid, p[1])
         return (ACCEPTED if ok else DENIED), []
 
     def _cmd_request_message(self, p: list[float]) -> tuple[int, list[Any]]:
-        make = self.telemetry.requestable().get(int(p[0]))
+        mid = _code(p[0])
+        make = self.telemetry.requestable().get(mid) if mid is not None else None
         if make is None:
             return UNSUPPORTED, []
         return ACCEPTED, [make()]
@@ -412,7 +460,7 @@ class Autopilot:
     def _cmd_home(self, p: list[float]) -> tuple[int, list[Any]]:
         return ACCEPTED, [self.telemetry.home_position()]
 
-    _COMMANDS: dict[int, Callable[[Autopilot, list[float]], tuple[int, list[Any]]]] = {
+    _COMMANDS: dict[int, Callable[[Any, list[float]], tuple[int, list[Any]]]] = {
         mavlink.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm_disarm,
         mavlink.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
         mavlink.MAV_CMD_MISSION_START: _cmd_mission_start,
@@ -479,7 +527,7 @@ class Autopilot:
         elif name == "ALT_M":
             st.settings.altitude_m = value
 
-    _HANDLERS: dict[str, Callable[[Autopilot, Any], None]] = {
+    _HANDLERS: dict[str, Callable[[Any, Any], None]] = {
         "HEARTBEAT": _on_heartbeat,
         "PING": _on_ping,
         "TIMESYNC": _on_timesync,

@@ -1,7 +1,13 @@
 """``sim-vehicle``: run simulated MAVLink vehicles.
 
     sim-vehicle --sysid N --mission MISSION.yaml --connect udpout:127.0.0.1:14550
+                [--autopilot px4|ardupilot] [--companion] [--prearm-s S]
                 [--speedup X] [--home LAT,LON,ALT] [--seed S] [--count N --sysid-base B]
+
+``--autopilot`` picks the personality (PX4 or ArduCopter habits, see
+:mod:`sim_vehicle.px4` and :mod:`sim_vehicle.ardupilot`); without ``--companion`` the vehicle
+is a stock autopilot and refuses contour items (MAV_MISSION_UNSUPPORTED), with it a companion
+computer runs the onboard tracer.
 
 One process per vehicle. With ``--count N`` this process launches N child ``sim-vehicle``
 processes (system ids B..B+N-1, B defaults to ``--sysid``) and waits for them; for ``udpin``
@@ -10,7 +16,8 @@ SIGTERM / SIGINT stop the vehicle(s) cleanly with exit status 0.
 
 At start each vehicle prints one line on stderr:
 ``sim-vehicle SYSID: ready on KIND:HOST:PORT`` (the actually bound local address for
-``udpin``/``tcpin``); at exit one line with the achieved speedup and the link counters.
+``udpin``/``tcpin``) followed by the personality, e.g. ``(ardupilot, companion)``; at exit one
+line with the achieved speedup and the link counters.
 """
 
 from __future__ import annotations
@@ -50,6 +57,16 @@ def _positive(text: str) -> float:
     return v
 
 
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v >= 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return v
+
+
 def _sysid(text: str) -> int:
     try:
         v = int(text)
@@ -63,7 +80,8 @@ def _sysid(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="sim-vehicle",
-        description="Simulated multicopter(s) speaking MAVLink 2 (PX4-like) for econdor.")
+        description="Simulated multicopter(s) speaking MAVLink 2 like PX4 or ArduCopter, "
+                    "for econdor.")
     p.add_argument("--sysid", type=_sysid, default=1, help="MAVLink system id (default 1)")
     p.add_argument("--mission", required=True, help="mission YAML (field, area, origin)")
     p.add_argument("--connect", default="udpout:127.0.0.1:14550",
@@ -79,6 +97,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="first system id with --count (default --sysid)")
     p.add_argument("--tel-rate", type=_positive, default=None,
                    help="position telemetry rate, Hz of sim time (default min(10, sample rate))")
+    p.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                   help="whose habits to imitate (default px4)")
+    p.add_argument("--companion", action="store_true",
+                   help="a companion computer runs the contour tracer: accept contour items "
+                        "(MAV_CMD_WAYPOINT_USER_1); without it they are refused")
+    p.add_argument("--prearm-s", type=_non_negative, default=None,
+                   help="wall seconds after boot during which arming fails (default: 2 for "
+                        "ardupilot, 0 for px4)")
     p.add_argument("--signing-key", default=None, metavar="FILE",
                    help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
                         "(SHA-256, as MAVProxy does); unsigned messages are then ignored")
@@ -91,7 +117,7 @@ def _run_one(args: argparse.Namespace) -> int:
     from econdor_gcs.mission import load_mission
     from econdor_gcs.signing import load_signing_key
 
-    from .mavlink_vehicle import MavlinkVehicle
+    from .mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
     from .tracer import warm_up
     from .transport import parse_endpoint
 
@@ -100,14 +126,15 @@ def _run_one(args: argparse.Namespace) -> int:
     if args.seed is not None and args.seed < 0:
         raise EcondorError(f"--seed must be >= 0, got {args.seed}")
     signing = load_signing_key(args.signing_key) if args.signing_key is not None else None
-    overrides: dict[str, Any] = {}
+    overrides: dict[str, Any] = {"companion": args.companion, "prearm_s": args.prearm_s}
     if args.tel_rate is not None:
         overrides["tel_rate_hz"] = args.tel_rate
     warm_up()  # load (or compile) the tracer before the vehicle shows itself
     try:
         vehicle = MavlinkVehicle.from_mission(mission, sysid=args.sysid, connect=ep,
                                               speedup=args.speedup, seed=args.seed,
-                                              home=args.home, signing=signing, **overrides)
+                                              home=args.home, signing=signing,
+                                              autopilot=AUTOPILOTS[args.autopilot], **overrides)
     except OSError as exc:
         raise EcondorError(f"cannot open {args.connect}: {exc.strerror or exc}") from exc
 
@@ -120,7 +147,9 @@ def _run_one(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     host, port = vehicle.local_address
     where = args.connect if ep.kind == "udpout" else f"{ep.kind}:{host}:{port}"
-    print(f"sim-vehicle {args.sysid}: ready on {where}", file=sys.stderr, flush=True)
+    kind = "companion" if args.companion else "no companion"
+    print(f"sim-vehicle {args.sysid}: ready on {where} ({args.autopilot}, {kind})",
+          file=sys.stderr, flush=True)
     t0 = time.monotonic()
     vehicle.run()
     wall = time.monotonic() - t0
@@ -165,6 +194,11 @@ def _run_many(args: argparse.Namespace) -> int:
             cmd += ["--seed", str(args.seed)]
         if args.tel_rate is not None:
             cmd += ["--tel-rate", repr(args.tel_rate)]
+        cmd += ["--autopilot", args.autopilot]
+        if args.companion:
+            cmd.append("--companion")
+        if args.prearm_s is not None:
+            cmd += ["--prearm-s", repr(args.prearm_s)]
         for c in args.reject_command:
             cmd += ["--reject-command", str(c)]
         if args.signing_key is not None:

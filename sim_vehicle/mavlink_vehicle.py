@@ -8,7 +8,7 @@ Everything else is I/O-free and lives beside it:
 
 :mod:`sim_vehicle.autopilot`
     modes, arming, commands, parameters, mission protocol; one class per personality
-    (:class:`~sim_vehicle.px4.Px4Autopilot`).
+    (:class:`~sim_vehicle.px4.Px4Autopilot`, :class:`~sim_vehicle.ardupilot.ArduCopterAutopilot`).
 :mod:`sim_vehicle.navigator`
     mission items -> flight activities (the onboard tracer for contour items).
 :mod:`sim_vehicle.telemetry`
@@ -45,6 +45,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
 from econdor_gcs.signing import SigningKey, refusal_counts, refused, share_signing
 
+from .ardupilot import ArduCopterAutopilot
 from .autopilot import Autopilot
 from .body import SimBody
 from .mission_server import MissionServer
@@ -53,7 +54,7 @@ from .state import VehicleSettings, VehicleState
 from .tracer import TracerParams
 from .transport import Endpoint, Transport, open_transport, parse_endpoint
 
-__all__ = ["COMPONENT_ID", "MavlinkVehicle", "VehicleSettings"]
+__all__ = ["AUTOPILOTS", "COMPONENT_ID", "MavlinkVehicle", "VehicleSettings"]
 
 log = logging.getLogger("sim_vehicle")
 
@@ -64,6 +65,9 @@ TICK_BATCH_WALL_S = 0.01
 SERVE_IO_WALL_S = 0.02
 """Run ticks for at most this long before serving I/O again."""
 MAX_PARSERS = 32
+
+AUTOPILOTS: dict[str, type[Autopilot]] = {"px4": Px4Autopilot, "ardupilot": ArduCopterAutopilot}
+"""The personalities, by the name ``sim-vehicle --autopilot`` takes."""
 
 
 def _reset_parser(parser: mavlink.MAVLink) -> None:
@@ -100,7 +104,8 @@ class MavlinkVehicle:
     tracer_params
         Base :class:`TracerParams` (speeds are overridden by SPEED_MPS).
     autopilot
-        The personality: an :class:`~sim_vehicle.autopilot.Autopilot` subclass.
+        The personality: an :class:`~sim_vehicle.autopilot.Autopilot` subclass (see
+        :data:`AUTOPILOTS`); ``settings.companion`` says whether it accepts contour items.
     signing
         MAVLink 2 signing: everything sent is signed; unsigned and wrongly signed messages
         (commands, mission uploads, anything) are ignored and counted (``rx_unsigned``,
@@ -125,7 +130,7 @@ class MavlinkVehicle:
         self.endpoint = parse_endpoint(connect) if isinstance(connect, str) else connect
         self.transport: Transport = open_transport(self.endpoint)
         self.autopilot = autopilot(field, region, origin, s, home, tracer_params,
-                                   status_line=self.counters_line)
+                                   status_line=self.counters_line, now=time.monotonic())
         self.mav = mavlink.MAVLink(_Sink(), srcSystem=self.sysid, srcComponent=COMPONENT_ID)
         self.mav.robust_parsing = True
         self.signing = signing
@@ -281,7 +286,7 @@ class MavlinkVehicle:
             while not self._stop.is_set():
                 now = time.monotonic()
                 if now >= next_hb:
-                    ap.telemetry.one_hz()
+                    ap.one_hz(now)
                     next_hb += 1.0
                     if next_hb < now:
                         next_hb = now + 1.0

@@ -8,14 +8,19 @@ a clear, a set-current) are queued in :attr:`MissionServer.events`.
 
 Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
 
-* upload: MISSION_COUNT -> MISSION_REQUEST_INT(seq) ... <- MISSION_ITEM_INT / MISSION_ITEM
+* upload: MISSION_COUNT -> MISSION_REQUEST_INT(seq) (or the float MISSION_REQUEST, ArduPilot's
+  habit, with ``request_int=False``) ... <- MISSION_ITEM_INT / MISSION_ITEM
   -> MISSION_ACK. A request is resent after ``timeout_s`` without the expected item, at most
   ``max_retries`` times, then MISSION_ACK(ERROR) ends the transfer. An item with a seq other
   than the expected one makes the server re-request the expected seq. A new MISSION_COUNT, or a
   MISSION_ACK from the GCS, cancels a running upload (the stored mission is unchanged).
   Count 0 clears.
 * download: MISSION_REQUEST_LIST -> MISSION_COUNT; MISSION_REQUEST_INT -> MISSION_ITEM_INT,
-  legacy MISSION_REQUEST -> MISSION_ITEM; items come back exactly as uploaded.
+  legacy MISSION_REQUEST -> MISSION_ITEM; items come back as stored (:meth:`MissionServer.stored`
+  and :meth:`MissionServer.reported` let a personality change both: ArduPilot overwrites item 0
+  with home and reports frames and altitudes its own way).
+* items whose command is not in ``accepted_commands`` are refused with
+  MAV_MISSION_UNSUPPORTED (the contour item only when a companion computer runs the tracer).
 * MISSION_CLEAR_ALL -> MISSION_ACK (of the upload's type, or of type ALL, it also ends a running
   upload); MISSION_SET_CURRENT -> MISSION_CURRENT.
 * FENCE uploads are checked item by item and as a whole (:func:`sim_vehicle.fence.check_fence`)
@@ -36,7 +41,8 @@ FENCE = mavlink.MAV_MISSION_TYPE_FENCE
 RALLY = mavlink.MAV_MISSION_TYPE_RALLY
 MISSION_TYPES = (MISSION, FENCE, RALLY)
 
-MAV_CMD_WAYPOINT_USER_1 = 31000
+MAV_CMD_WAYPOINT_USER_1 = mavlink.MAV_CMD_WAYPOINT_USER_1
+"""The contour item (DESIGN.md §4); only a vehicle with the tracer on board accepts it."""
 
 GLOBAL_FRAMES = frozenset({
     mavlink.MAV_FRAME_GLOBAL,
@@ -57,6 +63,9 @@ NAV_COMMANDS = frozenset({
 })
 DO_COMMANDS = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED})
 SUPPORTED_COMMANDS = NAV_COMMANDS | DO_COMMANDS
+"""Everything the navigator can fly, the contour item included."""
+STOCK_COMMANDS = SUPPORTED_COMMANDS - {MAV_CMD_WAYPOINT_USER_1}
+"""What a stock autopilot (no companion) accepts."""
 
 
 @dataclass(frozen=True)
@@ -115,13 +124,13 @@ def item_from_msg(msg: Any) -> StoredItem:
                       float(msg.param3), float(msg.param4), xi, yi, float(msg.z), mtype, xf, yf)
 
 
-def check_item(item: StoredItem) -> int:
+def check_item(item: StoredItem, accepted: frozenset[int] = SUPPORTED_COMMANDS) -> int:
     """MAV_MISSION_ACCEPTED, or the MAV_MISSION_RESULT that rejects ``item``."""
     if item.mission_type == FENCE:
         return check_fence_item(item)
     if item.mission_type != MISSION:
         return mavlink.MAV_MISSION_ACCEPTED  # rally: stored as given
-    if item.command not in SUPPORTED_COMMANDS:
+    if item.command not in accepted:
         return mavlink.MAV_MISSION_UNSUPPORTED
     if item.command in NAV_COMMANDS:
         ok = set(GLOBAL_FRAMES)
@@ -156,9 +165,13 @@ class MissionEvent:
 class MissionServer:
     """Pure mission-protocol server for one vehicle (see the module docstring)."""
 
-    def __init__(self, timeout_s: float = 0.25, max_retries: int = 5) -> None:
+    def __init__(self, timeout_s: float = 0.25, max_retries: int = 5, *,
+                 request_int: bool = True,
+                 accepted_commands: frozenset[int] = SUPPORTED_COMMANDS) -> None:
         self.timeout_s = timeout_s
         self.max_retries = max_retries
+        self.request_int = request_int
+        self.accepted_commands = accepted_commands
         self.stores: dict[int, list[StoredItem]] = {t: [] for t in MISSION_TYPES}
         self.current_seq = 0
         self.events: list[MissionEvent] = []
@@ -215,8 +228,19 @@ class MissionServer:
         return mavlink.MAVLink_mission_ack_message(peer[0], peer[1], result, mtype)
 
     def _request(self, up: _Upload) -> Any:
-        return mavlink.MAVLink_mission_request_int_message(
-            up.peer[0], up.peer[1], len(up.items), up.mission_type)
+        make = (mavlink.MAVLink_mission_request_int_message if self.request_int
+                else mavlink.MAVLink_mission_request_message)
+        return make(up.peer[0], up.peer[1], len(up.items), up.mission_type)
+
+    # --- what a personality may change ---------------------------------------------------
+
+    def stored(self, mtype: int, items: list[StoredItem]) -> list[StoredItem]:
+        """The items as this vehicle stores an upload (as given, here)."""
+        return items
+
+    def reported(self, item: StoredItem) -> StoredItem:
+        """An item as this vehicle reports it on download (as stored, here)."""
+        return item
 
     def _on_count(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
         mtype = self._mtype(msg)
@@ -249,7 +273,7 @@ class MissionServer:
             up.deadline = now + self.timeout_s
             return [self._request(up)]
         item = item_from_msg(msg)
-        result = check_item(item)
+        result = check_item(item, self.accepted_commands)
         if item.command in self.reject_commands:
             result = mavlink.MAV_MISSION_UNSUPPORTED
         if result != mavlink.MAV_MISSION_ACCEPTED:
@@ -272,7 +296,7 @@ class MissionServer:
         return [self._ack(peer, mavlink.MAV_MISSION_ACCEPTED, mtype)]
 
     def _store(self, mtype: int, items: list[StoredItem]) -> None:
-        self.stores[mtype] = list(items)
+        self.stores[mtype] = self.stored(mtype, list(items)) if items else []
         if mtype == MISSION:
             self.current_seq = 0
 
@@ -300,7 +324,7 @@ class MissionServer:
             return [self._ack(peer, mavlink.MAV_MISSION_UNSUPPORTED, mtype)]
         if not 0 <= msg.seq < len(items):
             return [self._ack(peer, mavlink.MAV_MISSION_INVALID_SEQUENCE, mtype)]
-        it = items[msg.seq]
+        it = self.reported(items[msg.seq])
         if msg.get_type() == "MISSION_REQUEST_INT":
             return [mavlink.MAVLink_mission_item_int_message(
                 peer[0], peer[1], it.seq, it.frame, it.command, it.current, it.autocontinue,

@@ -40,6 +40,27 @@ Activity = Generator[Sample | None, None, Any]
 """One body tick per step; yields the tick's sample when it is to be reported."""
 
 
+@dataclasses.dataclass(frozen=True)
+class ModeFlow:
+    """The modes a personality shows while the navigator flies (None: keep the mode).
+
+    PX4 switches sub-modes as a flight goes on (AUTO.TAKEOFF, then AUTO.LOITER; AUTO.RTL,
+    then AUTO.LAND); ArduCopter stays in the mode it was put in (GUIDED, RTL, AUTO).
+    """
+
+    takeoff: FlightMode = FlightMode.TAKEOFF
+    """While climbing on a takeoff command."""
+    after_takeoff: FlightMode = FlightMode.HOLD
+    rtl_descent: FlightMode | None = FlightMode.LAND
+    """While descending at home after an RTL."""
+    mission_rtl: FlightMode | None = FlightMode.RTL
+    """While flying a mission's RTL item."""
+    landed: FlightMode | None = FlightMode.HOLD
+    """After landing and disarming."""
+    mission_done: FlightMode = FlightMode.HOLD
+    """After the last item, still in the air."""
+
+
 class Navigator:
     """Turns mission items and flight commands into activities.
 
@@ -53,14 +74,18 @@ class Navigator:
         Where progress messages and texts go.
     tracer_params
         Base tracer tuning; the speeds come from ``state.speed_mps``.
+    flow
+        The modes the personality shows on the way (:class:`ModeFlow`).
     """
 
     def __init__(self, state: VehicleState, server: MissionServer, outbox: Outbox,
-                 tracer_params: TracerParams | None = None) -> None:
+                 tracer_params: TracerParams | None = None, flow: ModeFlow | None = None
+                 ) -> None:
         self.state = state
         self.server = server
         self.outbox = outbox
         self.tracer_base = tracer_params or TracerParams()
+        self.flow = flow or ModeFlow()
         self.mission_last = -1
 
     def tracer_params(self) -> TracerParams:
@@ -101,7 +126,8 @@ class Navigator:
         st.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
         st.armed = False
         st.mission_active = False
-        st.mode = FlightMode.HOLD
+        if self.flow.landed is not None:
+            st.mode = self.flow.landed
         self.outbox.statustext("landed, disarmed")
 
     def fly(self, gen: Generator[Sample, None, Any], target_alt_m: float | None) -> Activity:
@@ -120,19 +146,23 @@ class Navigator:
             yield sample
 
     def takeoff_then_hold(self, alt_m: float) -> Activity:
-        self.state.mode = FlightMode.TAKEOFF
+        self.state.mode = self.flow.takeoff
         yield from self.climb_to(alt_m)
-        self.state.mode = FlightMode.HOLD
+        self.state.mode = self.flow.after_takeoff
         yield from self.hold_forever()
 
-    def rtl(self) -> Activity:
+    def rtl(self, in_mission: bool = False) -> Activity:
+        """Fly home, then land and disarm (as a command, or as a mission's RTL item)."""
         st = self.state
-        st.mode = FlightMode.RTL
+        mode = self.flow.mission_rtl if in_mission else FlightMode.RTL
+        if mode is not None:
+            st.mode = mode
         hx, hy, _ = st.home_local
         if math.hypot(st.body.x_m - hx, st.body.y_m - hy) > 1.0:
             yield from self.fly(fly_to(st.body, hx, hy, Phase.TRANSIT,
                                        speed_mps=self.tracer_params().speed_mps), None)
-        st.mode = FlightMode.LAND
+        if self.flow.rtl_descent is not None:
+            st.mode = self.flow.rtl_descent
         yield from self.descend_and_disarm()
 
     def land(self) -> Activity:
@@ -181,7 +211,7 @@ class Navigator:
         st.mission_active = False
         st.mission_complete = True
         self.outbox.statustext("mission complete")
-        st.mode = FlightMode.HOLD
+        st.mode = self.flow.mission_done
         self.outbox.put(self.server.mission_current_msg(False, True))
         if st.alt_rel_m > 0.0:
             yield from self.hold_forever()
@@ -247,7 +277,7 @@ class Navigator:
                                           outcome.flown_m, task.level))
             return "ok"
         if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            yield from self.rtl()
+            yield from self.rtl(in_mission=True)
             return "end"
         if cmd == mavlink.MAV_CMD_NAV_LAND:
             if xy is not None and st.alt_rel_m > 0.5:

@@ -42,6 +42,7 @@ PX4_FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # "1.14.0 relea
 class Px4Autopilot(Autopilot):
     """PX4 personality (v1.14 habits; see the module docstring)."""
 
+    name = "px4"
     autopilot_type = mavlink.MAV_AUTOPILOT_PX4
     flight_sw_version = PX4_FLIGHT_SW_VERSION
     boot_mode = FlightMode.HOLD
@@ -59,9 +60,9 @@ class Px4Autopilot(Autopilot):
                  | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED)
         return base, custom
 
-    def arm(self) -> tuple[int, list[Any]]:
-        result = super().arm()
-        if self.state.mode == FlightMode.MISSION and self.server.mission:
+    def arm(self, force: bool = False) -> tuple[int, list[Any]]:
+        result = super().arm(force)
+        if result[0] == ACCEPTED and self.state.mode == FlightMode.MISSION and self.server.mission:
             # PX4: arming in AUTO.MISSION starts the mission
             self.start_mission(self.server.current_seq, len(self.server.mission) - 1)
         return result

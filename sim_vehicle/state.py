@@ -47,6 +47,10 @@ class VehicleSettings:
     search_radius_m: float = 10.0
     tel_rate_hz: float = 10.0
     seed: int = 0
+    companion: bool = False
+    """A companion computer runs the tracer: contour items are accepted (else refused)."""
+    prearm_s: float | None = None
+    """Wall seconds after boot during which arming is refused (None: the personality's)."""
 
 
 class FlightMode(StrEnum):
@@ -55,11 +59,13 @@ class FlightMode(StrEnum):
     Each personality (:mod:`sim_vehicle.autopilot`) maps these to its own ``custom_mode``.
     """
 
-    HOLD = "hold"          # hover where it is (PX4 AUTO.LOITER)
+    HOLD = "hold"          # hover where it is (PX4 AUTO.LOITER, ArduCopter LOITER)
     TAKEOFF = "takeoff"    # climbing to the takeoff altitude (PX4 AUTO.TAKEOFF)
-    MISSION = "mission"    # executing the stored mission (PX4 AUTO.MISSION)
-    RTL = "rtl"            # flying home, then landing (PX4 AUTO.RTL)
-    LAND = "land"          # descending where it is (PX4 AUTO.LAND)
+    MISSION = "mission"    # executing the stored mission (PX4 AUTO.MISSION, ArduCopter AUTO)
+    RTL = "rtl"            # flying home, then landing (PX4 AUTO.RTL, ArduCopter RTL)
+    LAND = "land"          # descending where it is (PX4 AUTO.LAND, ArduCopter LAND)
+    GUIDED = "guided"      # hover, taking commands from the GCS (ArduCopter GUIDED)
+    MANUAL = "manual"      # a pilot's mode; without a pilot it hovers (ArduCopter STABILIZE)
 
 
 class VehicleState:

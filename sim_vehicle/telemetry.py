@@ -6,15 +6,20 @@ Time: all MAVLink timestamps (``time_boot_ms``, ``time_usec``) are sim time sinc
 HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE (and MISSION_CURRENT while a mission is stored) go
 out at 1 Hz of wall time; GLOBAL_POSITION_INT, LOCAL_POSITION_NED and ATTITUDE at
 ``TEL_RATE_HZ`` of sim time (or the interval a GCS set with SET_MESSAGE_INTERVAL) but never
-more than :data:`MAX_STREAM_WALL_HZ` per wall second.
+more than :data:`MAX_STREAM_WALL_HZ` per wall second. A personality that streams only when
+asked (ArduPilot) sends nothing but HEARTBEAT until a GCS enables messages with
+REQUEST_DATA_STREAM (:data:`DATA_STREAMS`; the rate in Hz of sim time) or
+SET_MESSAGE_INTERVAL.
 
 Samples: every sensor reading taken while the vehicle executes a horizontal motion task goes
 out as ``GLOBAL_POSITION_INT`` immediately followed by ``NAMED_VALUE_FLOAT("FIELD")`` with the
 same ``time_boot_ms``, regardless of the stream rates. Samples wait in the outbox as local
 positions; :meth:`Outbox.drain` converts all of them to latitude/longitude in one vectorised
-pymap3d call and keeps the order of everything queued. Whenever the phase of the sampled ticks
-changes (transit, search, trace), ``NAMED_VALUE_INT("PHASE")`` goes out just before the first
-sample of the new phase, with that sample's ``time_boot_ms``; the end of a trace item is a
+pymap3d call and keeps the order of everything queued. With the companion computer (the
+tracer on board), whenever the phase of the sampled ticks changes (transit, search, trace),
+``NAMED_VALUE_INT("PHASE")`` goes out just before the first sample of the new phase, with that
+sample's ``time_boot_ms`` (a stock autopilot's payload knows no phases); the end of a trace item
+is a
 ``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
 :mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
 
@@ -60,6 +65,18 @@ CAPABILITIES = (
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )
+DATA_STREAMS: dict[int, tuple[int, ...]] = {
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (mavlink.MAVLINK_MSG_ID_SYS_STATUS,
+                                              mavlink.MAVLINK_MSG_ID_MISSION_CURRENT,
+                                              mavlink.MAVLINK_MSG_ID_FENCE_STATUS),
+    mavlink.MAV_DATA_STREAM_POSITION: (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                                       mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+    mavlink.MAV_DATA_STREAM_EXTRA1: (mavlink.MAVLINK_MSG_ID_ATTITUDE,),
+    mavlink.MAV_DATA_STREAM_EXTRA3: (mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,),
+}
+"""REQUEST_DATA_STREAM groups -> the messages they enable (ArduCopter's grouping, for ours)."""
+DATA_STREAMS[mavlink.MAV_DATA_STREAM_ALL] = tuple(
+    m for group in list(DATA_STREAMS.values()) for m in group)
 STATUSTEXT_CHUNK = 50
 """Bytes of text in one STATUSTEXT; longer texts are sent in chunks with a common id."""
 
@@ -262,6 +279,10 @@ class ModeEncoder(Protocol):
         """``(base_mode, custom_mode)`` of the current state."""
         ...
 
+    def prearm_ok(self) -> bool:
+        """The pre-arm checks pass (SYS_STATUS health bit MAV_SYS_STATUS_PREARM_CHECK)."""
+        ...
+
 
 class Telemetry:
     """Message builders and stream scheduling for one vehicle.
@@ -288,12 +309,16 @@ class Telemetry:
     """The periodic streams (name, message id), at ``TEL_RATE_HZ`` of sim time by default."""
 
     def __init__(self, state: VehicleState, server: MissionServer, outbox: Outbox,
-                 modes: ModeEncoder, status_line: Callable[[], str]) -> None:
+                 modes: ModeEncoder, status_line: Callable[[], str],
+                 streams_on_request: bool = False) -> None:
         self.state = state
         self.server = server
         self.outbox = outbox
         self.modes = modes
         self.status_line = status_line
+        self.streams_on_request = streams_on_request
+        self.enabled: set[int] = set()
+        """With ``streams_on_request``: the message ids a GCS has asked for."""
         self.intervals: dict[int, float] = {}
         """Message id -> interval override in seconds of sim time; < 0 = stream off."""
         self._last_sent_wall: dict[str, float] = {}
@@ -317,6 +342,8 @@ class Telemetry:
 
     def sys_status(self) -> Any:
         present = healthy = SENSORS
+        if not self.modes.prearm_ok():
+            healthy &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
         if not self.state.fence.empty:
             present |= mavlink.MAV_SYS_STATUS_GEOFENCE
             if not self.fence.outside:
@@ -395,20 +422,43 @@ class Telemetry:
             self.intervals.pop(message_id, None)
         else:
             self.intervals[message_id] = -1.0 if interval_us < 0 else interval_us / 1e6
+        if interval_us >= 0:
+            self.enabled.add(message_id)
         return True
+
+    def request_data_stream(self, stream_id: int, rate_hz: float, start: bool) -> bool:
+        """REQUEST_DATA_STREAM: enable (``start``) or stop a group at ``rate_hz`` of sim time
+        (1 Hz messages keep their wall rate). False for an unknown group."""
+        group = DATA_STREAMS.get(stream_id)
+        if group is None:
+            return False
+        periodic = {mid for _, mid in self.STREAMS}
+        for mid in group:
+            if not start:
+                self.enabled.discard(mid)
+                continue
+            self.enabled.add(mid)
+            if mid in periodic and rate_hz > 0:
+                self.intervals[mid] = 1.0 / rate_hz
+        return True
+
+    def streaming(self, message_id: int) -> bool:
+        """Whether ``message_id`` goes out on its own (not only on request)."""
+        if self.intervals.get(message_id, 0.0) < 0:
+            return False
+        return not self.streams_on_request or message_id in self.enabled
 
     def one_hz(self) -> None:
         """The 1 Hz (wall) messages: HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE, MISSION_CURRENT."""
         self.outbox.put(self.heartbeat())
         for mid, make in ((mavlink.MAVLINK_MSG_ID_SYS_STATUS, self.sys_status),
                           (mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, self.extended_sys_state)):
-            if self.intervals.get(mid, 1.0) >= 0:
+            if self.streaming(mid):
                 self.outbox.put(make())
-        if self.server.mission:
+        if self.server.mission and self.streaming(mavlink.MAVLINK_MSG_ID_MISSION_CURRENT):
             self.outbox.put(self.server.mission_current_msg(self.state.mission_active,
                                                             self.state.mission_complete))
-        if not self.state.fence.empty and self.intervals.get(
-                mavlink.MAVLINK_MSG_ID_FENCE_STATUS, 1.0) >= 0:
+        if not self.state.fence.empty and self.streaming(mavlink.MAVLINK_MSG_ID_FENCE_STATUS):
             self.outbox.put(self.fence_status())
 
     def watch_fence(self) -> None:
@@ -435,7 +485,7 @@ class Telemetry:
         rate = self.state.params["TEL_RATE_HZ"]
         for name, mid in self.STREAMS:
             period = self.intervals.get(mid, 1.0 / rate if rate > 0 else -1.0)
-            if period < 0:
+            if period < 0 or not self.streaming(mid):
                 continue
             if sim - self._last_sent_sim.get(name, -1e9) < period - 1e-9:
                 continue
@@ -452,7 +502,7 @@ class Telemetry:
         """Queue one sample at the vehicle's current position and velocity (after a PHASE
         message when its phase differs from the previous sample's)."""
         st = self.state
-        if sample.phase != self.phase:
+        if sample.phase != self.phase and st.settings.companion:
             self.phase = sample.phase
             ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
             self.outbox.archive.add_phase(ms, sample.phase)

@@ -9,6 +9,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import DEMO, item_int
 
 from econdor_gcs.mission import load_mission
+from sim_vehicle.ardupilot import COPTER_AUTO, COPTER_GUIDED, COPTER_STABILIZE, ArduCopterAutopilot
 from sim_vehicle.px4 import PX4_MODES, Px4Autopilot
 from sim_vehicle.state import FlightMode, VehicleSettings
 
@@ -22,28 +23,44 @@ def rx(msg):
     return DECODER.decode(bytearray(msg.pack(GCS)))
 
 
-def make(**kw) -> Px4Autopilot:
+def make(cls=Px4Autopilot, now=0.0, **kw):
     settings = VehicleSettings(sysid=1, **kw)
     o = MISSION.origin
-    return Px4Autopilot(MISSION.build_field(), MISSION.region, o, settings,
-                        (o.lat_deg, o.lon_deg, o.alt_m))
+    return cls(MISSION.build_field(), MISSION.region, o, settings,
+               (o.lat_deg, o.lon_deg, o.alt_m), now=now)
 
 
-def command(ap, cmd, *params):
+def command(ap, cmd, *params, now=0.0):
     p = list(params) + [0.0] * (7 - len(params))
-    ap.receive(rx(mavlink.MAVLink_command_long_message(1, 1, cmd, 0, *p)), 0.0)
+    ap.receive(rx(mavlink.MAVLink_command_long_message(1, 1, cmd, 0, *p)), now)
     out = ap.outbox.drain(0.0)
     acks = [m for m in out if m.get_type() == "COMMAND_ACK"]
     assert len(acks) == 1 and acks[0].command == cmd
     return acks[0].result, out
 
 
-def upload(ap, items):
+def upload(ap, items, expect=mavlink.MAV_MISSION_ACCEPTED, request="MISSION_REQUEST_INT"):
     ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, len(items), 0)), 0.0)
     for it in items:
+        out = ap.outbox.drain(0.0)
+        if out and out[-1].get_type() == "MISSION_ACK":
+            break
+        assert out[-1].get_type() == request and out[-1].seq == it.seq
         ap.receive(rx(it), 0.0)
     out = ap.outbox.drain(0.0)
-    assert out[-1].get_type() == "MISSION_ACK" and out[-1].type == mavlink.MAV_MISSION_ACCEPTED
+    assert out[-1].get_type() == "MISSION_ACK" and out[-1].type == expect
+
+
+def download(ap, legacy=False):
+    ap.receive(rx(mavlink.MAVLink_mission_request_list_message(1, 1, 0)), 0.0)
+    n = ap.outbox.drain(0.0)[-1].count
+    req = mavlink.MAVLink_mission_request_message if legacy else \
+        mavlink.MAVLink_mission_request_int_message
+    items = []
+    for seq in range(n):
+        ap.receive(rx(req(1, 1, seq, 0)), 0.0)
+        items.append(ap.outbox.drain(0.0)[-1])
+    return items
 
 
 def run_until(ap, cond, max_ticks=20000):
@@ -112,6 +129,124 @@ def test_px4_do_set_mode_encoding_and_rtl_lands_and_disarms():
     assert ap.parked
 
 
+# -- the ArduCopter personality -------------------------------------------------------------
+
+
+def copter_mission():
+    return [item_int(0, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(5, 5), 0, current=1),
+            item_int(1, mavlink.MAV_CMD_NAV_TAKEOFF, *ll(0, 0), 10.123),
+            item_int(2, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(20, 0), 10.123)]
+
+
+def test_ardupilot_boots_in_stabilize_and_streams_only_when_asked():
+    ap = make(ArduCopterAutopilot)
+    hb = ap.telemetry.heartbeat()
+    assert hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    assert hb.custom_mode == COPTER_STABILIZE and ap.mode_name() == "STABILIZE"
+    ap.one_hz(0.0)
+    ap.telemetry.periodic(0.0)
+    assert [m.get_type() for m in ap.outbox.drain(0.0)] == ["HEARTBEAT"]
+    ap.receive(rx(mavlink.MAVLink_request_data_stream_message(
+        1, 1, mavlink.MAV_DATA_STREAM_ALL, 4, 1)), 0.0)
+    ap.one_hz(1.0)
+    ap.telemetry.periodic(1.0)
+    kinds = {m.get_type() for m in ap.outbox.drain(1.0)}
+    assert {"HEARTBEAT", "SYS_STATUS", "EXTENDED_SYS_STATE", "GLOBAL_POSITION_INT",
+            "ATTITUDE"} <= kinds
+    # the asked rate (4 Hz of sim time) paces the position stream
+    assert ap.telemetry.intervals[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == 0.25
+
+
+def test_ardupilot_refuses_to_arm_until_its_prearm_checks_pass():
+    ap = make(ArduCopterAutopilot, now=100.0, prearm_s=2.0)
+    assert not ap.telemetry.sys_status().onboard_control_sensors_health \
+        & mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    result, out = command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, now=101.0)
+    assert result == mavlink.MAV_RESULT_FAILED and not ap.state.armed
+    assert any(m.get_type() == "STATUSTEXT" and m.text.startswith("PreArm:") for m in out)
+    # forcing (2989) skips the checks, as in ArduPilot
+    ap2 = make(ArduCopterAutopilot, now=100.0, prearm_s=2.0)
+    assert command(ap2, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, 2989, now=100.5)[0] == 0
+    result, _ = command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, now=102.5)
+    assert result == mavlink.MAV_RESULT_ACCEPTED and ap.state.armed
+    assert ap.telemetry.sys_status().onboard_control_sensors_health \
+        & mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+
+def test_ardupilot_mission_protocol_habits():
+    ap = make(ArduCopterAutopilot)
+    trace = item_int(3, 31000, *ll(50, 50), 10, p1=42.0, p2=10, p4=7)
+    # a stock ArduPilot refuses the contour item ...
+    upload(ap, [*copter_mission(), trace], expect=mavlink.MAV_MISSION_UNSUPPORTED,
+           request="MISSION_REQUEST")
+    assert ap.server.mission == []
+    # ... with a companion computer it is accepted
+    upload(make(ArduCopterAutopilot, companion=True), [*copter_mission(), trace],
+           request="MISSION_REQUEST")
+    upload(ap, copter_mission(), request="MISSION_REQUEST")
+    back = download(ap)
+    o = MISSION.origin
+    # item 0 is home, whatever was uploaded, in the absolute frame
+    assert (back[0].frame, back[0].x, back[0].y) == (
+        mavlink.MAV_FRAME_GLOBAL, round(o.lat_deg * 1e7), round(o.lon_deg * 1e7))
+    assert back[0].z == pytest.approx(o.alt_m)
+    # the others in the float frame, altitudes in centimetres
+    assert [m.frame for m in back[1:]] == [mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT] * 2
+    assert back[2].z == pytest.approx(10.12, abs=1e-4)
+    assert (back[2].x, back[2].y) == (copter_mission()[2].x, copter_mission()[2].y)
+    legacy = download(ap, legacy=True)
+    assert legacy[2].get_type() == "MISSION_ITEM" and legacy[2].frame == 3
+
+
+def test_ardupilot_guided_arm_takeoff_then_auto_flies_the_mission_and_stays_in_auto():
+    ap = make(ArduCopterAutopilot, prearm_s=0.0)
+    upload(ap, copter_mission(), request="MISSION_REQUEST")
+    assert ap.do_set_mode(1, COPTER_GUIDED, 0) == mavlink.MAV_RESULT_ACCEPTED
+    assert command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)[0] == 0
+    # ArduCopter: param7 is the altitude above home
+    assert command(ap, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 12.0)[0] == 0
+    run_until(ap, lambda ms: ap.state.alt_rel_m >= 12.0 - 1e-6)
+    assert ap.custom_mode() == COPTER_GUIDED
+    assert ap.do_set_mode(1, COPTER_AUTO, 0) == mavlink.MAV_RESULT_ACCEPTED
+    msgs = run_until(ap, lambda ms: ap.state.mission_complete)
+    reached = [m.seq for m in msgs if m.get_type() == "MISSION_ITEM_REACHED"]
+    assert reached == [1, 2]  # item 0 (home) is never flown
+    assert ap.custom_mode() == COPTER_AUTO and ap.state.in_air  # hovering in AUTO
+    # RTL lands, disarms and stays in RTL
+    assert ap.do_set_mode(1, 6, 0) == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: not ap.state.armed)
+    assert ap.mode_name() == "RTL"
+
+
+def test_ardupilot_arm_then_mission_start_and_its_refusals():
+    ap = make(ArduCopterAutopilot, prearm_s=0.0)
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_FAILED
+    upload(ap, copter_mission(), request="MISSION_REQUEST")
+    assert ap.do_set_mode(1, COPTER_AUTO, 0) == mavlink.MAV_RESULT_ACCEPTED
+    result, out = command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert result == mavlink.MAV_RESULT_FAILED  # not armable in AUTO
+    assert any(m.get_type() == "STATUSTEXT" and "not armable" in m.text for m in out)
+    assert ap.do_set_mode(1, 42, 0) == mavlink.MAV_RESULT_FAILED  # no such mode
+    assert ap.do_set_mode(1, COPTER_GUIDED, 0) == 0
+    assert command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)[0] == 0
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, 1, 0)[0] == 0
+    assert ap.custom_mode() == COPTER_AUTO
+    msgs = run_until(ap, lambda ms: ap.state.mission_complete)
+    assert [m.seq for m in msgs if m.get_type() == "MISSION_ITEM_REACHED"] == [1, 2]
+
+
+def test_nan_in_integer_params_is_answered_not_crashed():
+    """MAVSDK sends NaN for unused params (arming's param2 among them)."""
+    nan = float("nan")
+    ap = make()
+    assert command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, nan)[0] == 0
+    assert command(ap, mavlink.MAV_CMD_DO_SET_MISSION_CURRENT, nan)[0] == \
+        mavlink.MAV_RESULT_DENIED
+    assert command(ap, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, nan, 1e5)[0] == \
+        mavlink.MAV_RESULT_DENIED
+    assert command(ap, mavlink.MAV_CMD_REQUEST_MESSAGE, nan)[0] == mavlink.MAV_RESULT_UNSUPPORTED
+
+
 def _resend(ap, cmd, confirmation, *params):
     p = list(params) + [0.0] * (7 - len(params))
     ap.receive(rx(mavlink.MAVLink_command_long_message(1, 1, cmd, confirmation, *p)), 0.0)
@@ -143,12 +278,32 @@ def test_a_resent_command_is_answered_not_run_again():
     assert _resend(ap, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0) == mavlink.MAV_RESULT_DENIED
 
 
+def test_a_mission_start_resent_after_a_new_upload_runs():
+    """The next flight's MISSION_START is lost and resent (``confirmation`` 1) with the same
+    parameters as the last flight's: after a new mission it is a new command, not a repeat."""
+    ap = make(sample_rate_hz=10.0)
+    first = [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
+             item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 0), 10)]
+    upload(ap, first)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert _resend(ap, mavlink.MAV_CMD_MISSION_START, 0, 1) == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                 for m in ms))
+    upload(ap, [first[0], item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 40), 10)])
+    assert _resend(ap, mavlink.MAV_CMD_MISSION_START, 1, 1) == mavlink.MAV_RESULT_ACCEPTED
+    assert ap.counters["commands_repeated"] == 0
+    msgs = run_until(ap, lambda ms: any(m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 1
+                                        for m in ms))
+    assert msgs  # the second mission was flown to its end
+
+
 def test_samples_are_archived_and_resent_on_request():
     """The recovery commands: the count of a time range, then its samples again (with the
-    phase in force), as the same GLOBAL_POSITION_INT + FIELD pairs."""
+    phase in force: the companion reports phases), as the same GLOBAL_POSITION_INT + FIELD
+    pairs."""
     from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND
 
-    ap = make(sample_rate_hz=10.0)
+    ap = make(sample_rate_hz=10.0, companion=True)
     upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1),
                 item_int(1, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(30, 0), 10)])
     command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)

@@ -60,7 +60,7 @@ def test_a_mission_that_cannot_be_saved_fails_the_run(tmp_path: Path) -> None:
     (missions / "iter01_v2.waypoints").mkdir()  # the WPL copy cannot be written
     fake = SimpleNamespace(missions_dir=missions)
     with pytest.raises(RunError, match=r"cannot save the mission of vehicle 2 in .*missions"):
-        MavlinkExecutor._save_mission(fake, 1, 2, items)  # type: ignore[arg-type]
+        MavlinkExecutor._save_mission(fake, 1, 2, items, [Waypoint(10.0, 20.0)])  # type: ignore[arg-type]
 
 
 def test_station_close_reports_a_router_that_fails_to_close(

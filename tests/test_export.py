@@ -14,18 +14,16 @@ import pytest
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.export import (
-    export_cli,
-    geojson_for_run,
+from econdor_gcs.export import export_cli, geojson_for_run, write_geojson
+from econdor_gcs.link.mission import MissionItemSpec, build_mission
+from econdor_gcs.mission_files import (
     items_to_plan,
     items_to_wpl,
     read_plan,
     read_wpl,
-    write_geojson,
     write_plan,
     write_wpl,
 )
-from econdor_gcs.link.mission import MissionItemSpec, build_mission
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 INT_REL, FLOAT_REL = 6, 3
@@ -68,10 +66,13 @@ def make_run(tmp: Path, *, origin: bool = True, missions: bool = True) -> Path:
     return run
 
 
-def ns(run: Path, fmt: str, out: Path | str, iteration: int | None = None,
-       vehicle: int | None = None) -> argparse.Namespace:
-    return argparse.Namespace(run_dir=run, format=fmt, out=out, iteration=iteration,
-                              vehicle=vehicle)
+def ns(run: Path, fmt: str, out: Path | str, iteration: int | str | None = None,
+       vehicle: int | None = None, style: str = "trace") -> argparse.Namespace:
+    """The saved missions of these fake run directories have no tasks beside them: they can
+    only be exported as they were sent (``--style trace``)."""
+    return argparse.Namespace(source=run, format=fmt, out=out,
+                              iteration=None if iteration is None else str(iteration),
+                              vehicle=vehicle, style=style)
 
 
 # ---------------------------------------------------------------------------------- WPL
@@ -115,9 +116,10 @@ def test_wpl_round_trip_field_by_field(tmp_path: Path) -> None:
     assert {it.frame for it in kept} == {FLOAT_REL}
     assert [replace(k, frame=INT_REL) for k in kept] == items
     # text input works too, and odd floats survive exactly
-    odd = [replace(items[2], param1=0.10000000149011612, param2=math.pi, z=12.345678901)]
+    odd = [replace(items[2], seq=0, param1=0.10000000149011612, param2=math.pi,
+                   z=12.345678901)]
     assert read_wpl(items_to_wpl(odd), int_frames=True) == odd
-    nan_item = read_wpl(items_to_wpl([replace(items[1], param4=math.nan)]))[0]
+    nan_item = read_wpl(items_to_wpl([replace(items[1], seq=0, param4=math.nan)]))[0]
     assert math.isnan(nan_item.param4)
 
 
@@ -324,7 +326,7 @@ def test_export_cli_several_files(tmp_path: Path, capsys: pytest.CaptureFixture[
     run = make_run(tmp_path)
     outdir = tmp_path / "exp"
     outdir.mkdir()
-    assert export_cli(ns(run, "wpl", outdir)) == 0
+    assert export_cli(ns(run, "wpl", outdir, iteration="all")) == 0
     printed = capsys.readouterr().out.split()
     names = sorted(p.name for p in outdir.iterdir())
     assert names == ["iter00_v1.waypoints", "iter00_v2.waypoints", "iter01_v1.waypoints",
@@ -339,7 +341,14 @@ def test_export_cli_errors(tmp_path: Path) -> None:
     run = make_run(tmp_path)
     with pytest.raises(EcondorError, match="4 missions match; pick one with --iteration and "
                                            "--vehicle"):
+        export_cli(ns(run, "wpl", tmp_path / "x.waypoints", iteration="all"))
+    with pytest.raises(EcondorError, match="no next_batch.json"):
         export_cli(ns(run, "wpl", tmp_path / "x.waypoints"))
+    with pytest.raises(EcondorError, match="only --style trace can export it"):
+        export_cli(ns(run, "wpl", tmp_path / "x.waypoints", iteration=0, vehicle=1,
+                      style="waypoints"))
+    with pytest.raises(EcondorError, match="--iteration: expected a number or 'all'"):
+        export_cli(ns(run, "wpl", tmp_path / "x.waypoints", iteration="last"))
     with pytest.raises(EcondorError, match=r"no mission saved for iteration 7 \(saved "
                                            r"iterations: 0, 1\)"):
         export_cli(ns(run, "wpl", tmp_path / "x.waypoints", iteration=7))
@@ -353,7 +362,7 @@ def test_export_cli_errors(tmp_path: Path) -> None:
         export_cli(ns(empty, "wpl", tmp_path / "x.waypoints"))
     inproc = make_run(tmp_path / "inproc", missions=False)
     with pytest.raises(EcondorError, match="no missions saved"):
-        export_cli(ns(inproc, "plan", tmp_path / "x.plan"))
+        export_cli(ns(inproc, "plan", tmp_path / "x.plan", iteration="all"))
     (run / "missions" / "iter00_v1.json").write_text('[{"seq": 0, "bogus": 1}]')
     with pytest.raises(EcondorError, match="unknown keys bogus"):
         export_cli(ns(run, "wpl", tmp_path / "x.waypoints", iteration=0, vehicle=1))

@@ -68,7 +68,7 @@ def test_demo_through_a_lossy_signed_link_keeps_every_sample(tmp_path: Path, cap
     with RelayProcess(station_port, "--drop", "10%", "--seed", "7") as relay, \
             contextlib.ExitStack() as stack:
         vehicles = [stack.enter_context(VehicleProcess(
-            "--speedup", "100", "--signing-key", str(key), mission=DEMO, sysid=s,
+            "--speedup", "100", "--companion", "--signing-key", str(key), mission=DEMO, sysid=s,
             connect=f"udpout:127.0.0.1:{relay.port}")) for s in (1, 2, 3)]
         code = cli.main(["run", str(DEMO), "--connect", f"udpin:127.0.0.1:{station_port}",
                          "--out", str(out), "--quiet", "--speedup", "100",
@@ -140,7 +140,8 @@ def test_station_killed_mid_run_resumes_to_the_same_result(tmp_path: Path, capsy
     out = tmp_path / "run"
     with contextlib.ExitStack() as stack:
         for s in (1, 2):
-            stack.enter_context(VehicleProcess("--speedup", "100", mission=mission, sysid=s,
+            stack.enter_context(VehicleProcess("--speedup", "100", "--companion",
+                                               mission=mission, sysid=s,
                                                connect=f"udpout:127.0.0.1:{port}"))
         station = subprocess.Popen(
             [sys.executable, "-m", "econdor", "run", str(mission), "--out", str(out),

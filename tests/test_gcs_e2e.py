@@ -18,6 +18,7 @@ from vehicle_helpers import VehicleProcess, free_port
 
 from econdor import cli
 from econdor_gcs.dfc import IterationRecord
+from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.tlog import read_tlog
 from econdor_gcs.mission import load_mission
 from econdor_lab.study import run_seed
@@ -180,9 +181,9 @@ def test_connect_serves_vehicles_started_elsewhere(tmp_path: Path,
     mission = write_mission(tmp_path, iterations=1)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "100", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"), \
-            VehicleProcess("--speedup", "100", mission=mission, sysid=2,
+            VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=2,
                            connect=f"udpout:127.0.0.1:{port}"):
         code, stdout, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                                     "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
@@ -199,7 +200,7 @@ def test_vehicle_that_never_appears(tmp_path: Path, capsys: pytest.CaptureFixtur
     mission = write_mission(tmp_path, iterations=1)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "100", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"):
         code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                                "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
@@ -213,29 +214,106 @@ def test_vehicle_that_never_appears(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert (out / "telemetry.tlog").exists() and (out / "samples.csv").exists()
 
 
+def test_mixed_fleet_started_elsewhere(tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """A companion vehicle traces on board; a stock ArduPilot refuses contour items and gets
+    the estimated contours as waypoint polylines; summary.json says who flew which way."""
+    mission = write_mission(tmp_path, iterations=1)
+    port = free_port()
+    out = tmp_path / "run"
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
+                        connect=f"udpout:127.0.0.1:{port}"), \
+            VehicleProcess("--speedup", "100", "--autopilot", "ardupilot", "--prearm-s", "0.5",
+                           mission=mission, sysid=2, connect=f"udpout:127.0.0.1:{port}"):
+        code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
+                               "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
+                               "--timeout", "20")
+        assert code == 0, err  # inside: the vehicles' logs are shown if not
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fleet"] == [
+        {"sysid": 1, "autopilot": "px4", "started_as": None, "mode": "trace",
+         "tasks_flown": {"trace": summary["fleet"][0]["tasks_flown"]["trace"],
+                         "waypoints": 0, "legs": 2}},
+        {"sysid": 2, "autopilot": "ardupilot", "started_as": None, "mode": "waypoints",
+         "tasks_flown": {"trace": 0, "waypoints": summary["fleet"][1]["tasks_flown"]["waypoints"],
+                         "legs": 2}}]
+    assert all(sum(v["tasks_flown"].values()) > 1 for v in summary["fleet"])
+    msgs = read_tlog(out / "telemetry.tlog")
+    # the GCS's items, by target: vehicle 2 refused the first contour item it was offered
+    # (MISSION_ACK UNSUPPORTED) and was never offered another
+    items = [m for m in msgs if m.get_type() == "MISSION_ITEM_INT" and m.get_srcSystem() == 255]
+    offered = [m for m in items if m.command == 31000 and m.target_system == 2]
+    assert len({m.seq for m in offered}) == 1
+    assert any(m.get_type() == "MISSION_ACK" and m.get_srcSystem() == 2
+               and m.type == mavlink.MAV_MISSION_UNSUPPORTED for m in msgs)
+    assert len([m for m in items if m.command == 31000 and m.target_system == 1]) > 1
+    # vehicle 2 was asked for items the ArduPilot way and flew waypoint polylines
+    assert any(m.get_type() == "MISSION_REQUEST" and m.get_srcSystem() == 2 for m in msgs)
+    wps2 = [m for m in items if m.target_system == 2 and m.command == 16]
+    assert len(wps2) > 10
+    rows = json.loads((out / "iterations.json").read_text())
+    # after the diagonals only contour pieces are flown: "reached" is vehicle 2's polylines
+    assert any(r["outcomes"].get("reached", 0) > 0 for r in rows[1:])
+    assert math.isfinite(summary["final_mae_db"]) and summary["contour_distance_m"] > 0
+    assert (out / "next_batch.json").exists() and (out / "mission.yaml").exists()
+
+
+def test_mixed_fleet_started_by_the_run(tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``--autopilot ardupilot,px4+companion``: the stock ArduPilot flies the contour pieces as
+    waypoint polylines, the PX4 with the tracer on board as trace items; summary.json says so
+    per vehicle with the tasks flown each way, and no sample is missing."""
+    mission = write_mission(tmp_path, iterations=2)
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
+                           "--autopilot", "ardupilot,px4+companion", "--quiet")
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert "error" not in summary
+    fleet = {v["sysid"]: v for v in summary["fleet"]}
+    assert [(fleet[s]["autopilot"], fleet[s]["started_as"], fleet[s]["mode"]) for s in (1, 2)] \
+        == [("ardupilot", "ardupilot", "waypoints"), ("px4", "px4+companion", "trace")]
+    stock, tracer = fleet[1]["tasks_flown"], fleet[2]["tasks_flown"]
+    assert stock["trace"] == 0 and stock["waypoints"] > 0
+    assert tracer["waypoints"] == 0 and tracer["trace"] > 0
+    assert stock["legs"] == tracer["legs"] == 2  # one diagonal each: its start, its end
+    # every contour piece the iterations account for was flown one way or the other
+    rows = json.loads((out / "iterations.json").read_text())
+    assert len(rows) == 3  # the diagonals, then two iterations
+    accounted = sum(n for r in rows[1:] for st, n in r["outcomes"].items()
+                    if st != "unreported")
+    assert accounted == sum(fleet[s]["tasks_flown"][w] for s in (1, 2)
+                            for w in ("trace", "waypoints")) > 0
+    # all samples: each vehicle's own count arrived, and is in samples.csv
+    rec = summary["sample_recovery"]
+    for sysid in ("1", "2"):
+        assert rec[sysid]["missing"] == 0 and not rec[sysid]["lost"], rec[sysid]
+        assert rec[sysid]["received"] == rec[sysid]["vehicle_count"] > 0, rec[sysid]
+    n_samples = sum(rec[s]["received"] for s in ("1", "2"))
+    assert len(csv_rows(out / "samples.csv")) == n_samples == summary["samples"]
+    assert math.isfinite(summary["final_mae_db"])
+
+
 def test_vehicle_rejecting_the_mission(tmp_path: Path,
                                        capsys: pytest.CaptureFixture[str]) -> None:
     mission = write_mission(tmp_path, iterations=2)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "100", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "100", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"), \
-            VehicleProcess("--speedup", "100", "--reject-command", "31000", mission=mission,
-                           sysid=2, connect=f"udpout:127.0.0.1:{port}"):
+            VehicleProcess("--speedup", "100", "--companion", "--reject-command", "22",
+                           mission=mission, sysid=2, connect=f"udpout:127.0.0.1:{port}"):
         code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                                "--connect", f"udpin:127.0.0.1:{port}", "--quiet",
                                "--timeout", "10")
     assert code == 1
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err
-    assert lines[0].startswith("econdor: error: vehicle 2 rejected mission item ")
-    assert lines[0].endswith("MAV_MISSION_UNSUPPORTED")
+    assert lines == ["econdor: error: vehicle 2 rejected mission item 1: "
+                     "MAV_MISSION_UNSUPPORTED"]
     summary = json.loads((out / "summary.json").read_text())
     assert "rejected" in summary["error"]
-    # the diagonals were flown: their samples are kept, and counted
-    samples = csv_rows(out / "samples.csv")
-    assert len(samples) > 100 and summary["samples"] == len(samples)
-    assert len(csv_rows(out / "metrics.csv")) == 1
+    # nothing was flown (every upload goes before any start): nothing to keep, all counted
+    assert summary["samples"] == len(csv_rows(out / "samples.csv")) == 0
 
 
 def test_vehicle_killed_mid_mission_its_pieces_go_to_the_other(tmp_path: Path) -> None:
@@ -249,9 +327,9 @@ def test_vehicle_killed_mid_mission_its_pieces_go_to_the_other(tmp_path: Path) -
     mission = write_mission(tmp_path, iterations=2)
     port = free_port()
     out = tmp_path / "run"
-    with VehicleProcess("--speedup", "20", mission=mission, sysid=1,
+    with VehicleProcess("--speedup", "20", "--companion", mission=mission, sysid=1,
                         connect=f"udpout:127.0.0.1:{port}"), \
-            VehicleProcess("--speedup", "20", mission=mission, sysid=2,
+            VehicleProcess("--speedup", "20", "--companion", mission=mission, sysid=2,
                            connect=f"udpout:127.0.0.1:{port}") as doomed:
         gcs = subprocess.Popen(
             [sys.executable, "-m", "econdor", "run", str(mission), "--out", str(out),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 from types import SimpleNamespace
@@ -15,12 +16,14 @@ from econdor_gcs.core.tasks import (
     OutcomeStatus,
     Phase,
     TaskOutcome,
+    TaskStyle,
     TraceReport,
     TraceTask,
     Waypoint,
 )
-from econdor_gcs.errors import ProtocolError, VehicleTimeout
+from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.gcs import (
+    UPLOAD_ATTEMPTS,
     Flight,
     MavlinkExecutor,
     StatusAssembler,
@@ -28,7 +31,7 @@ from econdor_gcs.gcs import (
     mission_items_json,
 )
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.mission import build_mission
+from econdor_gcs.link.mission import build_mission, plan_mission
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost
 from econdor_gcs.mission import parse_mission
@@ -292,19 +295,34 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
 
 
 def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
+    """A stock autopilot flies a contour as waypoints: the first is reached in transit, the
+    legs after it are along the (estimated) contour; its outcome is accounted by item."""
     m = _mission()
     router = FakeRouter()
     ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
-    tr = TraceTask(50.0, 10.0, 10.0, 10.0, 0.0, 1000)
+    route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
+    tasks = [Waypoint(5.0, 0.0), TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route)]
+    plan = plan_mission(m.origin, tasks, 30.0, style=TaskStyle.WAYPOINTS, tolerance_m=0.1,
+                        end="none")
+    assert plan.task_seqs == [(2, 2), (3, 5)]
     v = ex.vehicles[1]
-    v.items = build_mission(m.origin, [Waypoint(5.0, 5.0), tr], 30.0, end="none")
-    ex._begin(v, [Waypoint(5.0, 5.0), tr])
+    v.items, v.item_phases = plan.items, dict(plan.item_phases)
+    f = ex._begin(v, tasks, plan)
+    v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
-    on_msg(1, mavlink.MAVLink_mission_current_message(2, 4, 2, 1))
-    on_sample(_sample(m.origin, 1, 1000, 1.0, 0.0, 10.0))
-    on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, 2, 1))
-    on_sample(_sample(m.origin, 1, 1100, 2.0, 0.0, 11.0))
-    assert list(ex._end(v).samples.phase) == [Phase.TRANSIT, Phase.SEARCH]
+    for seq, ms, x, y in ((2, 1000, 5.0, 0.0), (3, 1100, 10.0, 0.0), (4, 1200, 20.0, 0.0),
+                          (5, 1300, 20.0, 10.0)):
+        on_msg(1, mavlink.MAVLink_mission_current_message(seq, 6, 2, 1))
+        on_sample(_sample(m.origin, 1, ms, x, y, 1.0))
+        on_msg(1, mavlink.MAVLink_mission_item_reached_message(seq))
+    assert f.done
+    r = ex._end(v)
+    assert list(r.samples.phase) == [Phase.TRANSIT, Phase.TRANSIT, Phase.TRACE, Phase.TRACE]
+    assert [o.status for o in r.outcomes] == ["reached", "reached"]
+    # flown along the contour: the legs to items 4 and 5 (10 m each)
+    assert r.outcomes[1].traced_m == pytest.approx(20.0, abs=0.05)
+    assert r.outcomes[1].flown_m == pytest.approx(25.0, abs=0.05)
+    assert r.traced_m == pytest.approx(20.0, abs=0.05)
 
 
 def test_returning_vehicle_has_landed_when_its_state_says_so() -> None:
@@ -422,3 +440,48 @@ def test_a_landed_vehicle_is_not_late_while_the_others_come_home() -> None:
     router.vehicles[1].time_boot_ms = 10**7  # hours of its time later
     ex._check_progress([v])
     assert v.lost is None
+
+
+def _scripted_uploads(ex: Any, answers: list[int | None]) -> list[list[int]]:
+    """Replace the executor's upload with one that answers each attempt from ``answers``
+    (a MAV_MISSION_RESULT refusing item 3, or None: accepted); returns the commands sent."""
+    sent: list[list[int]] = []
+
+    async def upload(v: Any, items: list[Any]) -> None:
+        sent.append([it.command for it in items])
+        result = answers[len(sent) - 1]
+        if result is not None:
+            raise MissionRejected(f"vehicle {v.sysid} rejected mission item 3", result, 3,
+                                  items[3].command)
+
+    ex._upload = upload
+    return sent
+
+
+def test_a_lost_refusal_of_a_contour_item_restarts_the_upload() -> None:
+    """A stock vehicle's UNSUPPORTED for the contour item is lost; the item sent again meets
+    no transfer (INVALID_SEQUENCE): the upload starts again, meets the refusal, and the
+    pieces go as waypoints."""
+    m = _mission()
+    ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
+    sent = _scripted_uploads(ex, [mavlink.MAV_MISSION_INVALID_SEQUENCE,
+                                  mavlink.MAV_MISSION_UNSUPPORTED,
+                                  mavlink.MAV_MISSION_ERROR, None])
+    route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
+    v = ex.vehicles[1]
+    asyncio.run(ex._plan_and_upload(
+        v, [TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route)], 1, 0))
+    trace, wp = mavlink.MAV_CMD_WAYPOINT_USER_1, mavlink.MAV_CMD_NAV_WAYPOINT
+    assert [trace in c for c in sent] == [True, True, False, False]
+    assert all(c[3:] == [wp] * 3 for c in sent[2:])
+    assert v.style == TaskStyle.WAYPOINTS
+    assert v.flight is not None and v.flight.style == TaskStyle.WAYPOINTS
+
+
+def test_an_upload_refused_again_and_again_fails() -> None:
+    m = _mission()
+    ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
+    sent = _scripted_uploads(ex, [mavlink.MAV_MISSION_INVALID_SEQUENCE] * 5)
+    with pytest.raises(MissionRejected, match="rejected mission item 3"):
+        asyncio.run(ex._plan_and_upload(ex.vehicles[1], [Waypoint(5.0, 0.0)] * 3, 1, 0))
+    assert len(sent) == UPLOAD_ATTEMPTS

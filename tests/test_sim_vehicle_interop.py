@@ -3,17 +3,10 @@
 from __future__ import annotations
 
 import math
-import os
-import queue
-import shutil
-import subprocess
-import sys
-import threading
-import time
 from pathlib import Path
 
 import pytest
-from vehicle_helpers import DEMO, VehicleProcess, free_port, wait_for
+from vehicle_helpers import DEMO, MavproxyShell, VehicleProcess, free_port, wait_for
 
 from econdor_gcs.mission import load_mission
 
@@ -38,79 +31,17 @@ def parse_wpl(path: Path) -> list[list[float]]:
     return [[float(v) for v in line.split()] for line in lines[1:] if line.strip()]
 
 
-def mavproxy_exe() -> str:
-    exe = shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
-    if exe is None:
-        pytest.fail("mavproxy.py not installed in this environment (pip install MAVProxy)")
-    return exe
-
-
-class LineReader:
-    """Collect a process's output lines on a thread; wait for a line containing text."""
-
-    def __init__(self, stream) -> None:
-        self.lines: list[str] = []
-        self.q: queue.Queue[str] = queue.Queue()
-        self.t = threading.Thread(target=self._run, args=(stream,), daemon=True)
-        self.t.start()
-
-    def _run(self, stream) -> None:
-        for raw in iter(stream.readline, b""):
-            line = raw.decode(errors="replace").rstrip()
-            self.lines.append(line)
-            self.q.put(line)
-
-    def wait(self, text: str, timeout: float) -> str:
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                line = self.q.get(timeout=max(0.01, deadline - time.monotonic()))
-            except queue.Empty:
-                raise TimeoutError(f"MAVProxy never printed {text!r}:\n"
-                                   + "\n".join(self.lines[-40:])) from None
-            if text in line:
-                return line
-
-
 def test_mavproxy_wp_load_and_save_round_trip(tmp_path):
     src = tmp_path / "in.waypoints"
     src.write_text(WPL.format(home_lat=ORIGIN.lat_deg, home_lon=ORIGIN.lon_deg))
     out = tmp_path / "out.waypoints"
-    with VehicleProcess("--speedup", "10", connect="tcpin:127.0.0.1:0") as veh:
-        # MAVProxy's --non-interactive mode only runs --cmd once at start-up, before the
-        # link is up; driving its command line over a pipe lets us wait for each step.
-        proc = subprocess.Popen(
-            [mavproxy_exe(), f"--master=tcp:127.0.0.1:{veh.port}", "--no-state",
-             "--source-system=255", "--source-component=190"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            cwd=tmp_path)
-        assert proc.stdin is not None and proc.stdout is not None
-        reader = LineReader(proc.stdout)
-
-        def cmd(text: str) -> None:
-            proc.stdin.write((text + "\n").encode())
-            proc.stdin.flush()
-
-        try:
-            reader.wait("Mode ", 20)  # heartbeat seen, flight mode decoded (PX4 encoding)
-            cmd(f"wp load {src}")
-            reader.wait("MISSION_ACK: TYPE_MISSION: ACCEPTED", 15)
-            cmd(f"wp save {out}")
-            reader.wait("Saved 7 waypoints", 15)
-            cmd("exit")
-            proc.stdin.close()  # EOF on its command line also makes MAVProxy quit
-            proc.wait(15)
-        finally:
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(5)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
-            proc.stdout.close()
-            if not proc.stdin.closed:
-                proc.stdin.close()
+    with VehicleProcess("--speedup", "10", "--companion", connect="tcpin:127.0.0.1:0") as veh, \
+            MavproxyShell(f"tcp:127.0.0.1:{veh.port}", cwd=tmp_path) as mp:
+        mp.wait("Mode ", 20)  # heartbeat seen, flight mode decoded (PX4 encoding)
+        mp.cmd(f"wp load {src}")
+        mp.wait("MISSION_ACK: TYPE_MISSION: ACCEPTED", 15)
+        mp.cmd(f"wp save {out}")
+        mp.wait("Saved 7 waypoints", 15)
     a, b = parse_wpl(src), parse_wpl(out)
     assert len(a) == len(b) == 7
     for ra, rb in zip(a, b, strict=True):

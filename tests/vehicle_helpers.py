@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import queue
 import re
 import shutil
 import signal
@@ -11,6 +12,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -270,16 +272,105 @@ class VehicleProcess:
 
 @contextlib.contextmanager
 def inproc_vehicle(mission_path: Path | str = DEMO, sysid: int = 1, speedup: float = 50.0,
-                   connect: str = "udpin:127.0.0.1:0", **overrides: Any) -> Iterator[Any]:
-    """A MavlinkVehicle on a thread, listening on an ephemeral loopback port."""
+                   connect: str = "udpin:127.0.0.1:0", autopilot: str = "px4",
+                   companion: bool = True, **overrides: Any) -> Iterator[Any]:
+    """A MavlinkVehicle on a thread, listening on an ephemeral loopback port (by default
+    PX4 habits with the tracer on board)."""
     from econdor_gcs.mission import load_mission
-    from sim_vehicle.mavlink_vehicle import MavlinkVehicle
+    from sim_vehicle.mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
 
     mission = load_mission(mission_path)
     v = MavlinkVehicle.from_mission(mission, sysid=sysid, connect=connect, speedup=speedup,
+                                    autopilot=AUTOPILOTS[autopilot], companion=companion,
                                     **overrides)
     v.start()
     try:
         yield v
     finally:
         v.stop()
+
+
+def mavproxy_exe() -> str:
+    exe = shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
+    if exe is None:
+        raise RuntimeError("mavproxy.py not installed in this environment (pip install MAVProxy)")
+    return exe
+
+
+class LineReader:
+    """Collect a process's output lines on a thread; wait for a line containing text."""
+
+    def __init__(self, stream) -> None:
+        self.lines: list[str] = []
+        self.q: queue.Queue[str] = queue.Queue()
+        self.t = threading.Thread(target=self._run, args=(stream,), daemon=True)
+        self.t.start()
+
+    def _run(self, stream) -> None:
+        for raw in iter(stream.readline, b""):
+            line = raw.decode(errors="replace").rstrip()
+            self.lines.append(line)
+            self.q.put(line)
+
+    def wait(self, text: str, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                line = self.q.get(timeout=max(0.01, deadline - time.monotonic()))
+            except queue.Empty:
+                raise TimeoutError(f"MAVProxy never printed {text!r}:\n"
+                                   + "\n".join(self.lines[-40:])) from None
+            if text in line:
+                return line
+
+
+class MavproxyShell:
+    """MAVProxy on a master, driven over its command line (stdin) with waits on its output.
+
+    MAVProxy's --non-interactive mode runs --cmd only once at start-up, before the link is
+    up; a pipe lets a test wait for each step. Always stopped on exit (EOF, then terminate,
+    then kill); its output is kept in ``lines``.
+    """
+
+    def __init__(self, master: str, cwd: Path, source_system: int = 255) -> None:
+        self.proc = subprocess.Popen(
+            [mavproxy_exe(), f"--master={master}", "--no-state",
+             f"--source-system={source_system}", "--source-component=190"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=cwd)
+        assert self.proc.stdout is not None
+        self.reader = LineReader(self.proc.stdout)
+
+    @property
+    def lines(self) -> list[str]:
+        return self.reader.lines
+
+    def cmd(self, text: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write((text + "\n").encode())
+        self.proc.stdin.flush()
+
+    def wait(self, text: str, timeout: float) -> str:
+        return self.reader.wait(text, timeout)
+
+    def close(self) -> None:
+        p = self.proc
+        if p.stdin is not None and not p.stdin.closed:
+            with contextlib.suppress(BrokenPipeError):
+                p.stdin.close()  # EOF on its command line makes MAVProxy quit
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            p.terminate()
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        if p.stdout is not None:
+            p.stdout.close()
+
+    def __enter__(self) -> MavproxyShell:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

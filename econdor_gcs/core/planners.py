@@ -46,6 +46,7 @@ from .geometry import FloatArray, Grid, Region
 from .levels import lloyd_max
 from .sg import drop_redundant, initial_delta, update_delta, update_kappa
 from .tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
+from .waypoints import piece_route
 
 PLANNER_NAMES = ("econdor", "no-sg", "lawnmower", "adaptive")
 """The planners a mission or the command line may name (built by ``econdor_gcs.dfc``)."""
@@ -80,7 +81,9 @@ class Job:
             ends = self.piece.points_m[[0, -1]]
             far = int(np.argmax(np.hypot(ends[:, 0] - sx, ends[:, 1] - sy)))
             self.end_m = (float(ends[far, 0]), float(ends[far, 1]))
-        self.tasks = [TraceTask(self.piece.level, sx, sy, search_radius_m, max_len, piece_id)]
+        route = piece_route(self.piece.points_m, self.piece.closed, (x_m, y_m))
+        self.tasks = [TraceTask(self.piece.level, sx, sy, search_radius_m, max_len, piece_id,
+                                route_m=tuple(map(tuple, route.tolist())))]
 
 
 @dataclass

@@ -36,6 +36,9 @@ class TraceTask:
     """Search for ``level`` near the start point, then trace that iso-line.
 
     ``max_length_m = 0`` means "until the loop closes (or the boundary is hit on both sides)".
+    ``route_m`` is the *estimated* contour piece as a vehicle without the onboard tracer
+    would fly it from where it comes (:func:`econdor_gcs.core.waypoints.piece_route`; empty
+    when unknown); it takes no part in comparisons.
     """
 
     level: float
@@ -44,9 +47,18 @@ class TraceTask:
     search_radius_m: float
     max_length_m: float
     piece_id: int
+    route_m: tuple[tuple[float, float], ...] = field(default=(), compare=False, repr=False)
 
 
 Task = Waypoint | TraceTask
+
+
+class TaskStyle(StrEnum):
+    """How a vehicle is given a contour piece: a contour item for its onboard tracer
+    (``TRACE``), or the estimated piece as a waypoint polyline (``WAYPOINTS``, any autopilot)."""
+
+    TRACE = "trace"
+    WAYPOINTS = "waypoints"
 
 
 class Phase(IntEnum):

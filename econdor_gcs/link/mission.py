@@ -30,8 +30,9 @@ from dataclasses import dataclass, replace
 
 from ..core.geodesy import Origin
 from ..core.geometry import Region
-from ..core.tasks import TraceTask, Waypoint
-from ..errors import ProtocolError, VehicleTimeout
+from ..core.tasks import Phase, Task, TaskStyle, TraceTask, Waypoint
+from ..core.waypoints import task_waypoints
+from ..errors import CommandRejected, MissionRejected, ProtocolError, VehicleTimeout
 from .codec import MAVLinkMessage, mavlink
 
 __all__ = [
@@ -39,27 +40,30 @@ __all__ = [
     "MissionClear",
     "MissionDownloader",
     "MissionItemSpec",
+    "MissionPlan",
     "MissionUploader",
     "build_mission",
+    "change_speed_item",
     "command_name",
     "enum_name",
     "fence_items",
     "home_item",
     "loiter_item",
+    "plan_mission",
     "rtl_item",
     "takeoff_item",
     "trace_item",
     "waypoint_item",
 ]
 
-MAV_CMD_WAYPOINT_USER_1 = 31000
+MAV_CMD_WAYPOINT_USER_1 = mavlink.MAV_CMD_WAYPOINT_USER_1
 FRAME_REL_INT = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-_INT_TO_FLOAT_FRAME = {
+INT_TO_FLOAT_FRAME = {  # the _INT frames and their float twins (MISSION_ITEM, files)
     mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
     mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
 }
-_FLOAT_TO_INT_FRAME = {v: k for k, v in _INT_TO_FLOAT_FRAME.items()}
+FLOAT_TO_INT_FRAME = {v: k for k, v in INT_TO_FLOAT_FRAME.items()}
 
 DEFAULT_TIMEOUT_S = 1.5
 DEFAULT_RETRIES = 5
@@ -119,12 +123,12 @@ class MissionItemSpec:
 
     def to_legacy_message(self, target_system: int, target_component: int) -> MAVLinkMessage:
         """As the deprecated float ``MISSION_ITEM`` (``_INT`` frames mapped to float frames)."""
-        global_frame = self.frame in _INT_TO_FLOAT_FRAME or self.frame in _FLOAT_TO_INT_FRAME
+        global_frame = self.frame in INT_TO_FLOAT_FRAME or self.frame in FLOAT_TO_INT_FRAME
         x = self.x / 1e7 if global_frame else float(self.x)
         y = self.y / 1e7 if global_frame else float(self.y)
         return mavlink.MAVLink_mission_item_message(
             target_system, target_component, self.seq,
-            _INT_TO_FLOAT_FRAME.get(self.frame, self.frame),
+            INT_TO_FLOAT_FRAME.get(self.frame, self.frame),
             self.command, self.current, self.autocontinue, self.param1, self.param2, self.param3,
             self.param4, x, y, self.z, self.mission_type,
         )
@@ -134,8 +138,8 @@ class MissionItemSpec:
         """From a ``MISSION_ITEM_INT`` or a legacy ``MISSION_ITEM`` (float frames -> ``_INT``)."""
         frame, x, y = msg.frame, msg.x, msg.y
         if msg.get_type() == "MISSION_ITEM":
-            if frame in _FLOAT_TO_INT_FRAME:
-                frame = _FLOAT_TO_INT_FRAME[frame]
+            if frame in FLOAT_TO_INT_FRAME:
+                frame = FLOAT_TO_INT_FRAME[frame]
                 x, y = round(x * 1e7), round(y * 1e7)
             else:
                 x, y = round(x), round(y)
@@ -186,6 +190,13 @@ def takeoff_item(seq: int, lat_deg: float, lon_deg: float, alt_m: float) -> Miss
     )
 
 
+def change_speed_item(seq: int, speed_mps: float) -> MissionItemSpec:
+    """``MAV_CMD_DO_CHANGE_SPEED`` to a ground speed (param1 1 = ground speed, param3 -1 =
+    throttle unchanged), in ``MAV_FRAME_MISSION`` as QGroundControl writes it."""
+    return MissionItemSpec(seq, mavlink.MAV_FRAME_MISSION, mavlink.MAV_CMD_DO_CHANGE_SPEED,
+                           param1=1.0, param2=float(speed_mps), param3=-1.0)
+
+
 def rtl_item(seq: int) -> MissionItemSpec:
     """``MAV_CMD_NAV_RETURN_TO_LAUNCH`` (no position)."""
     return MissionItemSpec(seq, FRAME_REL_INT, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
@@ -216,14 +227,38 @@ def home_item(seq: int, lat_deg: float, lon_deg: float, alt_m: float = 0.0, *,
     )
 
 
-def build_mission(
+@dataclass(frozen=True)
+class MissionPlan:
+    """A vehicle's mission and where each task sits in it.
+
+    ``task_seqs[k]`` is the ``(first, last)`` item seq of task ``k`` (one item, or a trace
+    task's waypoint polyline); ``item_phases`` the sample phase each item implies, for
+    vehicles that report none (a polyline's first waypoint is reached in transit, the rest
+    flies along the estimated contour).
+    """
+
+    items: list[MissionItemSpec]
+    task_seqs: list[tuple[int, int]]
+    item_phases: dict[int, Phase]
+    style: TaskStyle
+
+    @property
+    def last_task_seq(self) -> int | None:
+        return self.task_seqs[-1][1] if self.task_seqs else None
+
+
+def plan_mission(
     origin: Origin,
-    tasks: Sequence[Waypoint | TraceTask],
+    tasks: Sequence[Task],
     altitude_m: float,
+    *,
+    style: TaskStyle = TaskStyle.TRACE,
+    tolerance_m: float = 1.0,
     home: tuple[float, float] = (0.0, 0.0),
+    speed_mps: float | None = None,
     end: str = "rtl",
-) -> list[MissionItemSpec]:
-    """A vehicle's mission: item 0 home, takeoff, one item per task, then the end item.
+) -> MissionPlan:
+    """A vehicle's mission: item 0 home, takeoff, [DO_CHANGE_SPEED], the tasks, the end item.
 
     Parameters
     ----------
@@ -231,11 +266,15 @@ def build_mission(
         The ENU frame of the task coordinates.
     tasks:
         :class:`Waypoint` -> ``MAV_CMD_NAV_WAYPOINT``; :class:`TraceTask` ->
-        ``MAV_CMD_WAYPOINT_USER_1`` (see :func:`trace_item`).
+        ``MAV_CMD_WAYPOINT_USER_1`` (:func:`trace_item`) with ``style=TRACE``, or its
+        estimated contour as ``NAV_WAYPOINT`` items (Douglas-Peucker to ``tolerance_m``,
+        :func:`~econdor_gcs.core.waypoints.task_waypoints`) with ``style=WAYPOINTS``.
     altitude_m:
         Flight altitude above home (frame ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``).
     home:
         Home / takeoff point, local ENU metres.
+    speed_mps:
+        If given, a ``DO_CHANGE_SPEED`` follows the takeoff.
     end:
         ``"rtl"`` (return to launch), ``"loiter"`` (hold, unlimited, at the last task's point or
         home) or ``"none"``.
@@ -246,26 +285,49 @@ def build_mission(
         raise ValueError(f"end must be 'rtl', 'loiter' or 'none', not {end!r}")
     if not altitude_m > 0:
         raise ValueError(f"altitude_m must be positive, got {altitude_m}")
+    if speed_mps is not None and not speed_mps > 0:
+        raise ValueError(f"speed_mps must be positive, got {speed_mps}")
     home_lat, home_lon, _ = origin.to_global(home[0], home[1])
     items = [home_item(0, home_lat, home_lon, 0.0),
              takeoff_item(1, home_lat, home_lon, altitude_m)]
+    phases: dict[int, Phase] = {}
+    if speed_mps is not None:
+        items.append(change_speed_item(len(items), speed_mps))
+    task_seqs: list[tuple[int, int]] = []
     last = (home_lat, home_lon)
     for task in tasks:
-        seq = len(items)
-        lat, lon, _ = origin.to_global(task.x_m, task.y_m)
-        if isinstance(task, TraceTask):
-            items.append(trace_item(seq, lat, lon, altitude_m, task.level, task.search_radius_m,
-                                    task.max_length_m, task.piece_id))
-        elif isinstance(task, Waypoint):
-            items.append(waypoint_item(seq, lat, lon, altitude_m))
+        first = len(items)
+        if isinstance(task, TraceTask) and style == TaskStyle.TRACE:
+            lat, lon, _ = origin.to_global(task.x_m, task.y_m)
+            items.append(trace_item(first, lat, lon, altitude_m, task.level,
+                                    task.search_radius_m, task.max_length_m, task.piece_id))
+            phases[first] = Phase.SEARCH
+        elif isinstance(task, TraceTask | Waypoint):
+            along = isinstance(task, TraceTask)
+            for k, wp in enumerate(task_waypoints(task, tolerance_m)):
+                lat, lon, _ = origin.to_global(wp.x_m, wp.y_m)
+                phases[len(items)] = Phase.TRACE if along and k > 0 else Phase.TRANSIT
+                items.append(waypoint_item(len(items), lat, lon, altitude_m))
         else:
             raise TypeError(f"tasks must be Waypoint or TraceTask, got {type(task).__name__}")
-        last = (lat, lon)
+        last = (items[-1].lat_deg, items[-1].lon_deg)
+        task_seqs.append((first, len(items) - 1))
     if end == "rtl":
         items.append(rtl_item(len(items)))
     elif end == "loiter":
         items.append(loiter_item(len(items), last[0], last[1], altitude_m))
-    return items
+    return MissionPlan(items, task_seqs, phases, style)
+
+
+def build_mission(
+    origin: Origin,
+    tasks: Sequence[Waypoint | TraceTask],
+    altitude_m: float,
+    home: tuple[float, float] = (0.0, 0.0),
+    end: str = "rtl",
+) -> list[MissionItemSpec]:
+    """The items of :func:`plan_mission` with contour items (``style=TRACE``)."""
+    return plan_mission(origin, tasks, altitude_m, home=home, end=end).items
 
 
 def fence_items(origin: Origin, region: Region, margin_m: float) -> list[MissionItemSpec]:
@@ -465,13 +527,15 @@ class MissionUploader(_Machine):
                     self._succeed(len(self.items))
                 return
             result = enum_name("MAV_MISSION_RESULT", msg.type)
-            if self._last_seq is None:
+            seq = self._last_seq
+            if seq is None:
                 text = (f"vehicle {self.target_system} rejected the mission "
                         f"({len(self.items)} items): {result}")
             else:
-                text = (f"vehicle {self.target_system} rejected mission item {self._last_seq}: "
+                text = (f"vehicle {self.target_system} rejected mission item {seq}: "
                         f"{result}")
-            self._fail(ProtocolError(text))
+            command = self.items[seq].command if seq is not None else None
+            self._fail(MissionRejected(text, int(msg.type), seq, command))
 
 
 class MissionDownloader(_Machine):
@@ -626,6 +690,6 @@ class CommandSender(_Machine):
             self._deadline = now + self.timeout_s
             self._retries_left = self.retries
         else:
-            self._fail(ProtocolError(
+            self._fail(CommandRejected(
                 f"vehicle {self.target_system} answered {command_name(self.command)} with "
-                f"{enum_name('MAV_RESULT', msg.result)}"))
+                f"{enum_name('MAV_RESULT', msg.result)}", self.command, int(msg.result)))

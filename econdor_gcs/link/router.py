@@ -169,6 +169,9 @@ class VehicleLink:
     positions are left out)."""
     last_fix_ms: int | None = None
     last_fix_airborne: bool = False
+    # last SYS_STATUS
+    sensors_present: int | None = None
+    sensors_health: int = 0
     # mission progress
     mission_current: int | None = None
     mission_reached: int | None = None
@@ -178,6 +181,14 @@ class VehicleLink:
     @property
     def armed(self) -> bool:
         return bool(self.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def prearm_ok(self) -> bool | None:
+        """The pre-arm checks pass (SYS_STATUS health bit); None if the vehicle does not say."""
+        bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if self.sensors_present is None or not self.sensors_present & bit:
+            return None
+        return bool(self.sensors_health & bit)
 
 
 class SamplePairer:
@@ -419,6 +430,18 @@ class Router:
             raise LinkError(f"vehicle {sysid} has never been heard from")
         self._send_to(link.address, msg)
 
+    def send_raw(self, sysid: int, data: bytes) -> None:
+        """Send already encoded MAVLink bytes (another sender's message) to ``sysid``."""
+        link = self.vehicles.get(sysid)
+        if link is None:
+            raise LinkError(f"vehicle {sysid} has never been heard from")
+        if self._transport is None:
+            raise LinkError("the GCS endpoint is not started")
+        self._transport.sendto(data, link.address)
+        self.stats["messages_out"] += 1
+        if self.tlog is not None:
+            self.tlog.write(data)
+
     def _send_to(self, address: Address, msg: MAVLinkMessage) -> None:
         if self._transport is None:
             raise LinkError("the GCS endpoint is not started")
@@ -489,6 +512,9 @@ class Router:
             link.alt_m, link.rel_alt_m = msg.alt / 1000.0, rel_alt_m
             if msg.hdg != HDG_UNKNOWN:
                 link.heading_deg = msg.hdg / 100.0
+        elif kind == "SYS_STATUS":
+            link.sensors_present = msg.onboard_control_sensors_present
+            link.sensors_health = msg.onboard_control_sensors_health
         elif kind == "MISSION_CURRENT":
             link.mission_current = msg.seq
         elif kind == "MISSION_ITEM_REACHED":

@@ -1,0 +1,229 @@
+"""The ArduPilot (ArduCopter 4.5) personality of the simulated autopilot.
+
+The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
+``GCS_MAVLink/MissionItemProtocol*.cpp``, ``AP_Mission`` and ``ArduCopter/mode_auto.cpp``):
+
+* HEARTBEAT ``autopilot = MAV_AUTOPILOT_ARDUPILOTMEGA`` with ArduCopter's custom mode numbers
+  (:data:`COPTER_MODES`): STABILIZE 0 (the boot mode), AUTO 3, GUIDED 4, LOITER 5, RTL 6,
+  LAND 9. ``base_mode`` has CUSTOM_MODE_ENABLED and STABILIZE_ENABLED, GUIDED_ENABLED in the
+  navigation modes, SAFETY_ARMED when armed. DO_SET_MODE / SET_MODE take the mode number
+  (param2 / ``custom_mode``); a refused mode change is MAV_RESULT_FAILED.
+* Telemetry only when asked: nothing but HEARTBEAT until REQUEST_DATA_STREAM or
+  SET_MESSAGE_INTERVAL enables messages.
+* Pre-arm: arming fails (MAV_RESULT_FAILED and a ``PreArm:`` STATUSTEXT) for ``prearm_s``
+  wall seconds after boot, and SYS_STATUS reports the MAV_SYS_STATUS_PREARM_CHECK health bit
+  clear until then; COMPONENT_ARM_DISARM param2 = 2989 forces. Arming is refused in AUTO,
+  RTL and LAND ("Mode not armable").
+* Missions: items are requested with MISSION_REQUEST (not ``_INT``); item 0 is home and is
+  overwritten with the vehicle's home (frame MAV_FRAME_GLOBAL, altitude AMSL); downloads
+  report the float frames (3 for 6, 0 for 5), altitudes in centimetres and autocontinue 1;
+  unknown commands are refused with MAV_MISSION_UNSUPPORTED (the contour item too, unless a
+  companion computer runs the tracer). A mission is flown from item 1.
+* Flying a mission: GUIDED, arm, NAV_TAKEOFF (param7 = altitude *above home*), then AUTO; or
+  arm and MAV_CMD_MISSION_START (AUTO, resumes at the current item, or from item 1 when the
+  mission is complete or was never started; param1 > 0 starts there). Entering AUTO armed on
+  the ground needs a NAV_TAKEOFF as item 1. At the end of the mission the vehicle stays in
+  AUTO, hovering; RTL and LAND land and disarm and keep their mode.
+
+Not imitated: the RC throttle that real ArduCopter wants before AUTO takes off (``auto_armed``;
+there is no pilot here), failsafes, fences, parameters other than ours.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from .autopilot import ACCEPTED, FAILED, MISSION_RETRIES, Autopilot
+from .mission_server import MISSION, MissionServer, StoredItem
+from .navigator import ModeFlow
+from .state import FlightMode
+
+COPTER_STABILIZE, COPTER_AUTO, COPTER_GUIDED, COPTER_LOITER, COPTER_RTL, COPTER_LAND = (
+    0, 3, 4, 5, 6, 9)
+COPTER_MODES = {
+    FlightMode.MANUAL: COPTER_STABILIZE,
+    FlightMode.MISSION: COPTER_AUTO,
+    FlightMode.GUIDED: COPTER_GUIDED,
+    FlightMode.TAKEOFF: COPTER_GUIDED,  # ArduCopter takes off in GUIDED
+    FlightMode.HOLD: COPTER_LOITER,
+    FlightMode.RTL: COPTER_RTL,
+    FlightMode.LAND: COPTER_LAND,
+}
+COPTER_MODE_NAMES = {COPTER_STABILIZE: "STABILIZE", COPTER_AUTO: "AUTO",
+                     COPTER_GUIDED: "GUIDED", COPTER_LOITER: "LOITER", COPTER_RTL: "RTL",
+                     COPTER_LAND: "LAND"}
+_MODE_OF_NUMBER = {
+    COPTER_STABILIZE: FlightMode.MANUAL, COPTER_AUTO: FlightMode.MISSION,
+    COPTER_GUIDED: FlightMode.GUIDED, COPTER_LOITER: FlightMode.HOLD,
+    COPTER_RTL: FlightMode.RTL, COPTER_LAND: FlightMode.LAND,
+}
+_NAV_MODES = frozenset({FlightMode.MISSION, FlightMode.GUIDED, FlightMode.TAKEOFF,
+                        FlightMode.HOLD, FlightMode.RTL})
+_NOT_ARMABLE = frozenset({FlightMode.MISSION, FlightMode.RTL, FlightMode.LAND})
+COPTER_FLIGHT_SW_VERSION = ((4 << 24) | (5 << 16) | (7 << 8)
+                            | mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL)  # "4.5.7 official"
+PREARM_S = 2.0
+UPLOAD_RETRY_S = 1.0
+"""ArduPilot re-requests a missing item after about a second."""
+
+_FLOAT_FRAME = {
+    mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+}
+
+
+class ArduPilotMissionServer(MissionServer):
+    """The mission protocol as ArduPilot speaks it (item 0 is home; float frames back)."""
+
+    def __init__(self, home: tuple[float, float, float], **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.home = home
+
+    def stored(self, mtype: int, items: list[StoredItem]) -> list[StoredItem]:
+        if mtype != MISSION:
+            return items
+        lat, lon, alt_amsl = self.home
+        home = StoredItem(0, mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, 0, 1,
+                          0.0, 0.0, 0.0, 0.0, int(round(lat * 1e7)), int(round(lon * 1e7)),
+                          round(alt_amsl, 2))
+        return [home, *items[1:]]
+
+    def reported(self, item: StoredItem) -> StoredItem:
+        if item.mission_type != MISSION:
+            return item
+        return dataclasses.replace(item, frame=_FLOAT_FRAME.get(item.frame, item.frame),
+                                   z=round(item.z, 2), autocontinue=1, current=0)
+
+
+class ArduCopterAutopilot(Autopilot):
+    """ArduCopter personality (see the module docstring)."""
+
+    name = "ardupilot"
+    autopilot_type = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    flight_sw_version = COPTER_FLIGHT_SW_VERSION
+    boot_mode = FlightMode.MANUAL
+    mode_flow = ModeFlow(takeoff=FlightMode.GUIDED, after_takeoff=FlightMode.GUIDED,
+                         rtl_descent=None, mission_rtl=None, landed=None,
+                         mission_done=FlightMode.MISSION)
+    streams_on_request = True
+    prearm_s = PREARM_S
+
+    def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:
+        return ArduPilotMissionServer(self.state.home, timeout_s=UPLOAD_RETRY_S,
+                                      max_retries=MISSION_RETRIES, request_int=False,
+                                      accepted_commands=accepted_commands)
+
+    def custom_mode(self) -> int:
+        return COPTER_MODES[self.state.mode]
+
+    def mode_name(self) -> str:
+        return COPTER_MODE_NAMES[self.custom_mode()]
+
+    def heartbeat_modes(self) -> tuple[int, int]:
+        base, custom = super().heartbeat_modes()
+        base |= mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if self.state.mode in _NAV_MODES:
+            base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        return base, custom
+
+    @property
+    def has_mission(self) -> bool:
+        """More than the home item."""
+        return len(self.server.mission) > 1
+
+    # -- arming and modes ----------------------------------------------------------------------
+
+    def arm(self, force: bool = False) -> tuple[int, list[Any]]:
+        if self.state.mode in _NOT_ARMABLE and not force:
+            self.outbox.statustext("Arm: Mode not armable", mavlink.MAV_SEVERITY_CRITICAL)
+            return FAILED, []
+        return super().arm(force)
+
+    def set_mode(self, number: int) -> int:
+        """Change to ArduCopter mode ``number`` -> MAV_RESULT."""
+        mode = _MODE_OF_NUMBER.get(number)
+        st = self.state
+        if mode is None:
+            return FAILED
+        if mode == FlightMode.MISSION:
+            return self._enter_auto(first=None)
+        if mode == FlightMode.RTL:
+            if not (st.armed and st.in_air):
+                return FAILED
+            self._fly_activity(self.navigator.rtl())
+            return ACCEPTED
+        st.mode = mode
+        st.mission_active = False
+        if mode == FlightMode.LAND:
+            self.activity = self.navigator.land() if st.in_air else None
+        elif st.in_air:
+            self.activity = self.navigator.hold_forever()  # GUIDED / LOITER / no pilot
+        return ACCEPTED
+
+    def _enter_auto(self, first: int | None) -> int:
+        """AUTO: resume the mission (or start it at ``first``); FAILED without a mission, or
+        armed on the ground without a takeoff item."""
+        st = self.state
+        items = self.server.mission
+        if not self.has_mission:
+            self.outbox.statustext("Mode change to AUTO failed: no mission",
+                                   mavlink.MAV_SEVERITY_WARNING)
+            return FAILED
+        if st.armed and not st.in_air and items[1].command != mavlink.MAV_CMD_NAV_TAKEOFF:
+            self.outbox.statustext("Auto: Missing Takeoff Cmd", mavlink.MAV_SEVERITY_WARNING)
+            return FAILED
+        if first is None:
+            first = self.server.current_seq
+            if first < 1 or st.mission_complete or first >= len(items):
+                first = 1
+        st.mode = FlightMode.MISSION
+        if st.armed:
+            self.start_mission(first, len(items) - 1)
+        else:
+            self.server.set_current(first)
+            st.mission_active = False
+            self.activity = None
+        return ACCEPTED
+
+    def do_set_mode(self, base_mode: float, p2: float, p3: float) -> int:
+        if not int(base_mode) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED \
+                or not math.isfinite(p2):
+            return FAILED
+        return self.set_mode(int(p2))
+
+    def on_set_mode(self, msg: Any) -> None:
+        if msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            self.set_mode(int(msg.custom_mode))
+
+    # -- commands ArduCopter treats its own way ------------------------------------------------
+
+    def _cmd_takeoff(self, p: list[float]) -> tuple[int, list[Any]]:
+        """GUIDED (or LOITER) takeoff to param7 metres above home."""
+        st = self.state
+        alt = p[6]
+        if not (st.armed and not st.in_air
+                and st.mode in (FlightMode.GUIDED, FlightMode.HOLD)
+                and math.isfinite(alt) and alt > 0):
+            return FAILED, []
+        self._fly_activity(self.navigator.takeoff_then_hold(alt))
+        return ACCEPTED, []
+
+    def _cmd_mission_start(self, p: list[float]) -> tuple[int, list[Any]]:
+        first = int(p[0]) if math.isfinite(p[0]) and p[0] >= 1 else None
+        if first is not None and first >= len(self.server.mission):
+            return FAILED, []
+        return self._enter_auto(first), []
+
+    def _on_request_data_stream(self, msg: Any) -> None:
+        self.telemetry.request_data_stream(int(msg.req_stream_id), float(msg.req_message_rate),
+                                           bool(msg.start_stop))
+
+    _COMMANDS = {**Autopilot._COMMANDS,
+                 mavlink.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
+                 mavlink.MAV_CMD_MISSION_START: _cmd_mission_start}
+    _HANDLERS = {**Autopilot._HANDLERS, "REQUEST_DATA_STREAM": _on_request_data_stream}
