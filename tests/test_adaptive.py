@@ -3,6 +3,7 @@ whole runs through the DFC loop with the real onboard tracer."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -297,3 +298,30 @@ def test_threshold_mode_plans_its_own_batch_size():
         planned[batch_m] = sum(j.length_m for j in jobs)
     assert planned[100.0] <= 100.0 + 100.0  # one pick may overrun what is left
     assert planned[400.0] > 2 * planned[100.0]
+
+
+def test_survey_start_flies_even_strips_over_the_fleet_then_plans():
+    """``start: survey``: the first flight is ``start_lines`` north-south lines at the
+    strip centres, shared by the fleet; the adaptive plans follow within the budget."""
+    m = load_mission(ROOT / "missions" / "paper.yaml").with_overrides(flight_budget_m=1400.0)
+    m = dataclasses.replace(m, adaptive=dataclasses.replace(m.adaptive, start="survey",
+                                                            start_lines=8))
+    field = m.build_field(0)
+    plans: dict[int, list[list[object]]] = {}
+
+    def progress(event: dfc.DfcEvent) -> None:
+        if isinstance(event, dfc.IterationPlanned):
+            plans[event.iteration] = event.plans
+
+    result = dfc.Dfc(m, InProcessExecutor(m, field, seed=0), planner="adaptive", truth=field,
+                     seed=0, progress=progress).run()
+    first = plans[0]
+    assert sum(1 for plan in first if plan) == min(m.vehicles.count, 8)
+    r = m.region
+    xs = sorted({t.x_m for plan in first for t in plan if isinstance(t, Waypoint)})
+    assert xs == pytest.approx([r.xmin + (k + 0.5) * r.width_m / 8 for k in range(8)])
+    assert result.records[0].flight_distance_m >= 8 * r.height_m
+    assert len(result.records) >= 2 and 1 in plans
+    assert result.stop_reason == "flight_budget"
+    with pytest.raises(ValueError, match="start"):
+        AdaptivePlanner(AdaptiveParams(start="zigzag"))

@@ -56,7 +56,7 @@ from scipy.spatial import cKDTree
 from .contours import contour_pieces
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
-from .planners import Batch, Job, PlanContext
+from .planners import Batch, Job, PlanContext, survey_jobs
 from .tasks import FlightReport, Phase, SampleLog, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
@@ -129,9 +129,13 @@ class AdaptiveParams:
         Spacing of the full-width line candidates (0: none).
     line_orientation : {"ns", "ew", "both"}
         Their direction(s).
-    start : {"diagonals", "perimeter", "plan"}
-        The first flight: the mission's initiation pattern, the area's boundary, or the
-        planner's own plan from its prior (uniform uncertainty: spread-out lines).
+    start : {"diagonals", "perimeter", "plan", "survey"}
+        The first flight: the mission's initiation pattern, the area's boundary, the
+        planner's own plan from its prior (uniform uncertainty: spread-out lines), or an
+        even survey of ``start_lines`` north-south lines.
+    start_lines : int
+        Lines of the ``survey`` start, at the centres of equal strips (the first and last
+        half a spacing inside the edges, as the best survey flies them).
     model : {"auto", "proxy", "gp"}
         Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
         proxy when mapping the whole field (it measured best there), the GP posterior
@@ -186,6 +190,7 @@ class AdaptiveParams:
     line_spacing_m: float = 2.0
     line_orientation: str = "ns"
     start: str = "diagonals"
+    start_lines: int = 8
     model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
@@ -381,6 +386,17 @@ def line_candidates(region: Region, spacing_m: float, orientation: str = "ns") -
             out.append(Candidate(CandidateKind.LEG, np.array([[lo_x, y], [hi_x, y]]),
                                  reversible=True))
     return out
+
+
+def survey_start_batch(region: Region, lines: int) -> Batch:
+    """``lines`` north-south lines at the centres of ``lines`` equal strips.
+
+    >>> b = survey_start_batch(Region(0.0, 100.0, 0.0, 100.0), 4)
+    >>> [job.start_m[0] for job in b.jobs]
+    [12.5, 37.5, 62.5, 87.5]
+    """
+    xs = region.xmin + (np.arange(lines) + 0.5) * region.width_m / lines
+    return Batch(survey_jobs(region, xs), levels_planned=0)
 
 
 def perimeter_batch(context: PlanContext, inset_m: float = 0.5) -> Batch:
@@ -617,8 +633,9 @@ class AdaptivePlanner:
                 fit_length=params.fit_length and not params.target_levels)
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
-        if params.start not in ("diagonals", "perimeter", "plan"):
-            raise ValueError(f"start: must be diagonals, perimeter or plan, got {params.start!r}")
+        if params.start not in ("diagonals", "perimeter", "plan", "survey"):
+            raise ValueError(
+                f"start: must be diagonals, perimeter, plan or survey, got {params.start!r}")
         self.params = params
         self.seed = seed
         self.hyper: MaternHyper | None = None
@@ -628,12 +645,16 @@ class AdaptivePlanner:
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
         ``"diagonals"``), the area's boundary (``"perimeter"``: the reconstruction
-        extrapolates at the edges, where a survey has its first and last lines), or the
-        planner's own plan from its prior (``"plan"``)."""
+        extrapolates at the edges, where a survey has its first and last lines), the
+        planner's own plan from its prior (``"plan"``), or an even survey of
+        ``start_lines`` lines (``"survey"``: on a smooth field the error is set by the
+        widest gaps, and lines added one by one are even only at doubling steps)."""
         if self.params.start == "diagonals":
             return None
         if self.params.start == "perimeter":
             return perimeter_batch(context)
+        if self.params.start == "survey":
+            return survey_start_batch(context.region, self.params.start_lines)
         return self.next_batch(context)
 
     def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
