@@ -122,7 +122,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "budget_m": (float, 0.0, _non_negative),
     },
     "adaptive": {
-        "batch_m": (float, 400.0, _positive),
+        "batch_m": (float, 200.0, _positive),
         "batch_growth": (float, 0.0, _non_negative),
         "levels": (int, 30, _range(1, 1000)),
         "piece_m": (float, 30.0, _positive),

@@ -180,7 +180,7 @@ class AdaptiveParams:
         Threshold mode when not empty.
     """
 
-    batch_m: float = 400.0
+    batch_m: float = 200.0
     batch_growth: float = 0.0
     levels: int = 30
     piece_m: float = 30.0
