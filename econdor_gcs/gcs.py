@@ -21,6 +21,8 @@ Pieces, from the bottom up:
     a vehicle that refused trace items), the vehicle started the autopilot's way
     (:func:`~.link.autopilots.start_mission`), and its samples collected until it reports
     ``MISSION_ITEM_REACHED`` for its last task item.
+    After each flight it makes sure every sample the vehicles took is here
+    (:class:`~.recovery.SampleRecovery`).
 :mod:`econdor_gcs.run`
     The ``econdor run`` command on top of them: run directory, simulated fleet (or
     ``--connect``), live display, results, figures, and one-line errors that still leave a
@@ -58,7 +60,6 @@ import asyncio
 import bisect
 import contextlib
 import dataclasses
-import functools
 import json
 import logging
 import math
@@ -72,10 +73,6 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from .core.tasks import (
-    SAMPLE_COUNT_COMMAND,
-    SAMPLE_RESEND_COMMAND,
-    SAMPLE_RESEND_MAX,
-    TRACE_RESEND_COMMAND,
     FlightReport,
     OutcomeStatus,
     Phase,
@@ -111,6 +108,7 @@ from .link.router import (
 from .link.tlog import TlogWriter
 from .mission import Mission
 from .mission_files import write_wpl
+from .recovery import SampleRecovery
 from .signing import SigningKey
 
 if TYPE_CHECKING:
@@ -136,13 +134,6 @@ UPLOAD_ATTEMPTS = 3
 INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
 RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR})
 """MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
-RECOVERY_ROUNDS = 200
-"""At most this many rounds of resend requests for one vehicle's missing samples ..."""
-RECOVERY_STALLED_ROUNDS = 4
-"""... and the station gives up earlier when this many rounds in a row brought nothing."""
-RECOVERY_GAPS_PER_ROUND = 100
-"""Resend requests per round: a vehicle answers them in one burst, and a burst larger than
-its socket's send buffer (~1000 packets) is dropped on the vehicle itself."""
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
 LOSS_SILENCE_S = 5.0
@@ -153,8 +144,6 @@ ITEM_TIME_FACTOR = 3.0
 ITEM_TIME_MARGIN_S = 60.0
 """A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
 cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
-RECOVERY_SETTLE_S = 0.25
-"""Wall time without a new sample after which a round of resends counts as arrived."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
@@ -284,10 +273,6 @@ def build_report(flight: Flight) -> FlightReport:
         sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
     return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
                         outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
-
-
-def _all_in(keys: Sequence[int], mapping: dict[int, Any]) -> bool:
-    return all(k in mapping for k in keys)
 
 
 def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
@@ -478,7 +463,7 @@ STREAM_WALL_HZ = {
 }
 
 
-class MavlinkExecutor:
+class MavlinkExecutor(SampleRecovery):
     """Flies the DFC's per-vehicle task lists on MAVLink vehicles (the :class:`Executor`
     protocol; the drop-in twin of :class:`econdor_lab.inprocess.InProcessExecutor`).
 
@@ -1169,132 +1154,6 @@ class MavlinkExecutor:
                 r.end_x_m, r.end_y_m = self._position(v.sysid)
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
         return reports
-
-    # -- sample recovery (README, "No sample lost") ------------------------------------------
-    async def _recover(self, vs: list[VehicleState]) -> None:
-        t0 = time.monotonic()
-        await self._all([self._tolerant(v, self._recover_one(v)) for v in vs
-                         if v.lost is None])
-        self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
-            time.monotonic() - t0
-
-    async def _count(self, v: VehicleState, first_ms: int, last_ms: int) -> int:
-        ack = await self.router.command_int(v.sysid, SAMPLE_COUNT_COMMAND, first_ms, last_ms,
-                                            timeout_s=0.3, retries=20)
-        return int(ack.result_param2)
-
-    def _gaps(self, v: VehicleState, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
-        """Time ranges of [first_ms, last_ms] with no sample here that may hold samples the
-        vehicle took: between two received samples more than 1.5 sensor periods apart,
-        and before the first / after the last. (A range where the vehicle took none, e.g.
-        while it climbed, costs one request and brings nothing.)"""
-        lo = bisect.bisect_left(v.seen_ms, first_ms)
-        hi = bisect.bisect_right(v.seen_ms, last_ms)
-        times = [first_ms - 1, *v.seen_ms[lo:hi], last_ms + 1]
-        period_ms = 1000.0 / self.mission.vehicles.sample_rate_hz
-        # a long gap goes in pieces the vehicle will resend (half its limit at our rate)
-        piece_ms = max(1, int(SAMPLE_RESEND_MAX * period_ms / 2))
-        gaps = []
-        for a, b in zip(times, times[1:], strict=False):
-            if b - a > 1.5 * period_ms or (a == first_ms - 1 and b > first_ms) \
-                    or (b == last_ms + 1 and a < last_ms):
-                gaps += [(s, min(s + piece_ms - 1, b - 1)) for s in range(a + 1, b, piece_ms)]
-        return gaps
-
-    def _pieces(self, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
-        """[first_ms, last_ms] in ranges of at most a quarter of a resend's limit at the
-        mission's sample rate."""
-        step = max(1, int(SAMPLE_RESEND_MAX * 1000.0 / self.mission.vehicles.sample_rate_hz
-                          / 4))
-        return [(s, min(s + step - 1, last_ms)) for s in range(first_ms, last_ms + 1, step)]
-
-    async def _recover_one(self, v: VehicleState) -> None:
-        """Make sure every sample ``v`` took since the last recovery is here: ask for its
-        count, request every gap again, wait for the resends, repeat."""
-        link = self.router.vehicles[v.sysid]
-        first = v.synced_ms + 1
-        last = max(link.time_boot_ms or 0, v.newest_ms)
-        if last < first:
-            return
-        n = have = 0
-        v.recovering = True
-        try:
-            n, have = await self._recover_range(v, first, last)
-            # a report may be stamped after the last time we know of (the vehicle's last
-            # position report can lag behind its last item): ask up to the end of time
-            await self._recover_reports(v, first, 2**31 - 1)
-        finally:
-            v.recovering = False
-        v.vehicle_samples = (v.vehicle_samples or 0) + n
-        v.missing += max(0, n - have)
-        if n > have:
-            log.error("vehicle %d: %d of its %d samples in %d..%d ms never arrived", v.sysid,
-                      n - have, n, first, last)
-        v.synced_ms = last
-
-    async def _recover_range(self, v: VehicleState, first: int, last: int) -> tuple[int, int]:
-        n = have = 0
-        stalled, best = 0, -1
-        for round_no in range(RECOVERY_ROUNDS):
-            self._check_lost()
-            n = await self._count(v, first, last)
-            have = v.count_seen(first, last)
-            if have >= n:
-                break
-            stalled = stalled + 1 if have <= best else 0
-            best = max(best, have)
-            if stalled >= RECOVERY_STALLED_ROUNDS:
-                break
-            # a sample missing where the spacing does not show it (a vehicle sampling faster
-            # than the mission says): the whole range again, in pieces it will resend
-            gaps = self._gaps(v, first, last) or self._pieces(first, last)
-            # fire and forget (what arrives is what counts), a round's worth at a time,
-            # rotating, so gaps where the vehicle took nothing (a climb) cannot crowd out
-            # the others
-            k = round_no * RECOVERY_GAPS_PER_ROUND % len(gaps)
-            for a, b in (gaps[k:] + gaps[:k])[:RECOVERY_GAPS_PER_ROUND]:
-                self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
-            await self._quiet(v)
-        return n, have
-
-    async def _recover_reports(self, v: VehicleState, first: int, last: int) -> None:
-        """Ask again for the TRACE reports of trace items that have none (lost on the way)."""
-        f = v.flight
-        if f is None or f.style != TaskStyle.TRACE:
-            return  # contours flown as waypoints have no TRACE reports
-        for _ in range(RECOVERY_ROUNDS):
-            missing = [t.piece_id for t in f.tasks
-                       if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
-            if not missing:
-                return
-            await self.router.command_int(v.sysid, TRACE_RESEND_COMMAND, first, last,
-                                          timeout_s=0.3, retries=20)
-            await self._until(functools.partial(_all_in, missing, f.pieces),
-                              deadline=time.monotonic() + 1.0)
-        log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
-                  [t.piece_id for t in f.tasks
-                   if isinstance(t, TraceTask) and t.piece_id not in f.pieces])
-
-    async def _quiet(self, v: VehicleState) -> None:
-        """Wait until ``v``'s samples stop arriving (the resends are in, or lost)."""
-        start = time.monotonic()
-        seen = [len(v.seen_ms), start]  # samples so far, and when that last changed
-
-        def quiet() -> bool:
-            now = time.monotonic()
-            if len(v.seen_ms) != seen[0]:
-                seen[:] = [len(v.seen_ms), now]
-            return now - seen[1] >= RECOVERY_SETTLE_S
-
-        await self._until(quiet, tick_s=0.05, deadline=start + 5.0)
-
-    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
-        """Per vehicle: samples it took (its own count), received, recovered by resends,
-        duplicates dropped, missing (for summary.json)."""
-        return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
-                               "recovered": v.recovered, "duplicates": v.duplicates,
-                               "missing": v.missing, "lost": v.lost is not None}
-                for v in self.vehicles.values()}
 
     # -- for the live display ---------------------------------------------------------------
     def status_rows(self) -> list[VehicleStatus]:
