@@ -9,6 +9,9 @@ measures for a window of wall time:
   delta wall time at the listening socket (median / min over vehicles);
 * telemetry delivered: GLOBAL_POSITION_INT and NAMED_VALUE_FLOAT("FIELD") per wall second and
   per sim second (per vehicle, median);
+* samples lost: FIELD samples that never arrived, from the gaps in their ``time_boot_ms``
+  (the vehicle samples every ``1 / sample_rate_hz`` of sim time, 100 ms here, and sends
+  each one; a step of 300 ms means two samples were lost), summed over the vehicles;
 * CPU%: utime+stime of the vehicle processes from /proc over the window (sum over vehicles,
   and per vehicle), plus the bench's own receiver.
 
@@ -42,6 +45,7 @@ ID_GPI = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 ID_NVF = mavlink.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT
 ID_HB = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 CLK = os.sysconf("SC_CLK_TCK")
+SAMPLE_MS = 100  # the demo mission's vehicles sample at 10 Hz of sim time
 WANTED = {ID_HB, mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mavlink.MAVLINK_MSG_ID_MISSION_ACK,
           mavlink.MAVLINK_MSG_ID_COMMAND_ACK}
 
@@ -167,6 +171,8 @@ def measure(r: Router, sysids: list[int], pids: list[int], window: float) -> dic
     last: dict[int, tuple[float, int]] = {}
     n_gpi = dict.fromkeys(sysids, 0)
     n_nvf = dict.fromkeys(sysids, 0)
+    last_sample_ms: dict[int, int] = {}
+    lost = 0
     # drop what queued up before the window, or its arrival times would be stale
     r.sock.setblocking(False)
     while True:
@@ -199,8 +205,12 @@ def measure(r: Router, sysids: list[int], pids: list[int], window: float) -> dic
             if sysid not in first:
                 first[sysid] = (now, tb)
             last[sysid] = (now, tb)
-        elif msgid == ID_NVF:
+        elif msgid == ID_NVF and data[18:23] == b"FIELD":
             n_nvf[sysid] += 1
+            tb = struct.unpack_from("<I", data, 10)[0]
+            if sysid in last_sample_ms:
+                lost += max(0, round((tb - last_sample_ms[sysid]) / SAMPLE_MS) - 1)
+            last_sample_ms[sysid] = tb
     wall = time.monotonic() - t0
     cpu = [cpu_s(p) - c for p, c in zip(pids, cpu0, strict=True)]
     speed, gpi_w, nvf_w, gpi_s, nvf_s = [], [], [], [], []
@@ -221,6 +231,7 @@ def measure(r: Router, sysids: list[int], pids: list[int], window: float) -> dic
         "nvf_sim": statistics.median(nvf_s) if nvf_s else 0.0,
         "cpu_total": 100 * sum(cpu) / wall, "cpu_per": 100 * statistics.median(cpu) / wall,
         "bench_cpu": 100 * (time.process_time() - self0) / wall,
+        "lost": lost, "samples": sum(n_nvf.values()),
     }
 
 
@@ -271,14 +282,14 @@ def main() -> int:
           f"demo mission (10 Hz samples)")
     print(f"{'N':>3} {'req x':>6} {'got x med':>9} {'got x min':>9} {'GPI/s wall':>10} "
           f"{'FIELD/s wall':>12} {'GPI/s sim':>9} {'FIELD/s sim':>11} {'CPU% sum':>8} "
-          f"{'CPU%/veh':>8} {'bench CPU%':>10}")
+          f"{'CPU%/veh':>8} {'bench CPU%':>10} {'samples':>8} {'lost':>5}")
     for n in counts:
         for s in speedups:
             res = run_config(n, s, window)
             print(f"{n:>3} {s:>6g} {res['speed_med']:>9.1f} {res['speed_min']:>9.1f} "
                   f"{res['gpi_wall']:>10.0f} {res['nvf_wall']:>12.0f} {res['gpi_sim']:>9.1f} "
                   f"{res['nvf_sim']:>11.1f} {res['cpu_total']:>8.0f} {res['cpu_per']:>8.0f} "
-                  f"{res['bench_cpu']:>10.0f}", flush=True)
+                  f"{res['bench_cpu']:>10.0f} {res['samples']:>8} {res['lost']:>5}", flush=True)
     return 0
 
 
