@@ -1,95 +1,268 @@
-"""How much flying each planner needs, on the paper's field and on the plume field.
+"""How much flying each planner needs, with budgets that bind and the best survey as baseline.
 
-For every field model, seed and planner this runs the whole in-process DFC loop (real
-tracing, same reconstruction and cost accounting for all planners) and prints:
+Budget-true: every planner flies until the flight budget is spent (the iteration cap is
+far beyond reach, so the budget binds), on the same fields, with the same reconstruction
+and the same cost accounting (the initiation, every transit, search and trace metre; the
+flight home after the last iteration is not part of any estimate and is left out).
 
-* the total flight distance needed to reach MAE targets (median over the seeds that
-  reached it, and how many did);
-* the MAE reached at fixed flight budgets (the last iteration finished within budget);
-* how often a planner stalls: over the second half of its flight it improved by less
-  than 1 dB while still worse than the best target;
-* the iso-line error (mean distance in metres between the estimated and the true
-  contour at 25, 50 and 75 % of the true span) at the same budgets.
+The survey baseline is not one survey refined by halving: for each budget it is the
+survey whose line spacing fills that budget, and for each target the survey with the
+fewest lines that reaches it (line counts scanned on a ladder, then bisected), per seed
+— what an operator who knew the answer would fly.
 
-    python bench/efficiency.py                 # 20 seeds, both fields
-    python bench/efficiency.py --quick         # 4 seeds, a smoke run
-    python bench/efficiency.py --seeds 0:40 --workers 2 --markdown
+Fields: ``authors`` (the paper's setting: the authors' generator, missions/paper.yaml),
+``paper`` (the paper's eqs. 8-9), ``plume`` (3 narrow sources on a flat background) and
+``front`` (a meandering sharp front and round islands).
+
+Per planner and field it prints: the median distance to -10/-20/-30 dB (runs that got
+there, and in how many seeds the planner got there in less distance than the best survey
+for that seed), the MAE and the iso-line error at budgets, stalls, and for plumes the
+sources missed (no sample within one sigma of a source centre). ``--threshold`` adds
+threshold mapping: the adaptive planner given one target level (the middle of the true
+range) against the survey's distance to the same iso-line error.
+
+    python bench/efficiency.py --quick                      # 2 seeds, a smoke run
+    python bench/efficiency.py --seeds 0:20 --markdown --json runs/efficiency.json
+    python bench/efficiency.py --fields plume --planners adaptive --threshold
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing
 import os
 import statistics
 import sys
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from econdor_gcs.mission import load_mission, parse_mission  # noqa: E402
-from econdor_lab.study import PLANNERS, parse_seeds, run_seed  # noqa: E402
+from econdor_gcs.dfc import Dfc, isoline_levels  # noqa: E402
+from econdor_gcs.mission import Mission, parse_mission  # noqa: E402
+from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
+from econdor_lab.study import parse_seeds  # noqa: E402
 
 TARGETS_DB = (-10.0, -20.0, -30.0)
-FIELDS = {
-    "paper": {"model": "authors"},
+ISO_TARGET_M = 0.5
+FIELDS: dict[str, dict[str, Any]] = {
+    "authors": {"model": "authors"},
+    "paper": {"model": "paper"},
     "plume": {"model": "plume", "sources": 3, "sigma_min_m": 3.0, "sigma_max_m": 6.0,
               "background": 10.0},
+    "front": {"model": "front"},
 }
+LADDER = (2, 3, 4, 5, 6, 8, 10, 12, 15, 19, 24, 30, 38, 48, 60, 75, 95, 120, 150, 199)
 
 
-def mission_for(field: str, budget_m: float, max_iterations: int):
-    base = load_mission(ROOT / "missions" / "paper.yaml")
-    raw = {
-        "name": f"efficiency-{field}",
-        "field": FIELDS[field],
-        "vehicles": {"count": 1},
-        "algorithm": {"max_iterations": max_iterations, "min_iterations": max_iterations,
-                      "flight_budget_m": budget_m, "lloyd_bins": base.algorithm.lloyd_bins},
-    }
+def parse_settings(text: str) -> dict[str, Any]:
+    """``"model=proxy,floor=20"`` -> ``{"model": "proxy", "floor": 20.0}``."""
+    out: dict[str, Any] = {}
+    for item in filter(None, text.split(",")):
+        key, _, value = item.partition("=")
+        if value in ("true", "false"):
+            out[key] = value == "true"
+            continue
+        try:
+            out[key] = int(value)
+        except ValueError:
+            try:
+                out[key] = float(value)
+            except ValueError:
+                out[key] = value
+    return out
+
+
+def mission_for(field: str, budget_m: float, planner: str, reconstruction: str,
+                target_levels: tuple[float, ...] = (), survey_lines: int = 0,
+                adaptive: dict[str, Any] | None = None) -> Mission:
+    """The benchmark mission: 100 x 100 m, one vehicle, the diagonals, a binding budget."""
+    algo: dict[str, Any] = {
+        "planner": planner, "max_iterations": 1000, "min_iterations": 1000,
+        "flight_budget_m": budget_m, "reconstruction": reconstruction,
+        "target_levels": list(target_levels), "max_idle_iterations": 2}
+    raw: dict[str, Any] = {"name": f"efficiency-{field}", "field": FIELDS[field],
+                           "vehicles": {"count": 1}, "algorithm": algo,
+                           "adaptive": adaptive or {}}
+    if survey_lines:
+        width, height = 100.0, 100.0
+        raw["lawnmower"] = {"budget_m": survey_lines * height + width}
+        algo.update(max_iterations=1, min_iterations=1, flight_budget_m=0.0)
     return parse_mission(raw, base_dir=ROOT / "missions")
 
 
-def one(args: tuple[str, int, str, float, int]) -> dict:
-    field, seed, planner, budget_m, iters = args
+def mid_level(mission: Mission, seed: int) -> float:
+    """The middle of the true field's range on the grid (the 50 % iso-line)."""
+    xx, yy = mission.grid.mesh
+    return isoline_levels(np.asarray(mission.build_field(seed)(xx, yy)), (0.5,))[0]
+
+
+def sources_missed(field: Any, x_m: np.ndarray, y_m: np.ndarray) -> int:
+    """Plume sources with no sample within one sigma of their centre."""
+    centres = getattr(field, "centres_m", None)
+    if centres is None or len(x_m) == 0:
+        return 0
+    d, _ = cKDTree(np.column_stack([x_m, y_m])).query(centres)
+    return int(np.sum(d > field.sigmas_m))
+
+
+def _row(rec: Any, flight_m: float) -> dict[str, Any]:
+    iso = rec.isoline_error_m
+    return {"flight_m": flight_m, "mae_db": rec.mae_db, "samples": rec.samples,
+            "iso": [iso.get(k, math.nan) for k in ("p25", "p50", "p75")],
+            "iso_target": iso.get("target", math.nan),
+            "target_missed": iso.get("target_missed", math.nan)}
+
+
+def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]) -> dict[str, Any]:
+    """One budget-true run: per-iteration rows (flight home excluded), sources missed."""
+    field, seed, planner, budget_m, recon, threshold, adaptive = args
+    targets = (mid_level(mission_for(field, budget_m, planner, recon), seed),) if threshold else ()
+    mission = mission_for(field, budget_m, planner, recon, targets, adaptive=adaptive)
+    truth = mission.build_field(seed)
     t0 = time.perf_counter()
-    r = run_seed(mission_for(field, budget_m, iters), seed, planner, None)
-    return {"field": field, "seed": seed, "planner": planner, "rows": r["rows"],
-            "summary": r["summary"], "wall_s": time.perf_counter() - t0}
-
-
-def distance_to(rows: list[dict], target_db: float) -> float:
+    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner=planner,
+              truth=truth, seed=seed).run()
+    rows = []
+    for i, rec in enumerate(res.records):
+        last = i == len(res.records) - 1
+        rows.append(_row(rec, rec.flight_distance_m - (res.return_m if last else 0.0)))
+    s = res.samples
     for row in rows:
-        if row["mae_db"] <= target_db:
-            return row["flight_distance_m"]
+        n = row["samples"]
+        row["missed"] = sources_missed(truth, s.x_m[:n], s.y_m[:n])
+    return {"field": field, "seed": seed, "planner": planner + (":threshold" if threshold else ""),
+            "rows": rows, "stop": res.stop_reason, "wall_s": time.perf_counter() - t0,
+            "target": targets[0] if targets else math.nan}
+
+
+def run_survey(mission: Mission, seed: int, lines: int) -> dict[str, Any]:
+    """One survey of ``lines`` north-south lines; its single estimate."""
+    truth = mission.build_field(seed)
+    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner="lawnmower",
+              truth=truth, seed=seed).run()
+    rec = res.records[0]
+    s = res.samples
+    row = _row(rec, rec.flight_distance_m)
+    row["missed"] = sources_missed(truth, s.x_m, s.y_m)
+    row["lines"] = lines
+    return row
+
+
+class SurveyScan:
+    """The best survey per budget and per target for one field and seed (memoised)."""
+
+    def __init__(self, field: str, seed: int, recon: str, cache: Path | None) -> None:
+        self.field, self.seed, self.recon = field, seed, recon
+        self.cache = cache
+        self.runs: dict[int, dict[str, Any]] = {}
+
+    def get(self, lines: int) -> dict[str, Any]:
+        if lines not in self.runs:
+            path = None
+            if self.cache is not None:
+                path = self.cache / f"survey-{self.field}-{self.recon}-{self.seed}-{lines}.json"
+                if path.exists():
+                    self.runs[lines] = json.loads(path.read_text())
+                    return self.runs[lines]
+            mission = mission_for(self.field, 0.0, "lawnmower", self.recon, survey_lines=lines)
+            self.runs[lines] = run_survey(mission, self.seed, lines)
+            if path is not None:
+                path.write_text(json.dumps(self.runs[lines]))
+        return self.runs[lines]
+
+    def for_budget(self, budget_m: float) -> dict[str, Any] | None:
+        """The survey that fills ``budget_m`` (most lines within it)."""
+        n = int((budget_m - 100.0) // 100.0)
+        while n >= 2:
+            r = self.get(n)
+            if r["flight_m"] <= budget_m:
+                return r
+            n -= 1
+        return None
+
+    def first_reaching(self, ok: Any, max_lines: int) -> dict[str, Any] | None:
+        """The survey with the fewest lines for which ``ok(row)`` holds (ladder, then
+        bisection between the last ladder count that failed and the first that passed)."""
+        prev = 1
+        for n in (k for k in LADDER if k <= max_lines):
+            if ok(self.get(n)):
+                lo, hi = prev, n  # ok fails at lo (or lo is below the ladder), holds at hi
+                while hi - lo > 1:
+                    mid = (lo + hi) // 2
+                    if ok(self.get(mid)):
+                        hi = mid
+                    else:
+                        lo = mid
+                return self.get(hi)
+            prev = n
+        return None
+
+
+def scan_survey(args: tuple[str, int, float, str, str | None, list[float]]) -> dict[str, Any]:
+    field, seed, budget_m, recon, cache, budgets = args
+    scan = SurveyScan(field, seed, recon, Path(cache) if cache else None)
+    t0 = time.perf_counter()
+    max_lines = int((budget_m - 100.0) // 100.0)
+    out: dict[str, Any] = {"field": field, "seed": seed, "budget": {}, "to_db": {}}
+    for b in budgets:
+        out["budget"][str(b)] = scan.for_budget(b)
+    for t in TARGETS_DB:
+        r = scan.first_reaching(lambda row, t=t: row["mae_db"] <= t, max_lines)
+        out["to_db"][str(t)] = r["flight_m"] if r else math.nan
+    r = scan.first_reaching(lambda row: row["iso"][1] <= ISO_TARGET_M, max_lines)
+    out["to_iso50"] = r["flight_m"] if r else math.nan
+    for n in LADDER:  # the whole ladder within the budget: the survey's curve in the figures
+        if n <= max_lines:
+            scan.get(n)
+    out["runs"] = len(scan.runs)
+    out["scanned"] = sorted(scan.runs.values(), key=lambda r: r["lines"])
+    out["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+# -- summaries ----------------------------------------------------------------------------
+
+
+def distance_to(rows: list[dict[str, Any]], ok: Any, budget_m: float = math.inf) -> float:
+    """Flight distance of the first estimate for which ``ok`` holds, within the budget (a
+    last batch that overran the budget does not count)."""
+    for row in rows:
+        if row["flight_m"] > budget_m:
+            break
+        if ok(row):
+            return float(row["flight_m"])
     return math.nan
 
 
-def at_budget(rows: list[dict], budget_m: float, key: str) -> float:
-    best = math.nan
+def at_budget(rows: list[dict[str, Any]], budget_m: float) -> dict[str, Any] | None:
+    best = None
     for row in rows:
-        if row["flight_distance_m"] <= budget_m:
-            best = row[key]
+        if row["flight_m"] <= budget_m:
+            best = row
     return best
 
 
-def iso_mean(row: dict) -> float:
-    v = [row[k] for k in ("isoline_p25_m", "isoline_p50_m", "isoline_p75_m")
-         if not math.isnan(row[k])]
-    return sum(v) / len(v) if v else math.nan
-
-
-def stalled(rows: list[dict]) -> bool:
+def stalled(r: dict[str, Any]) -> bool:
+    """Stopped by the stall rule, or improved < 1 dB over the second half of its flight
+    while still worse than -30 dB."""
+    rows = r["rows"]
+    if r["stop"] == "stalled":
+        return True
     if len(rows) < 3:
         return False
-    total = rows[-1]["flight_distance_m"]
-    half = at_budget(rows, total / 2, "mae_db")
+    half = at_budget(rows, rows[-1]["flight_m"] / 2)
     final = rows[-1]["mae_db"]
-    return final > min(TARGETS_DB) and (math.isnan(half) or half - final < 1.0)
+    return final > min(TARGETS_DB) and (half is None or half["mae_db"] - final < 1.0)
 
 
 def med(values: list[float]) -> float:
@@ -101,63 +274,217 @@ def fmt(x: float, spec: str = ".1f") -> str:
     return "—" if math.isnan(x) else format(x, spec)
 
 
+def iso_mean(row: dict[str, Any] | None) -> float:
+    if row is None:
+        return math.nan
+    v = [x for x in row["iso"] if not math.isnan(x)]
+    return sum(v) / len(v) if v else math.nan
+
+
+def table(field: str, planners: list[str], runs: list[dict[str, Any]],
+          surveys: dict[int, dict[str, Any]], budgets: list[float], bar: str, md: bool) -> None:
+    plume = field == "plume"
+    head = ["planner", *[f"km to {t:.0f} dB (runs; beat survey)" for t in TARGETS_DB],
+            *[f"MAE dB @{b / 1000:g} km" for b in budgets],
+            *[f"iso m @{b / 1000:g} km" for b in budgets], "stalls"]
+    if plume:
+        head += [f"sources missed @{b / 1000:g} km" for b in (budgets[0], budgets[-1])]
+    head.append("wall s/run")
+    print(bar + bar.join(head) + bar)
+    if md:
+        print(bar + bar.join("---" for _ in head) + bar)
+    seeds = sorted(surveys)
+    for pl in [*planners, "best survey"]:
+        cells = [pl]
+        rs = [r for r in runs if r["field"] == field and r["planner"] == pl]
+        for t in TARGETS_DB:
+            sv = [surveys[s]["to_db"][str(t)] for s in seeds]
+            if pl == "best survey":
+                d = sv
+                cells.append(f"{fmt(med(d) / 1000, '.2f')} ({sum(not math.isnan(x) for x in d)}/"
+                             f"{len(d)})")
+                continue
+            d = [distance_to(r["rows"], lambda row, t=t: row["mae_db"] <= t, budgets[-1])
+                 for r in rs]
+            by_seed = {r["seed"]: x for r, x in zip(rs, d, strict=True)}
+            wins = sum(1 for s in seeds if s in by_seed and not math.isnan(by_seed[s]) and (
+                math.isnan(surveys[s]["to_db"][str(t)]) or by_seed[s] < surveys[s]["to_db"][str(t)]))
+            cells.append(f"{fmt(med(d) / 1000, '.2f')} ({sum(not math.isnan(x) for x in d)}/"
+                         f"{len(d)}; {wins})")
+        for b in budgets:
+            if pl == "best survey":
+                v = [surveys[s]["budget"][str(b)] for s in seeds]
+                cells.append(fmt(med([x["mae_db"] if x else math.nan for x in v])))
+            else:
+                cells.append(fmt(med([(at_budget(r["rows"], b) or {"mae_db": math.nan})["mae_db"]
+                                      for r in rs])))
+        for b in budgets:
+            if pl == "best survey":
+                cells.append(fmt(med([iso_mean(surveys[s]["budget"][str(b)]) for s in seeds]), ".2f"))
+            else:
+                cells.append(fmt(med([iso_mean(at_budget(r["rows"], b)) for r in rs]), ".2f"))
+        cells.append("—" if pl == "best survey" else f"{sum(stalled(r) for r in rs)}/{len(rs)}")
+        if plume:
+            for b in (budgets[0], budgets[-1]):
+                if pl == "best survey":
+                    m = [(surveys[s]["budget"][str(b)] or {"missed": 3})["missed"] for s in seeds]
+                else:
+                    m = [(at_budget(r["rows"], b) or {"missed": 3})["missed"] for r in rs]
+                cells.append(f"{sum(m)} of {3 * len(m)}")
+        wall = [surveys[s]["wall_s"] / max(1, surveys[s]["runs"]) for s in seeds] if (
+            pl == "best survey") else [r["wall_s"] for r in rs]
+        cells.append(fmt(med(wall), ".0f"))
+        print(bar + bar.join(cells) + bar)
+
+
+def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
+                    budget_m: float, bar: str, md: bool) -> None:
+    rs = [r for r in runs if r["field"] == field and r["planner"].endswith(":threshold")]
+    if not rs:
+        return
+    head = ["seed", "level", f"adaptive km to iso ≤ {ISO_TARGET_M} m", "survey km", "ratio",
+            "final iso m", "pieces missed", "stop", "flown km"]
+    print(f"\n### threshold mapping, field {field}\n")
+    print(bar + bar.join(head) + bar)
+    if md:
+        print(bar + bar.join("---" for _ in head) + bar)
+    ratios = []
+    for r in sorted(rs, key=lambda r: r["seed"]):
+        d = distance_to(r["rows"], lambda row: row["iso_target"] <= ISO_TARGET_M, budget_m)
+        sv = surveys[r["seed"]]["to_iso50"]
+        ratio = d / sv if sv and not math.isnan(sv) else math.nan
+        ratios.append(ratio)
+        last = r["rows"][-1]
+        print(bar + bar.join([str(r["seed"]), fmt(r["target"]), fmt(d / 1000, ".2f"),
+                              fmt(sv / 1000, ".2f"), fmt(ratio, ".2f"), fmt(last["iso_target"], ".2f"),
+                              fmt(last["target_missed"], ".0f"), r["stop"],
+                              fmt(last["flight_m"] / 1000, ".2f")]) + bar)
+    print(f"\nmedian ratio {fmt(med(ratios), '.2f')}; adaptive got there in "
+          f"{sum(not math.isnan(x) for x in ratios)}/{len(ratios)} runs, "
+          f"ratio ≤ 0.5 in {sum(x <= 0.5 for x in ratios if not math.isnan(x))}")
+
+
+def figures(out: Path, fields: list[str], planners: list[str], runs: list[dict[str, Any]],
+            surveys: list[dict[str, Any]], budget_m: float) -> list[Path]:
+    """MAE against distance, median over the seeds, per field: every planner and the best
+    survey for each distance (the lower envelope of the scanned surveys, per seed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    grid = np.linspace(0.0, budget_m, 201)
+    paths = []
+    for field in fields:
+        fig, ax = plt.subplots(figsize=(6.4, 4.2))
+        for pl in [*planners, "best survey"]:
+            curves = []
+            if pl == "best survey":
+                for sv in (s for s in surveys if s["field"] == field):
+                    rows = sorted(sv["scanned"], key=lambda r: r["flight_m"])
+                    best, curve, k = math.nan, [], 0
+                    for d in grid:
+                        while k < len(rows) and rows[k]["flight_m"] <= d:
+                            best = min(best, rows[k]["mae_db"]) if not math.isnan(best) else (
+                                rows[k]["mae_db"])
+                            k += 1
+                        curve.append(best)
+                    curves.append(curve)
+            else:
+                for r in (r for r in runs if r["field"] == field and r["planner"] == pl):
+                    curves.append([(at_budget(r["rows"], d) or {"mae_db": math.nan})["mae_db"]
+                                   for d in grid])
+            if not curves:
+                continue
+            arr = np.array(curves, dtype=float)
+            ok = np.sum(np.isfinite(arr), axis=0) * 2 > arr.shape[0]  # most seeds have a value
+            with warnings.catch_warnings():  # all-NaN columns are masked by ``ok``
+                warnings.simplefilter("ignore", RuntimeWarning)
+                median = np.where(ok, np.nanmedian(np.where(np.isfinite(arr), arr, np.nan), axis=0),
+                                  np.nan)
+            ax.plot(grid / 1000, median, label=pl, lw=2 if pl in ("adaptive", "best survey") else 1)
+        for t in TARGETS_DB:
+            ax.axhline(t, color="0.85", lw=0.8, zorder=0)
+        ax.set_xlabel("flight distance (km), everything counted")
+        ax.set_ylabel("MAE (dB), median over seeds")
+        ax.set_title(f"{field}: MAE against distance")
+        ax.legend()
+        path = out / f"efficiency_{field}.png"
+        fig.tight_layout()
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", default="0:20")
-    p.add_argument("--fields", default="paper,plume")
-    p.add_argument("--planners", default=",".join(PLANNERS))
-    p.add_argument("--budget", type=float, default=30_000.0, help="flight budget per run (m)")
-    p.add_argument("--iterations", type=int, default=8)
+    p.add_argument("--fields", default=",".join(FIELDS))
+    p.add_argument("--planners", default="adaptive,econdor,no-sg")
+    p.add_argument("--budget", type=float, default=10_000.0, help="flight budget per run (m)")
+    p.add_argument("--reconstruction", default="auto", help="auto | kriging (all planners)")
+    p.add_argument("--threshold", action="store_true", help="add threshold mapping runs")
+    p.add_argument("--adaptive", default="", help="adaptive settings, e.g. model=proxy,floor=20")
     p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--quick", action="store_true", help="4 seeds, 10 km budget")
+    p.add_argument("--cache", default=None, help="directory memoising survey runs")
+    p.add_argument("--json", default=None, help="write every run's rows here")
+    p.add_argument("--from-json", default=None, help="print tables (and figures) from a saved run")
+    p.add_argument("--figures", default=None, help="draw MAE-against-distance figures here")
+    p.add_argument("--quick", action="store_true", help="2 seeds, 3 km budget")
     p.add_argument("--markdown", action="store_true", help="print Markdown tables")
     a = p.parse_args()
     if a.quick:
-        a.seeds, a.budget = "0:4", 10_000.0
+        a.seeds, a.budget = "0:2", 3_000.0
     seeds = parse_seeds(a.seeds)
     fields = a.fields.split(",")
-    planners = a.planners.split(",")
-    jobs = [(f, s, pl, a.budget, a.iterations) for f in fields for s in seeds for pl in planners]
+    unknown = [f for f in fields if f not in FIELDS]
+    if unknown:
+        p.error(f"--fields: unknown field {unknown[0]!r} (one of {', '.join(FIELDS)})")
+    planners = [x for x in a.planners.split(",") if x]
+    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
+    budgets.append(a.budget)
+    if a.cache:
+        Path(a.cache).mkdir(parents=True, exist_ok=True)
+    settings = parse_settings(a.adaptive)
+    jobs: list[tuple[Any, ...]] = [(f, s, pl, a.budget, a.reconstruction, False, settings)
+                                   for f in fields for s in seeds for pl in planners]
+    if a.threshold:
+        jobs += [(f, s, "adaptive", a.budget, a.reconstruction, True, settings)
+                 for f in fields for s in seeds]
+    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets) for f in fields for s in seeds]
     t0 = time.perf_counter()
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
-        results = list(pool.map(one, jobs))
+    if a.from_json:
+        saved = json.loads(Path(a.from_json).read_text())
+        runs, surveys = saved["runs"], saved["surveys"]
+        jobs = [r for r in runs]
+    else:
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
+            survey_futs = [pool.submit(scan_survey, j) for j in survey_jobs]
+            run_futs = [pool.submit(run_planner, j) for j in jobs]
+            surveys = [f.result() for f in survey_futs]
+            runs = [f.result() for f in run_futs]
     wall = time.perf_counter() - t0
-    budgets = [b for b in (2_000.0, 5_000.0, 10_000.0, 20_000.0, 30_000.0) if b <= a.budget]
+    if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.json).write_text(json.dumps({"args": vars(a), "runs": runs, "surveys": surveys},
+                                           default=float))
     bar = "|" if a.markdown else " "
-    print(f"# efficiency: {len(seeds)} seeds, budget {a.budget / 1000:.0f} km, "
-          f"max {a.iterations} iterations, {len(jobs)} runs in {wall:.0f} s")
+    print(f"# efficiency: {len(seeds)} seeds, budget {a.budget / 1000:g} km (binding), "
+          f"reconstruction {a.reconstruction}, adaptive {settings or 'defaults'}, {len(jobs)} runs + "
+          f"{sum(s['runs'] for s in surveys)} surveys in {wall:.0f} s on {a.workers} workers")
     for field in fields:
         print(f"\n## field: {field}\n")
-        head = ["planner", *[f"km to {t:.0f} dB" for t in TARGETS_DB],
-                *[f"MAE dB @{b / 1000:.0f} km" for b in budgets],
-                *[f"iso m @{b / 1000:.0f} km" for b in budgets], "stalls", "wall s/run"]
-        print(bar + bar.join(head) + bar)
-        if a.markdown:
-            print(bar + bar.join("---" for _ in head) + bar)
-        for pl in planners:
-            rs = [r for r in results if r["field"] == field and r["planner"] == pl]
-            cells = [pl]
-            for t in TARGETS_DB:
-                d = [distance_to(r["rows"], t) for r in rs]
-                n = sum(not math.isnan(x) for x in d)
-                cells.append(f"{fmt(med(d) / 1000, '.1f')} ({n}/{len(rs)})")
-            for b in budgets:
-                cells.append(fmt(med([at_budget(r["rows"], b, "mae_db") for r in rs])))
-            for b in budgets:
-                isos = []
-                for r in rs:
-                    row = None
-                    for x in r["rows"]:
-                        if x["flight_distance_m"] <= b:
-                            row = x
-                    isos.append(iso_mean(row) if row else math.nan)
-                cells.append(fmt(med(isos), ".2f"))
-            cells.append(f"{sum(stalled(r['rows']) for r in rs)}/{len(rs)}")
-            cells.append(fmt(med([r["wall_s"] for r in rs]), ".0f"))
-            print(bar + bar.join(cells) + bar)
+        by_seed = {s["seed"]: s for s in surveys if s["field"] == field}
+        table(field, planners, runs, by_seed, budgets, bar, a.markdown)
+        threshold_table(field, runs, by_seed, a.budget, bar, a.markdown)
+    if a.figures:
+        for path in figures(Path(a.figures), fields, planners, runs, surveys, a.budget):
+            print(f"wrote {path}")
     return 0
 
 

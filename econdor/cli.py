@@ -56,6 +56,19 @@ def _sysid(text: str) -> int:
     return v
 
 
+def _planner_list(text: str) -> list[str]:
+    """``"adaptive,lawnmower"`` -> the planners in that order; ``"all"`` -> every planner."""
+    if text == "all":
+        return list(PLANNER_NAMES)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in PLANNER_NAMES]
+    if unknown or not names:
+        problem = f"unknown planner {unknown[0]!r}" if unknown else "no planner given"
+        raise argparse.ArgumentTypeError(
+            f"{problem} (choose from {', '.join(PLANNER_NAMES)}, a comma list of them, or all)")
+    return list(dict.fromkeys(names))
+
+
 def _probability(text: str) -> float:
     """``0.1`` or ``10%`` -> 0.1."""
     scale = 100.0 if text.endswith("%") else 1.0
@@ -130,7 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
     st = sub.add_parser("study", help="in-process study over many seeds")
     st.add_argument("mission", type=Path)
     st.add_argument("--seeds", default="0:4", help="A:B (B excluded) or a comma list")
-    st.add_argument("--planner", choices=(*PLANNER_NAMES, "all"), default="econdor")
+    st.add_argument("--planner", type=_planner_list, default=["econdor"],
+                    metavar="|".join((*PLANNER_NAMES, "all")),
+                    help="a planner, a comma-separated list of them, or all")
     st.add_argument("--out", type=Path, required=True)
     st.add_argument("--workers", type=_positive_int, default=None,
                     help="local worker processes (default: number of cores)")
@@ -197,13 +212,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from econdor_lab.study import PLANNERS, default_workers, parse_seeds, run_study
+    from econdor_lab.study import default_workers, parse_seeds, run_study
 
     mission = load_mission(args.mission)
     if args.vehicles:
         mission = mission.with_vehicles(count=args.vehicles)
     seeds = parse_seeds(args.seeds)
-    planners = list(PLANNERS) if args.planner == "all" else [args.planner]
+    planners = args.planner
     total = len(seeds) * len(planners)
     workers = args.workers or default_workers()
     _warm_up_tracer(args.quiet)

@@ -16,6 +16,8 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
 * ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
   redundant or without a contour piece): the run has stalled. An idle iteration still
   counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
+* the planner says it is done (``Batch.done`` with nothing to fly; threshold mapping
+  with no place left where an iso-line could be): reason ``planner_done``;
 * the ``checkpoint`` asked before each iteration says stop (``stop_reason = "stopped"``,
   e.g. an operator's stop on the web page); it may also hold the loop there (pause).
 """
@@ -33,9 +35,11 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .core import metrics
+from .core.adaptive import AdaptiveParams, AdaptivePlanner
 from .core.assignment import assign_jobs
 from .core.fields import Field
 from .core.geometry import FloatArray, Grid
+from .core.gp import kriging_reconstruct
 from .core.planners import (
     Batch,
     ContourPlanner,
@@ -46,7 +50,7 @@ from .core.planners import (
     survey_jobs,
 )
 from .core.spline import reconstruct
-from .core.tasks import FlightReport, Phase, SampleLog, Task
+from .core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
 from .errors import MissionError, RunError
 from .mission import Mission
 
@@ -141,6 +145,9 @@ class RunResult:
     contour_distance_m: float
     isoline_error_m: dict[str, float] = field(default_factory=dict)
     mission: dict[str, Any] = field(default_factory=dict)
+    return_m: float = 0.0
+    """Flight home after the last iteration (included in ``flight_distance_m`` and in the
+    last record's, but not part of any estimate)."""
 
     def summary(self) -> dict[str, Any]:
         last = self.records[-1] if self.records else None
@@ -153,6 +160,7 @@ class RunResult:
             "final_mae_rel": last.mae_rel if last else math.nan,
             "span_ratio": last.span_ratio if last else math.nan,
             "flight_distance_m": self.flight_distance_m,
+            "return_m": self.return_m,
             "contour_distance_m": self.contour_distance_m,
             "samples": len(self.samples),
             "converged": self.converged,
@@ -177,15 +185,22 @@ def _contour_planner(sg: bool) -> PlannerFactory:
         return ContourPlanner(
             m0=a.m0, sg=sg, lloyd_bins=a.lloyd_bins, lloyd_iterations=a.lloyd_iterations,
             min_piece_length_m=a.min_piece_length_m, search_radius_m=a.search_radius_m,
-            max_trace_length_m=a.max_trace_length_m)
+            max_trace_length_m=a.max_trace_length_m, lloyd_variant=a.lloyd_variant)
 
     return build
+
+
+def _adaptive_planner(mission: Mission) -> Planner:
+    params = AdaptiveParams(**asdict(mission.adaptive),
+                            target_levels=mission.algorithm.target_levels)
+    return AdaptivePlanner(params, seed=mission.seed)
 
 
 PLANNERS: dict[str, PlannerFactory] = {
     "econdor": _contour_planner(sg=True),
     "no-sg": _contour_planner(sg=False),
     "lawnmower": lambda m: LawnmowerPlanner(m.region, m.lawnmower.spacing_m, m.lawnmower.budget_m),
+    "adaptive": _adaptive_planner,
 }
 """Every planner a mission may name (``core.planners.PLANNER_NAMES``), built from the mission."""
 
@@ -288,6 +303,7 @@ class Dfc:
         self.sim_s = 0.0
         self.recon_s = 0.0
         self._last_recon_s = 0.0
+        self.return_m = 0.0
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -302,9 +318,12 @@ class Dfc:
         t0 = time.perf_counter()
         # One BLAS thread: the station shares the cores with the vehicles (and a study
         # with its other runs); idle BLAS threads spin and slow every process down.
+        method = self.mission.algorithm.reconstruction
         with threadpool_limits(limits=1, user_api="blas"):
-            est = reconstruct(s.x_m, s.y_m, s.value, self.grid,
-                              method=self.mission.algorithm.reconstruction)
+            if method == "kriging":
+                est = kriging_reconstruct(s.x_m, s.y_m, s.value, self.grid)
+            else:
+                est = reconstruct(s.x_m, s.y_m, s.value, self.grid, method=method)
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         return est
@@ -370,7 +389,8 @@ class Dfc:
             iteration=iteration, region=self.mission.region, n_vehicles=self.executor.n_vehicles,
             grid=self.grid, estimate=estimate, samples=self._samples(),
             positions_m=self._positions(iteration),
-            budget_left_m=budget - self.flight_m if budget > 0 else math.inf)
+            budget_left_m=budget - self.flight_m if budget > 0 else math.inf,
+            flown_m=self.flight_m)
 
     def _pattern(self) -> tuple[Batch, list[list[Task]]]:
         """The mission's initiation pattern (the two diagonals or a survey) and its plans."""
@@ -414,10 +434,12 @@ class Dfc:
         for r in reports:
             for o in r.outcomes:
                 outcomes[o.status] = outcomes.get(o.status, 0) + 1
+        traced = {o.task.level for r in reports for o in r.outcomes
+                  if isinstance(o.task, TraceTask) and o.traced_m > 0}
         rec = IterationRecord(
             iteration=it,
             levels_planned=batch.levels_planned if batch else 0,
-            levels_traced=len(batch.levels) if batch else 0,
+            levels_traced=len(traced),
             kappa=batch.kappa if batch else 0,
             delta=batch.delta if batch else 0.0,
             learning_error=le,
@@ -471,6 +493,9 @@ class Dfc:
                 reason = "flight_budget"
                 break
             batch = self.planner.next_batch(self._context(it, estimate))
+            if batch.done and not batch.jobs:
+                reason = "planner_done"
+                break
             idle = 0 if batch.jobs else idle + 1
             if idle > a.max_idle_iterations:
                 reason = "stalled"
@@ -505,7 +530,9 @@ class Dfc:
             if self.on_flight is not None:
                 self.on_flight(FlightRecord(FINISH, [], home, before))
         if home:
+            flown_before = self.flight_m
             self._account(home)
+            self.return_m = self.flight_m - flown_before
             if self.records:
                 self.records[-1].flight_distance_m = self.flight_m
                 self.records[-1].samples = sum(len(s) for s in self.logs)
@@ -525,10 +552,26 @@ class Dfc:
         return abs(gamma - 1.0) <= lam and span_ok
 
     def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
-        """Iso-line error (m) at 25, 50 and 75 % of the true span."""
+        """Iso-line error (m) at 25, 50 and 75 % of the true span; with target levels also
+        the error at each (``target@L``) and their mean (``target``), and the true iso-line
+        pieces missed (``target@L_missed``; all levels: ``target_missed`` of
+        ``target_pieces``)."""
         assert self.truth is not None
-        return {f"p{frac}": metrics.isoline_error(self.truth, estimate, self.grid, lv)
-                for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True)}
+        out = {f"p{frac}": metrics.isoline_error(self.truth, estimate, self.grid, lv)
+               for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True)}
+        targets = self.mission.algorithm.target_levels
+        if targets:
+            errs = [metrics.isoline_error(self.truth, estimate, self.grid, lv) for lv in targets]
+            missed = [metrics.isoline_components_missed(self.truth, estimate, self.grid, lv)
+                      for lv in targets]
+            finite = [e for e in errs if not math.isnan(e)]
+            out["target"] = sum(finite) / len(finite) if finite else math.nan
+            for lv, e, (m, _n) in zip(targets, errs, missed, strict=True):
+                out[f"target@{lv:g}"] = e
+                out[f"target@{lv:g}_missed"] = float(m)
+            out["target_missed"] = float(sum(m for m, _ in missed))
+            out["target_pieces"] = float(sum(n for _, n in missed))
+        return out
 
     def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float
                 ) -> RunResult:
@@ -541,6 +584,7 @@ class Dfc:
             flight_distance_m=self.flight_m,
             contour_distance_m=self.contour_m,
             isoline_error_m=iso,
+            return_m=self.return_m,
             mission={
                 "mission": self.mission.name,
                 "origin": asdict(self.mission.origin),

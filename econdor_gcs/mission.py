@@ -10,15 +10,18 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
     seed: 0                          # field seed (studies override it per run)
     area: {width_m: 100, height_m: 100}
     origin: {lat_deg: 47.3977, lon_deg: 8.5456, alt_m: 488}
-    field: {model: paper | authors | plume | raster, ...model keys...}
+    field: {model: paper | authors | plume | front | raster, ...model keys...}
     vehicles: {count, speed_mps, max_accel_mps2, max_turn_rate_dps, sample_rate_hz,
                altitude_m, noise_std, speedup}
     initiation: {pattern: diagonals | lawnmower, spacing_m, samples_per_diagonal}
     algorithm: {planner, m0, max_iterations, grid_spacing_m, search_radius_m,
                 max_trace_length_m, stop_lambda, min_iterations, flight_budget_m,
-                lloyd_bins, lloyd_iterations, reconstruction, min_piece_length_m,
-                keep_diagonals, max_idle_iterations}
+                lloyd_bins, lloyd_iterations, lloyd_variant, reconstruction,
+                min_piece_length_m, keep_diagonals, max_idle_iterations, target_levels}
     lawnmower: {spacing_m, budget_m}
+    adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
+               line_orientation, start, model, length_m, fit_length, floor, gradient_gain_m, power,
+               plan_spacing_m, search_radius_m, resolve_m, explore_m, band_m, level_tol}
 """
 
 from __future__ import annotations
@@ -54,6 +57,10 @@ def _one_of(*choices: str) -> Check:
         return None if v in choices else f"must be one of {', '.join(choices)}; got {v!r}"
 
     return check
+
+
+def _numbers(v: Any) -> str | None:
+    return None if len(v) <= 100 else f"at most 100 values, got {len(v)}"
 
 
 def _range(lo: float, hi: float) -> Check:
@@ -102,14 +109,39 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "flight_budget_m": (float, 0.0, _non_negative),
         "lloyd_bins": (int, 200, _range(2, 100000)),
         "lloyd_iterations": (int, 100, _range(1, 100000)),
-        "reconstruction": (str, "auto", _one_of("auto", "exact", "fast")),
+        "lloyd_variant": (str, "textbook", _one_of("textbook", "authors")),
+        "reconstruction": (str, "auto", _one_of("auto", "exact", "fast", "kriging")),
         "min_piece_length_m": (float, 2.0, _non_negative),
         "keep_diagonals": (bool, True, None),
         "max_idle_iterations": (int, 2, _non_negative),
+        "target_levels": (tuple, (), _numbers),
     },
     "lawnmower": {
         "spacing_m": (float, 0.0, _non_negative),
         "budget_m": (float, 0.0, _non_negative),
+    },
+    "adaptive": {
+        "batch_m": (float, 400.0, _positive),
+        "batch_growth": (float, 0.0, _non_negative),
+        "levels": (int, 30, _range(1, 1000)),
+        "piece_m": (float, 30.0, _positive),
+        "leg_m": (float, 30.0, _positive),
+        "legs": (int, 40, _range(0, 10000)),
+        "line_spacing_m": (float, 2.0, _non_negative),
+        "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
+        "start": (str, "diagonals", _one_of("diagonals", "perimeter", "plan")),
+        "model": (str, "auto", _one_of("auto", "gp", "proxy")),
+        "length_m": (float, 5.0, _positive),
+        "fit_length": (bool, True, None),
+        "floor": (float, 0.0, _non_negative),
+        "gradient_gain_m": (float, 5.0, _non_negative),
+        "power": (float, 2.0, _range(0.5, 4.0)),
+        "plan_spacing_m": (float, 2.0, _positive),
+        "search_radius_m": (float, 3.0, _positive),
+        "resolve_m": (float, 1.5, _positive),
+        "explore_m": (float, 10.0, _positive),
+        "band_m": (float, 3.0, _non_negative),
+        "level_tol": (float, 0.01, _range(0.0, 0.5)),
     },
 }
 
@@ -132,6 +164,15 @@ _FIELD_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | N
         "sources": (int, 3, _range(1, 1000)),
         "sigma_min_m": (float, 2.0, _positive),
         "sigma_max_m": (float, 5.0, _positive),
+        "background": (float, 10.0, None),
+        "peak": (float, 100.0, _positive),
+    },
+    "front": {
+        "width_min_m": (float, 1.0, _positive),
+        "width_max_m": (float, 3.0, _positive),
+        "amplitude_m": (float, 10.0, _non_negative),
+        "wavelength_m": (float, 60.0, _positive),
+        "islands": (int, 2, _range(0, 20)),
         "background": (float, 10.0, None),
         "peak": (float, 100.0, _positive),
     },
@@ -162,6 +203,10 @@ def _coerce(where: str, value: Any, typ: type | tuple[type, ...]) -> Any:
         if not isinstance(value, str):
             raise MissionError(f"{where}: expected a string, got {value!r}")
         return value
+    if typ is tuple:  # a list of numbers
+        if not isinstance(value, list | tuple):
+            raise MissionError(f"{where}: expected a list of numbers, got {value!r}")
+        return tuple(_coerce(f"{where}[{i}]", x, float) for i, x in enumerate(value))
     raise AssertionError(typ)  # pragma: no cover
 
 
@@ -242,16 +287,45 @@ class AlgorithmConfig:
     flight_budget_m: float
     lloyd_bins: int
     lloyd_iterations: int
+    lloyd_variant: str
     reconstruction: str
     min_piece_length_m: float
     keep_diagonals: bool
     max_idle_iterations: int
+    target_levels: tuple[float, ...]
 
 
 @dataclass(frozen=True)
 class LawnmowerConfig:
     spacing_m: float
     budget_m: float
+
+
+@dataclass(frozen=True)
+class AdaptiveConfig:
+    """The adaptive planner's settings (``econdor_gcs.core.adaptive.AdaptiveParams``)."""
+
+    batch_m: float
+    batch_growth: float
+    levels: int
+    piece_m: float
+    leg_m: float
+    legs: int
+    line_spacing_m: float
+    line_orientation: str
+    start: str
+    model: str
+    length_m: float
+    fit_length: bool
+    floor: float
+    gradient_gain_m: float
+    power: float
+    plan_spacing_m: float
+    search_radius_m: float
+    resolve_m: float
+    explore_m: float
+    band_m: float
+    level_tol: float
 
 
 @dataclass(frozen=True)
@@ -268,6 +342,7 @@ class Mission:
     initiation: InitiationConfig
     algorithm: AlgorithmConfig
     lawnmower: LawnmowerConfig
+    adaptive: AdaptiveConfig
     base_dir: Path = field(default_factory=Path.cwd)
 
     @property
@@ -298,6 +373,13 @@ class Mission:
         raw.update(vehicles)
         return _replace(self, vehicles=VehicleConfig(**_section("vehicles", raw,
                                                                  _SCHEMA["vehicles"])))
+
+    def with_adaptive(self, **adaptive: Any) -> Mission:
+        """A copy with some ``adaptive`` keys replaced (validated like the file)."""
+        raw = {k: getattr(self.adaptive, k) for k in _SCHEMA["adaptive"]}
+        raw.update(adaptive)
+        return _replace(self, adaptive=AdaptiveConfig(**_section("adaptive", raw,
+                                                                 _SCHEMA["adaptive"])))
 
 
 def _replace(m: Mission, **kw: Any) -> Mission:
@@ -330,6 +412,8 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
                        _FIELD_SCHEMA[model])
     if model == "plume" and fparams["sigma_max_m"] < fparams["sigma_min_m"]:
         raise MissionError("field.sigma_max_m: must be >= field.sigma_min_m")
+    if model == "front" and fparams["width_max_m"] < fparams["width_min_m"]:
+        raise MissionError("field.width_max_m: must be >= field.width_min_m")
     name = raw.get("name", "mission")
     if not isinstance(name, str):
         raise MissionError(f"name: expected a string, got {name!r}")
@@ -358,6 +442,7 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
         initiation=InitiationConfig(**sec["initiation"]),
         algorithm=AlgorithmConfig(**algo),
         lawnmower=LawnmowerConfig(**sec["lawnmower"]),
+        adaptive=AdaptiveConfig(**sec["adaptive"]),
         base_dir=base_dir or Path.cwd(),
     )
 

@@ -372,3 +372,23 @@ def test_vehicle_killed_mid_mission_its_pieces_go_to_the_other(tmp_path: Path) -
     assert summary["sample_recovery"]["1"]["missing"] == 0
     print(f"FAULT vehicle SIGKILL: {loss}, final MAE {summary['final_mae_db']:.1f} dB",
           file=sys.__stderr__)
+
+
+def test_adaptive_planner_runs_over_mavlink(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """``econdor run --planner adaptive``: its jobs are ordinary mission items."""
+    mission = write_mission(tmp_path, iterations=2)
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
+                           "--planner", "adaptive", "--quiet")
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["planner"] == "adaptive" and summary["iterations"] == 2
+    rows = csv_rows(out / "metrics.csv")
+    assert float(rows[-1]["mae"]) < float(rows[0]["mae"])
+    commands = set()
+    for wpl in (out / "missions").glob("*.waypoints"):
+        for line in wpl.read_text().splitlines()[2:]:  # after the header and item 0 (home)
+            commands.add(int(line.split("\t")[3]))
+    assert 16 in commands  # MAV_CMD_NAV_WAYPOINT: legs and lines
+    assert 31000 in commands  # MAV_CMD_WAYPOINT_USER_1: contour pieces, traced onboard

@@ -106,3 +106,25 @@ def test_isoline_error_of_shifted_plane():
     assert metrics.isoline_error(truth, est, g, 50.0) == pytest.approx(2.0, abs=1e-6)
     assert metrics.isoline_error(truth, truth, g, 50.0) == pytest.approx(0.0, abs=1e-9)
     assert math.isnan(metrics.isoline_error(truth, est, g, 500.0))
+
+
+def test_lloyd_max_authors_variant_tends_to_k_over_m_plus_one():
+    """Lloyd_Max_2.m recomputes the outer thresholds: on a uniform law levels -> k/(M+1)."""
+    v = np.linspace(0.0, 1.0, 100_001)
+    lv = lloyd_max(v, 4, bins=None, iterations=3000, variant="authors")
+    np.testing.assert_allclose(lv, [0.2, 0.4, 0.6, 0.8], atol=2e-3)
+    textbook = lloyd_max(v, 4, bins=None)
+    assert np.min(np.diff(lv)) < np.min(np.diff(textbook))  # smaller delta_0 (eq. 7's start)
+    with pytest.raises(ValueError, match="variant"):
+        lloyd_max(v, 4, variant="matlab")
+
+
+def test_isoline_pieces_missed():
+    grid = Grid(Region(0, 100, 0, 100), 101, 101)
+    xx, yy = grid.mesh
+    two = np.exp(-((xx - 25) ** 2 + (yy - 50) ** 2) / 50) + np.exp(
+        -((xx - 75) ** 2 + (yy - 50) ** 2) / 50)
+    one = np.exp(-((xx - 25) ** 2 + (yy - 50) ** 2) / 50)
+    assert metrics.isoline_components_missed(two, two, grid, 0.5) == (0, 2)
+    assert metrics.isoline_components_missed(two, one, grid, 0.5) == (1, 2)
+    assert metrics.isoline_components_missed(two, np.zeros_like(two), grid, 0.5) == (2, 2)

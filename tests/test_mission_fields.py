@@ -9,6 +9,7 @@ import scipy.io
 from econdor_gcs.core.fields import (
     RasterField,
     authors_field,
+    front_field,
     load_raster,
     paper_field,
     plume_field,
@@ -21,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 REGION = Region(0, 100, 0, 100)
 
 
-@pytest.mark.parametrize("name", ["demo", "paper"])
+@pytest.mark.parametrize("name", ["demo", "paper", "plume", "threshold"])
 def test_shipped_missions_load(name):
     m = load_mission(ROOT / "missions" / f"{name}.yaml")
     assert m.name == name
@@ -133,3 +134,44 @@ def test_raster_mission_relative_path(tmp_path):
     f = m.build_field()
     assert float(f(0, 0)) == pytest.approx(0.0)
     assert float(f(100, 100)) == pytest.approx(99.0)
+
+
+def test_budget_missions_let_the_budget_bind():
+    for name in ("plume", "threshold"):
+        a = load_mission(ROOT / "missions" / f"{name}.yaml").algorithm
+        assert a.planner == "adaptive" and a.flight_budget_m > 0
+        # a batch is 400 m: even at 100 m per iteration the cap is out of reach
+        assert a.max_iterations * 100.0 > a.flight_budget_m and a.stop_lambda == 0
+    assert load_mission(ROOT / "missions" / "threshold.yaml").algorithm.target_levels == (55.0,)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("field: {model: paper}\nalgorithm: {target_levels: 5}\n",
+         r"algorithm\.target_levels: expected a list of numbers"),
+        ("field: {model: paper}\nalgorithm: {target_levels: [5, x]}\n",
+         r"algorithm\.target_levels\[1\]: expected a number"),
+        ("field: {model: paper}\nadaptive: {batch: 3}\n", r"adaptive\.batch: unknown key"),
+        ("field: {model: paper}\nadaptive: {model: kriging}\n", r"adaptive\.model: must be one of"),
+        ("field: {model: paper}\nalgorithm: {lloyd_variant: matlab}\n",
+         r"algorithm\.lloyd_variant: must be one of"),
+        ("field: {model: front, width_min_m: 3, width_max_m: 1}\n",
+         r"field\.width_max_m: must be >= field\.width_min_m"),
+    ],
+)
+def test_new_keys_are_validated(tmp_path, text, message):
+    with pytest.raises(MissionError, match=message):
+        load_mission(_write(tmp_path, text))
+
+
+def test_front_field_has_a_sharp_step_and_islands():
+    f = front_field(REGION, 3, width_min_m=1.0, width_max_m=1.0)
+    xx, yy = Grid(REGION, 201, 201).mesh
+    z = f(xx, yy)
+    assert z.min() < 10 + 0.06 * 90 and z.max() > 100 - 0.06 * 90  # two plateaus (+- slope)
+    assert len(f.islands_m) == 2
+    for cx, cy, r in f.islands_m:  # inside an island: the high side; just outside: low
+        assert f(cx, cy) > 90 and f(cx + r + 4, cy) < f(cx, cy) - 60
+    gy, gx = np.gradient(z, 0.5)
+    assert np.hypot(gx, gy).max() > 90 / (2 * 1.0) * 0.9  # the step is ~w wide: 45 / m

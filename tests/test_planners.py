@@ -166,3 +166,14 @@ def test_lawnmower_refines_and_fits_budget():
     b = budget.next_batch(ctx())
     assert len(b.jobs) == 10
     assert budget.next_batch(ctx()).jobs == []
+
+
+def test_authors_lloyd_variant_moves_the_outer_levels_inward():
+    textbook = ContourPlanner(m0=3, sg=True, lloyd_bins=200).next_batch(ctx(ramp()))
+    authors = ContourPlanner(m0=3, sg=True, lloyd_bins=200, lloyd_variant="authors")
+    b = authors.next_batch(ctx(ramp()))
+    np.testing.assert_allclose(b.levels, [25.0, 50.0, 75.0], atol=1.0)  # k / (M + 1)
+    np.testing.assert_allclose(textbook.levels, [16.67, 50.0, 83.33], atol=0.6)
+    assert authors.delta == pytest.approx(25.0, abs=1.0)  # delta_0 = smallest gap
+    with pytest.raises(ValueError, match="lloyd_variant"):
+        ContourPlanner(lloyd_variant="matlab")

@@ -12,6 +12,7 @@ from econdor.cli import main
 from econdor_gcs.dfc import IterationRecord
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.mission import load_mission
+from econdor_lab.inprocess import InProcessExecutor
 from econdor_lab.study import parse_seeds, run_seed, run_study
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -222,6 +223,38 @@ def test_lawnmower_initiation_pattern(tmp_path):
         on = np.abs(x - line_x) < 0.5
         assert y[on].min() < 5 and y[on].max() > 95, line_x
     assert 600 <= r["rows"][0]["flight_distance_m"] <= 1200  # 600 m of lines + transit
+
+
+def test_cli_study_takes_a_list_of_planners(demo, tmp_path, capsys):
+    mission = tmp_path / "m.yaml"
+    mission.write_text((ROOT / "missions" / "demo.yaml").read_text().replace(
+        "max_iterations: 5", "max_iterations: 1").replace("min_iterations: 3",
+                                                          "min_iterations: 1"))
+    out = tmp_path / "o"
+    assert main(["study", str(mission), "--seeds", "2", "--planner", "lawnmower,adaptive",
+                 "--out", str(out), "--workers", "1", "--no-figures", "--quiet"]) == 0
+    with (out / "study.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["planner"] for r in rows if r["iteration"] == "0"] == ["lawnmower", "adaptive"]
+    assert "isoline_target_m" in rows[0]
+    with pytest.raises(SystemExit) as exc:
+        main(["study", str(mission), "--planner", "adaptive,nope", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "unknown planner 'nope'" in capsys.readouterr().err
+
+
+def test_levels_traced_counts_levels_actually_traced(demo):
+    """Levels whose pieces were never found are planned, not traced."""
+    from econdor_gcs.dfc import Dfc
+
+    mission = demo.with_overrides(max_iterations=1, min_iterations=1, search_radius_m=0.5)
+    field = mission.build_field(1)
+    res = Dfc(mission, InProcessExecutor(mission, field, seed=1), planner="no-sg", truth=field,
+              seed=1).run()
+    rec = res.records[1]
+    assert rec.levels_planned == len(rec.levels) == 3  # three levels sent out
+    assert rec.outcomes["not_found"] >= 1  # a 0.5 m search misses pieces
+    assert 0 < rec.levels_traced < 3  # one level had no piece found: not traced
 
 
 def test_samples_of_a_run_still_writing_are_read_up_to_the_last_whole_line(tmp_path):

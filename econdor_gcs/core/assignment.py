@@ -4,17 +4,22 @@ A greedy longest-processing-time heuristic with transit: jobs in decreasing leng
 the vehicle whose finish time (current load + transit to the job + job length) is
 smallest; each vehicle's jobs are then ordered by nearest neighbour from its position,
 and contour pieces are entered at their point nearest to where the vehicle comes from.
+
+A planner that routes its own jobs (every job names its ``vehicle``, as the adaptive
+planner's do) keeps its routing: each vehicle flies its jobs in the batch's order, as
+planned; only the trace tasks' piece ids are numbered here.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from .planners import Job
-from .tasks import Task
+from .tasks import Task, TraceTask
 
 
 class _NearestPoints:
@@ -58,6 +63,8 @@ def assign_jobs(
 ) -> list[list[Task]]:
     """Return one task list per vehicle (same order as ``positions_m``)."""
     n = len(positions_m)
+    if jobs and all(j.vehicle is not None and 0 <= j.vehicle < n for j in jobs):
+        return _routed(jobs, n, first_piece_id)
     loads = [0.0] * n
     ends = list(positions_m)
     buckets: list[list[Job]] = [[] for _ in range(n)]
@@ -85,4 +92,18 @@ def assign_jobs(
             tasks.extend(job.tasks)
             pos = job.end_m
         plans.append(tasks)
+    return plans
+
+
+def _routed(jobs: Sequence[Job], n: int, first_piece_id: int) -> list[list[Task]]:
+    """The planner's own routing: jobs per vehicle in batch order, piece ids numbered."""
+    plans: list[list[Task]] = [[] for _ in range(n)]
+    piece_id = first_piece_id
+    for job in jobs:
+        assert job.vehicle is not None
+        for task in job.tasks:
+            if isinstance(task, TraceTask):
+                task = dataclasses.replace(task, piece_id=piece_id)
+                piece_id += 1
+            plans[job.vehicle].append(task)
     return plans

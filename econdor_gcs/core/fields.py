@@ -12,6 +12,9 @@ a 0-d result) with a ``region`` attribute. The models:
   ``peak/2 * Z / range(Z) + 50``.
 * :func:`plume_field` — a few narrow sources on a flat background (sharp features that
   the two diagonals can miss entirely).
+* :class:`FrontField` — a sharp front: a meandering ``tanh`` step across the area and a
+  few round islands with the same steep edge, on a gentle slope (a boundary that a
+  survey between lines can only interpolate).
 * :class:`RasterField` — a grid loaded from ``.npy``, ``.npz``, ``.mat`` or ``.csv``,
   spanning the region node-to-node, interpolated between nodes.
 """
@@ -201,6 +204,87 @@ def plume_field(
     return f
 
 
+class FrontField:
+    """Sharp fronts: ``g = b + (p - b) max(H(s_front), H(s_island_1), ...) + slope``.
+
+    ``H(s) = (1 + tanh(s / w)) / 2`` is a smooth step of width ``w``. The front's signed
+    distance is ``s = (x - c) . n - A sin(2 pi (x - c) . t / lambda + phi)`` (a line through
+    ``c`` with normal ``n`` and tangent ``t``, meandering with amplitude ``A``); an island's
+    is ``R - |x - c_k|``. ``slope`` is a plane adding at most ``+-5 %`` of the step across
+    the area, so neither side is exactly flat.
+    """
+
+    def __init__(self, region: Region, centre_m: FloatArray, normal: FloatArray,
+                 amplitude_m: float, wavelength_m: float, phase_rad: float, width_m: float,
+                 islands_m: FloatArray, background: float, peak: float,
+                 slope: FloatArray) -> None:
+        self.region = region
+        self.centre_m = np.asarray(centre_m, dtype=float)
+        self.normal = np.asarray(normal, dtype=float) / float(np.hypot(*normal))
+        self.amplitude_m = amplitude_m
+        self.wavelength_m = wavelength_m
+        self.phase_rad = phase_rad
+        self.width_m = width_m
+        self.islands_m = np.asarray(islands_m, dtype=float).reshape(-1, 3)  # x, y, radius
+        self.background = background
+        self.peak = peak
+        self.slope = np.asarray(slope, dtype=float)
+
+    def __call__(self, x_m: ArrayLike, y_m: ArrayLike) -> FloatArray:
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        dx, dy = x - self.centre_m[0], y - self.centre_m[1]
+        nx, ny = self.normal
+        along = -dx * ny + dy * nx
+        s = dx * nx + dy * ny - self.amplitude_m * np.sin(
+            2 * np.pi * along / self.wavelength_m + self.phase_rad)
+        step = 0.5 * (1.0 + np.tanh(s / self.width_m))
+        for cx, cy, r in self.islands_m:
+            island = 0.5 * (1.0 + np.tanh((r - np.hypot(x - cx, y - cy)) / self.width_m))
+            step = np.maximum(step, island)
+        plane = self.slope[0] * (x - self.region.xmin) / self.region.width_m + self.slope[1] * (
+            y - self.region.ymin) / self.region.height_m
+        return self.background + (self.peak - self.background) * (step + plane)
+
+
+def front_field(
+    region: Region,
+    seed: int,
+    width_min_m: float = 1.0,
+    width_max_m: float = 3.0,
+    amplitude_m: float = 10.0,
+    wavelength_m: float = 60.0,
+    islands: int = 2,
+    background: float = 10.0,
+    peak: float = 100.0,
+) -> FrontField:
+    """A random :class:`FrontField`: the front through the middle third of the area at a
+    random angle, ``islands`` islands of radius 6-12 m on the low side."""
+    rng = np.random.default_rng(seed)
+    centre = _uniform_points(rng, region, 1, margin=1 / 3)[0]
+    ang = rng.uniform(0.0, 2 * np.pi)
+    normal = np.array([np.cos(ang), np.sin(ang)])
+    width = rng.uniform(width_min_m, width_max_m)
+    phase = rng.uniform(0.0, 2 * np.pi)
+    slope = rng.uniform(-0.05, 0.05, 2)
+    f = FrontField(region, centre, normal, amplitude_m, wavelength_m, phase, width,
+                   np.zeros((0, 3)), background, peak, slope)
+    found: list[tuple[float, float, float]] = []
+    for _ in range(200 * max(islands, 1)):
+        if len(found) >= islands:
+            break
+        c = _uniform_points(rng, region, 1, margin=0.12)[0]
+        r = rng.uniform(6.0, 12.0)
+        # on the low side, clear of the front and of the other islands
+        ring = c[None, :] + (r + 3 * width) * np.column_stack(
+            [np.cos(np.linspace(0, 2 * np.pi, 24)), np.sin(np.linspace(0, 2 * np.pi, 24))])
+        clear = all(np.hypot(c[0] - q[0], c[1] - q[1]) > r + q[2] + 6 for q in found)
+        if clear and float(np.max(f(ring[:, 0], ring[:, 1]))) < background + 0.2 * (peak - background):
+            found.append((float(c[0]), float(c[1]), float(r)))
+    f.islands_m = np.array(found, dtype=float).reshape(-1, 3)
+    return f
+
+
 class RasterField:
     """A field given as a grid of values spanning ``region`` node to node.
 
@@ -277,6 +361,8 @@ def make_field(model: str, params: dict[str, Any], region: Region, seed: int) ->
         return authors_field(region, seed, **params)
     if model == "plume":
         return plume_field(region, seed, **params)
+    if model == "front":
+        return front_field(region, seed, **params)
     if model == "raster":
         values = load_raster(params["path"], params.get("variable", ""))
         return RasterField(region, values, params.get("method", "cubic"))

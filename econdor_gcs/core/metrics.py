@@ -3,7 +3,8 @@
 * learning error (eq. 3): ``E_n = mean |g~_n - g~_{n-1}|`` over the P x Q grid;
 * MAE (eq. 10): ``mean |g - g~_n|``; in dB (eq. 11): ``20 log10(MAE)``;
 * span ratio: ``(max - min of g~_n) / (max - min of g)``;
-* iso-line error: mean distance between the estimate's and the true contour at a level.
+* iso-line error: mean distance between the estimate's and the true contour at a level;
+* iso-line components missed: pieces of the true iso-line the estimate's is nowhere near.
 """
 
 from __future__ import annotations
@@ -70,3 +71,32 @@ def isoline_error(truth: FloatArray, estimate: FloatArray, grid: Grid, level: fl
     da, _ = cKDTree(b).query(a)
     db, _ = cKDTree(a).query(b)
     return float(0.5 * (np.mean(da) + np.mean(db)))
+
+
+def isoline_components_missed(truth: FloatArray, estimate: FloatArray, grid: Grid, level: float,
+                              tol_m: float = 3.0, min_length_m: float = 1.0) -> tuple[int, int]:
+    """How many connected pieces of the true iso-line at ``level`` the estimate missed.
+
+    A piece (at least ``min_length_m`` long) is missed when the median distance from its
+    points to the estimate's iso-line at the same level exceeds ``tol_m``: the estimate
+    has no contour where this one is (an unfound source, a boundary never crossed).
+
+    Returns
+    -------
+    missed, total : int
+    """
+    pieces = [p for p in measure.find_contours(truth, level)
+              if len(p) > 1 and float(np.sum(np.hypot(*np.diff(p, axis=0).T))) * min(
+                  grid.dx, grid.dy) >= min_length_m]
+    if not pieces:
+        return 0, 0
+    est = contour_points(estimate, grid, level)
+    if len(est) == 0:
+        return len(pieces), len(pieces)
+    tree = cKDTree(est)
+    missed = 0
+    for rc in pieces:
+        x, y = grid.index_to_xy(rc[:, 0], rc[:, 1])
+        d, _ = tree.query(np.column_stack([x, y]))
+        missed += int(np.median(d) > tol_m)
+    return missed, len(pieces)

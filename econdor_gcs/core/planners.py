@@ -16,6 +16,9 @@ The planners:
 
 * ``econdor`` — the paper's dual SG: ``M_n = M_{n-1} + kappa_n`` Lloyd-Max levels of the
   current estimate, minus the levels within ``delta_n`` of an already traced level.
+  ``lloyd_variant="authors"`` uses the authors' ``Lloyd_Max_2.m`` instead of the
+  textbook eqs. 4-5 (outer thresholds recomputed, 500 bins for the first batch; see
+  :mod:`econdor_gcs.core.levels`).
   When *every* new level is redundant, the ``kappa_n`` least redundant ones (farthest
   from any traced level) are flown instead (counted in ``Batch.forced``). An empty
   iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
@@ -25,6 +28,8 @@ The planners:
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
   flying the lines in between (or one survey sized for ``budget_m``).
+* ``adaptive`` — uncertainty-driven candidates picked by uncertainty removed per metre,
+  or threshold mapping of given levels (:mod:`econdor_gcs.core.adaptive`).
 """
 
 from __future__ import annotations
@@ -43,8 +48,11 @@ from .sg import drop_redundant, initial_delta, update_delta, update_kappa
 from .tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
 from .waypoints import piece_route
 
-PLANNER_NAMES = ("econdor", "no-sg", "lawnmower")
+PLANNER_NAMES = ("econdor", "no-sg", "lawnmower", "adaptive")
 """The planners a mission or the command line may name (built by ``econdor_gcs.dfc``)."""
+
+AUTHORS_FIRST_BINS = 500
+"""Histogram bins of the first batch's Lloyd-Max levels in the authors' code."""
 
 
 @dataclass
@@ -56,6 +64,9 @@ class Job:
     end_m: tuple[float, float]
     length_m: float
     piece: ContourPiece | None = None
+    vehicle: int | None = None
+    """The vehicle the planner routed this job to. When every job of a batch names its
+    vehicle, the assignment keeps the planner's routing and order (and its entry points)."""
 
     def retarget(self, x_m: float, y_m: float, search_radius_m: float, max_len: float,
                  piece_id: int) -> None:
@@ -89,6 +100,10 @@ class Batch:
     """Planned length of survey lines in this batch (counted as 'contour' distance: it is
     the planner's productive flight, as traced length is for contour planners)."""
     forced: int = 0
+    done: bool = False
+    """The planner has nothing left to learn (with no jobs: the run stops, reason
+    ``planner_done``), e.g. threshold mapping found no place left where an iso-line
+    could still be."""
 
 
 @dataclass(frozen=True)
@@ -104,6 +119,8 @@ class PlanContext:
     positions_m: Sequence[tuple[float, float]] = ()
     budget_left_m: float = math.inf
     """Flight distance left of ``algorithm.flight_budget_m`` (inf without a budget)."""
+    flown_m: float = 0.0
+    """Flight distance so far (all vehicles, everything counted)."""
 
 
 class Planner(Protocol):
@@ -169,7 +186,11 @@ class ContourPlanner:
         min_piece_length_m: float = 2.0,
         search_radius_m: float = 10.0,
         max_trace_length_m: float = 0.0,
+        lloyd_variant: str = "textbook",
     ) -> None:
+        if lloyd_variant not in ("textbook", "authors"):
+            raise ValueError(f"lloyd_variant: must be 'textbook' or 'authors', got {lloyd_variant!r}")
+        self.lloyd_variant = lloyd_variant
         self.m0 = m0
         self.sg = sg
         self.lloyd_bins = lloyd_bins
@@ -194,7 +215,10 @@ class ContourPlanner:
         self.errors.append(float(learning_error))
 
     def _levels(self, estimate: FloatArray) -> FloatArray:
-        return lloyd_max(estimate, self.m, self.lloyd_bins, self.lloyd_iterations)
+        bins = self.lloyd_bins
+        if self.lloyd_variant == "authors" and self.batches == 1:
+            bins = AUTHORS_FIRST_BINS
+        return lloyd_max(estimate, self.m, bins, self.lloyd_iterations, variant=self.lloyd_variant)
 
     def next_batch(self, context: PlanContext) -> Batch:
         """Levels and contour pieces for the next iteration.

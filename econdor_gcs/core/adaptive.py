@@ -1,0 +1,663 @@
+"""The adaptive planner: fly where the estimate is most uncertain, per metre.
+
+Each iteration the planner
+
+1. models how uncertain the estimate still is (:mod:`econdor_gcs.core.uncertainty`): a
+   unit posterior variance ``v(x)`` from where the samples are, times an amplitude that
+   grows with the local steepness of the estimate and never falls below a floor;
+2. lists candidate paths: contour pieces of the estimate at many levels (traced onboard,
+   like E-CONDOR's pieces), straight legs through the most uncertain places, and
+   full-width lines (see :func:`contour_candidates`, :func:`leg_candidates`,
+   :func:`line_candidates`);
+3. picks greedily, vehicle by vehicle (the least loaded first), the candidate with the
+   most uncertainty removed per metre,
+
+   .. math:: \\frac{\\sum_x w(x) \\left[f(v(x)) - f(\\min(v(x), v_{line}(d_c(x))))\\right]}
+                  {\\text{length}_c + \\text{transit}_c + \\text{overhead}_c},
+
+   where ``d_c(x)`` is the distance from cell ``x`` to the candidate and
+   ``f(v) = a^2 v`` (expected squared error: integrated variance) by default. After each
+   pick the variance map is updated with the pick *and* the transit to it (the vehicle
+   samples all the way), so redundancy is judged in space, not in value;
+4. stops an iteration when every vehicle has its share of the per-iteration flight
+   (``batch_m``), never planning beyond the flight budget left.
+
+**Threshold mode** (``target_levels``): only the iso-lines at those levels matter. The
+per-cell value is the straddle score ``max(1.96 sigma - min_L |mu - L|, 0)`` (Bryan et al.
+2005) and, farther than ``explore_m`` from every sample (by the model's equivalent
+distance), ``a (d_eq / explore_m - 1)``: a coverage floor, since an iso-line around a
+feature narrower than the data can show may hide there whatever the model says. Cells
+within ``resolve_m`` of a sample (observed) or within ``band_m`` of a sample that reads a
+target level (an iso-line already flown on) count for nothing. Candidates are the
+estimate's whole contour components at the target levels (each traced until it closes or
+meets the area's edge on both sides) plus the exploration legs and lines. The planner
+reports ``done`` when no open cell scores any more: nowhere is left where an iso-line
+could still be, under the model (by default the GP posterior with ``l = length_m``: its
+variance shrinks where samples surround a place, which the distance proxy cannot see).
+
+Every job is an ordinary trace task (``TraceTask``) or a pair of waypoints, so the plan
+flies over MAVLink exactly like E-CONDOR's; contour pieces are traced by the vehicle's
+own tracer, not flown as planned polylines.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import RegularGridInterpolator
+from scipy.spatial import cKDTree
+
+from .contours import contour_pieces
+from .geometry import FloatArray, Grid, Region, path_length
+from .gp import MaternHyper, fit_matern
+from .planners import Batch, Job, PlanContext
+from .tasks import FlightReport, Task, TraceTask, Waypoint
+from .uncertainty import (
+    Footprints,
+    UncertaintyMap,
+    expected_error,
+    resample_polyline,
+    straddle,
+    uncertainty_map,
+)
+
+
+class CandidateKind(StrEnum):
+    """What a candidate path is flown as."""
+
+    TRACE = "trace"
+    """A contour piece, searched for at its start and traced onboard (``TraceTask``)."""
+    LEG = "leg"
+    """A straight leg between two waypoints."""
+
+
+@dataclass(eq=False)
+class Candidate:
+    """A path the planner may ask for, in flying order (``points_m[0]`` first)."""
+
+    kind: CandidateKind
+    points_m: FloatArray
+    level: float = math.nan
+    reversible: bool = False
+    """A leg may be flown either way."""
+    closed: bool = False
+    """A closed contour: entered at its point nearest the vehicle, traced round."""
+    whole: bool = False
+    """Trace until the contour closes or meets the area's edge (threshold mode)."""
+
+    @property
+    def length_m(self) -> float:
+        return path_length(self.points_m[:, 0], self.points_m[:, 1])
+
+
+@dataclass(frozen=True)
+class AdaptiveParams:
+    """Settings of the adaptive planner (the mission's ``adaptive`` section).
+
+    Parameters
+    ----------
+    batch_m : float
+        Flight planned per vehicle and iteration (m), transit included.
+    batch_growth : float
+        The batch grows to this fraction of the distance flown so far, if larger.
+    levels : int
+        Levels of the estimate whose contour pieces are candidates (MAE mode).
+    piece_m : float
+        Contour pieces are cut to at most this length (m).
+    min_piece_m : float
+        Shorter pieces are no candidates.
+    leg_m : float
+        Length of the exploration legs (m).
+    legs : int
+        Number of most uncertain places the legs pass through (four directions each).
+    line_spacing_m : float
+        Spacing of the full-width line candidates (0: none).
+    line_orientation : {"ns", "ew", "both"}
+        Their direction(s).
+    start : {"diagonals", "perimeter", "plan"}
+        The first flight: the mission's initiation pattern, the area's boundary, or the
+        planner's own plan from its prior (uniform uncertainty: spread-out lines).
+    model : {"auto", "proxy", "gp"}
+        Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
+        proxy when mapping the whole field (it measured best there), the GP posterior
+        with length ``length_m`` in threshold mode (its variance shrinks where samples
+        surround a place, so the planner knows when nothing is left to find).
+    length_m : float
+        Length of the ``proxy`` model, and of the ``gp`` model unless ``fit_length``.
+    fit_length : bool
+        The ``gp`` model's length scale is fitted to the samples (else ``length_m``).
+    floor : float
+        Amplitude floor ``s0``; 0 picks it from the data (``sigma_f`` of the GP).
+    gradient_gain_m : float
+        ``l_g``: weight of the estimate's steepness in the amplitude.
+    power : float
+        ``f(v) = a^p v^(p/2)``: 2 integrates the variance, 1 the standard deviation.
+    plan_spacing_m : float
+        Spacing of the planning cells (m).
+    search_radius_m : float
+        Search radius of the trace tasks (m).
+    trace_overhead_m : float
+        Extra flight charged to a trace candidate for the onboard search (m).
+    resolve_m : float
+        Threshold mode: a cell within this distance of a sample is observed.
+    explore_m : float
+        Threshold mode: a place farther than this from every sample may hide an iso-line
+        whatever the model says (the smallest feature worth looking for, in metres).
+    band_m : float
+        Threshold mode: cells within this distance of a sample that reads a target level
+        (within ``level_tol`` of the sampled value range) are resolved: the iso-line was
+        flown on there.
+    level_tol : float
+        See ``band_m``.
+    target_levels : tuple of float
+        Threshold mode when not empty.
+    """
+
+    batch_m: float = 400.0
+    batch_growth: float = 0.0
+    levels: int = 30
+    piece_m: float = 30.0
+    min_piece_m: float = 4.0
+    leg_m: float = 30.0
+    legs: int = 40
+    line_spacing_m: float = 2.0
+    line_orientation: str = "ns"
+    start: str = "diagonals"
+    model: str = "auto"
+    length_m: float = 5.0
+    fit_length: bool = True
+    floor: float = 0.0
+    gradient_gain_m: float = 5.0
+    power: float = 2.0
+    plan_spacing_m: float = 2.0
+    search_radius_m: float = 3.0
+    trace_overhead_m: float = 5.0
+    resolve_m: float = 1.5
+    explore_m: float = 10.0
+    band_m: float = 3.0
+    level_tol: float = 0.01
+    target_levels: tuple[float, ...] = ()
+
+
+# -- candidates ----------------------------------------------------------------------------
+
+
+def _high_on_left(points: FloatArray, slope: Callable[[FloatArray], FloatArray]) -> bool:
+    """Whether walking ``points`` keeps higher values on the left (the tracer's sense)."""
+    mid = len(points) // 2
+    a, b = points[max(mid - 1, 0)], points[min(mid + 1, len(points) - 1)]
+    t = b - a
+    g = slope(0.5 * (a + b))
+    return bool(-t[1] * g[0] + t[0] * g[1] >= 0.0)
+
+
+def _slope_at(estimate: FloatArray, grid: Grid) -> Callable[[FloatArray], FloatArray]:
+    gy, gx = np.gradient(estimate, grid.dy, grid.dx)
+    fx = RegularGridInterpolator((grid.y, grid.x), gx, bounds_error=False, fill_value=None)
+    fy = RegularGridInterpolator((grid.y, grid.x), gy, bounds_error=False, fill_value=None)
+
+    def slope(p: FloatArray) -> FloatArray:
+        q = np.array([[p[1], p[0]]])
+        return np.array([float(fx(q)[0]), float(fy(q)[0])])
+
+    return slope
+
+
+def contour_candidates(estimate: FloatArray, grid: Grid, levels: FloatArray, piece_m: float,
+                       min_piece_m: float, whole: bool = False) -> list[Candidate]:
+    """Contour pieces of the estimate at ``levels``, oriented so the tracer follows them.
+
+    With ``whole=False`` each piece is cut into equal parts of at most ``piece_m``;
+    with ``whole=True`` each connected piece is one candidate (threshold mode).
+    """
+    slope = _slope_at(estimate, grid)
+    out: list[Candidate] = []
+    for piece in contour_pieces(estimate, grid, levels, min_piece_m):
+        pts = piece.points_m
+        if not _high_on_left(pts, slope):
+            pts = pts[::-1]
+        if whole:
+            out.append(Candidate(CandidateKind.TRACE, pts, piece.level, closed=piece.closed,
+                                 whole=True))
+            continue
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        cum = np.r_[0.0, np.cumsum(seg)]
+        n = max(1, int(math.ceil(cum[-1] / piece_m)))
+        cuts = np.searchsorted(cum, np.linspace(0.0, cum[-1], n + 1)[1:-1])
+        for part in np.split(np.arange(len(pts)), cuts):
+            if len(part) < 2:
+                continue
+            sub = pts[part[0]:part[-1] + 2] if part[-1] + 1 < len(pts) else pts[part[0]:]
+            if path_length(sub[:, 0], sub[:, 1]) >= min_piece_m:
+                out.append(Candidate(CandidateKind.TRACE, sub, piece.level))
+    return out
+
+
+def _clip_segment(region: Region, a: FloatArray, b: FloatArray) -> FloatArray | None:
+    """The part of segment ``a``-``b`` inside ``region`` (Liang-Barsky), or None."""
+    d = b - a
+    t0, t1 = 0.0, 1.0
+    for p, q in ((-d[0], a[0] - region.xmin), (d[0], region.xmax - a[0]),
+                 (-d[1], a[1] - region.ymin), (d[1], region.ymax - a[1])):
+        if p == 0:
+            if q < 0:
+                return None
+            continue
+        r = q / p
+        if p < 0:
+            t0 = max(t0, r)
+        else:
+            t1 = min(t1, r)
+    if t1 <= t0:
+        return None
+    return np.array([a + t0 * d, a + t1 * d])
+
+
+def leg_candidates(umap: UncertaintyMap, cell_value: FloatArray, region: Region, legs: int,
+                   leg_m: float) -> list[Candidate]:
+    """Straight legs of ``leg_m`` in four directions through the ``legs`` highest-value
+    cells, no two centres closer than a third of a leg (non-maximum suppression)."""
+    inner = Region(region.xmin + 0.5, region.xmax - 0.5, region.ymin + 0.5, region.ymax - 0.5)
+    order = np.argsort(-cell_value, kind="stable")
+    centres: list[FloatArray] = []
+    min_gap = leg_m / 3.0
+    for i in order:
+        if cell_value[i] <= 0 or len(centres) >= legs:
+            break
+        c = np.array([umap.x_m[i], umap.y_m[i]])
+        if all(np.hypot(*(c - q)) >= min_gap for q in centres):
+            centres.append(c)
+    out: list[Candidate] = []
+    for c in centres:
+        for ang in (0.0, 0.25 * math.pi, 0.5 * math.pi, 0.75 * math.pi):
+            u = 0.5 * leg_m * np.array([math.cos(ang), math.sin(ang)])
+            seg = _clip_segment(inner, c - u, c + u)
+            if seg is not None and np.hypot(*(seg[1] - seg[0])) >= 0.5 * leg_m:
+                out.append(Candidate(CandidateKind.LEG, seg, reversible=True))
+    return out
+
+
+def line_candidates(region: Region, spacing_m: float, orientation: str = "ns") -> list[Candidate]:
+    """Full-width lines every ``spacing_m``, 0.5 m inside the area: north-south (``"ns"``),
+    east-west (``"ew"``) or both.
+
+    One family is the default: greedy picks from both make a grid, and a grid leaves
+    gaps twice as wide as parallel lines of the same total length.
+    """
+    if spacing_m <= 0:
+        return []
+    out: list[Candidate] = []
+    lo_y, hi_y = region.ymin + 0.5, region.ymax - 0.5
+    lo_x, hi_x = region.xmin + 0.5, region.xmax - 0.5
+    if orientation in ("ns", "both"):
+        for x in np.arange(region.xmin + 0.5 * spacing_m, region.xmax, spacing_m):
+            out.append(Candidate(CandidateKind.LEG, np.array([[x, lo_y], [x, hi_y]]),
+                                 reversible=True))
+    if orientation in ("ew", "both"):
+        for y in np.arange(region.ymin + 0.5 * spacing_m, region.ymax, spacing_m):
+            out.append(Candidate(CandidateKind.LEG, np.array([[lo_x, y], [hi_x, y]]),
+                                 reversible=True))
+    return out
+
+
+def perimeter_batch(context: PlanContext, inset_m: float = 0.5) -> Batch:
+    """The area's boundary, ``inset_m`` inside, split into one loop share per vehicle."""
+    r = context.region
+    corners = np.array([[r.xmin, r.ymin], [r.xmax, r.ymin], [r.xmax, r.ymax], [r.xmin, r.ymax],
+                        [r.xmin, r.ymin]]) + inset_m * np.array([[1, 1], [-1, 1], [-1, -1],
+                                                                 [1, -1], [1, 1]])
+    n = max(1, context.n_vehicles)
+    loop = resample_polyline(corners, 1.0)
+    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(loop, axis=0).T))]
+    cuts = np.linspace(0.0, cum[-1], n + 1)
+    jobs: list[Job] = []
+    for k in range(n):
+        keep = (cum >= cuts[k] - 1e-9) & (cum <= cuts[k + 1] + 1e-9)
+        part = loop[keep]
+        # waypoints at the corners inside this share (and its ends)
+        corner_idx = [0] + [i for i in range(1, len(part) - 1)
+                            if np.any(np.all(np.isclose(part[i], corners), axis=1))] + [len(part) - 1]
+        pts = part[corner_idx]
+        tasks: list[Task] = [Waypoint(float(x), float(y)) for x, y in pts]
+        length = path_length(pts[:, 0], pts[:, 1])
+        jobs.append(Job(tasks, (float(pts[0, 0]), float(pts[0, 1])),
+                        (float(pts[-1, 0]), float(pts[-1, 1])), length, vehicle=k))
+    return Batch(jobs, levels_planned=0, survey_m=sum(j.length_m for j in jobs))
+
+
+# -- greedy selection ------------------------------------------------------------------------
+
+
+@dataclass
+class Pick:
+    """A chosen candidate, how it is entered and which vehicle flies it."""
+
+    candidate: Candidate
+    vehicle: int
+    path_m: FloatArray
+    transit_m: float
+
+
+@dataclass
+class _Fleet:
+    positions: list[FloatArray]
+    loads: list[float]
+    budgets: list[float]
+    picks: list[list[Pick]] = field(default_factory=list)
+
+
+def _entry(c: Candidate, pos: FloatArray) -> tuple[FloatArray, float]:
+    """The path as flown from ``pos`` (a leg from its nearer end, a loop from its nearest
+    point) and the transit to its start."""
+    pts = c.points_m
+    if c.reversible:
+        d0, d1 = np.hypot(*(pts[0] - pos)), np.hypot(*(pts[-1] - pos))
+        return (pts, float(d0)) if d0 <= d1 else (pts[::-1], float(d1))
+    if c.closed:
+        i = int(np.argmin(np.hypot(pts[:, 0] - pos[0], pts[:, 1] - pos[1])))
+        loop = np.vstack([pts[i:-1], pts[:i + 1]]) if i > 0 else pts
+        return loop, float(np.hypot(*(pts[i] - pos)))
+    return pts, float(np.hypot(*(pts[0] - pos)))
+
+
+def _walk(order: Sequence[Candidate], start: FloatArray) -> tuple[list[Pick], float]:
+    """Fly ``order`` from ``start``: the picks (entries chosen on the way) and the transit."""
+    pos, total, out = start, 0.0, []
+    for c in order:
+        path, t_m = _entry(c, pos)
+        out.append(Pick(c, 0, path, t_m))
+        total += t_m
+        pos = path[0] if c.closed else path[-1]
+    return out, total
+
+
+def shorten_route(picks: list[Pick], start: FloatArray, rounds: int = 3) -> list[Pick]:
+    """The same picks in an order with less transit (2-opt and single moves, from the
+    greedy's order; legs may be flown either way, loops entered anywhere)."""
+    if len(picks) < 2:
+        return picks
+    vehicle = picks[0].vehicle
+    best = [p.candidate for p in picks]
+    _, best_cost = _walk(best, start)
+    for _ in range(rounds):
+        improved = False
+        n = len(best)
+        for i in range(n - 1):
+            for j in range(i + 1, n):
+                for trial in (best[:i] + best[i:j + 1][::-1] + best[j + 1:],
+                              best[:i] + best[i + 1:j + 1] + [best[i]] + best[j + 1:]):
+                    _, cost = _walk(trial, start)
+                    if cost < best_cost - 1e-6:
+                        best, best_cost, improved = trial, cost, True
+        if not improved:
+            break
+    route, _ = _walk(best, start)
+    for p in route:
+        p.vehicle = vehicle
+    return route
+
+
+def greedy_plan(
+    candidates: Sequence[Candidate],
+    footprints: Footprints,
+    variance: FloatArray,
+    cell_value: Callable[[FloatArray, NDArray[np.intp]], FloatArray],
+    positions_m: Sequence[tuple[float, float]],
+    budgets_m: Sequence[float],
+    trace_overhead_m: float = 5.0,
+) -> tuple[list[list[Pick]], FloatArray]:
+    """Pick candidates for each vehicle by uncertainty removed per metre (module docstring).
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+    footprints : Footprints
+        Cells near each candidate and their distances (same order as ``candidates``).
+    variance : ndarray
+        Unit variance of the planning cells now; updated in a copy as picks are made.
+    cell_value : callable
+        ``cell_value(v, cells)`` -> the value of cells ``cells`` at variances ``v``.
+    positions_m : sequence of (x, y)
+        Where each vehicle is.
+    budgets_m : sequence of float
+        Flight each vehicle may plan (transit included).
+    trace_overhead_m : float
+        Charged on top of a trace candidate's length (the onboard search).
+
+    Returns
+    -------
+    picks : list of list of Pick
+        Per vehicle, in flying order.
+    variance : ndarray
+        The variance expected after the plan is flown.
+    """
+    v = variance.copy()
+    fleet = _Fleet([np.asarray(p, dtype=float) for p in positions_m], [0.0] * len(positions_m),
+                   list(budgets_m), [[] for _ in positions_m])
+    n = len(candidates)
+    lengths = np.array([c.length_m for c in candidates])
+    overhead = np.array([trace_overhead_m if c.kind == CandidateKind.TRACE else 0.0
+                         for c in candidates])
+    ends = np.array([[*c.points_m[0], *c.points_m[-1]] for c in candidates]).reshape(n, 4)
+    reversible = np.array([c.reversible for c in candidates], dtype=bool)
+    closed = np.array([c.closed for c in candidates], dtype=bool)
+    used = np.zeros(n, dtype=bool)
+    active = [b > 0 for b in fleet.budgets]
+    starts = [p.copy() for p in fleet.positions]
+    fp = footprints
+
+    def gains() -> FloatArray:
+        cells = fp.cells
+        before = v[cells]
+        after = np.minimum(before, fp.line_var)
+        diff = cell_value(before, cells) - cell_value(after, cells)
+        return np.bincount(fp.owner, weights=diff, minlength=n).astype(float)
+
+    g = gains()
+    while any(active):
+        k = min((i for i in range(len(active)) if active[i]), key=lambda i: fleet.loads[i])
+        pos = fleet.positions[k]
+        transit = np.hypot(ends[:, 0] - pos[0], ends[:, 1] - pos[1])
+        back = np.hypot(ends[:, 2] - pos[0], ends[:, 3] - pos[1])
+        transit = np.where(reversible, np.minimum(transit, back), transit)
+        if closed.any():
+            for i in np.nonzero(closed & ~used)[0].tolist():
+                pts = candidates[i].points_m
+                transit[i] = float(np.min(np.hypot(pts[:, 0] - pos[0], pts[:, 1] - pos[1])))
+        cost = lengths + transit + overhead
+        left = fleet.budgets[k] - fleet.loads[k]
+        fits = (cost <= left) | (not fleet.picks[k])  # a vehicle's first pick may overrun
+        score = np.where(~used & fits & (g > 0), g / np.maximum(cost, 1e-6), -np.inf)
+        best = int(np.argmax(score))
+        if not np.isfinite(score[best]):
+            # nothing fits: fly the picks in a shorter order, and use what that frees
+            route = shorten_route(fleet.picks[k], starts[k])
+            before = sum(p.transit_m for p in fleet.picks[k])
+            saved = before - sum(p.transit_m for p in route)
+            fleet.picks[k] = route
+            if saved > 1.0:
+                fleet.loads[k] -= saved
+                last = route[-1]
+                fleet.positions[k] = last.path_m[0] if last.candidate.closed else last.path_m[-1]
+            else:
+                active[k] = False
+            continue
+        c = candidates[int(best)]
+        path, t_m = _entry(c, pos)
+        used[best] = True
+        fleet.picks[k].append(Pick(c, k, path, t_m))
+        fleet.loads[k] += float(cost[best])
+        fleet.positions[k] = path[0] if c.closed else path[-1]
+        # what this pick (and the transit to it) will observe
+        sl = slice(fp.start[best], fp.start[best + 1])
+        v[fp.cells[sl]] = np.minimum(v[fp.cells[sl]], fp.line_var[sl])
+        if t_m > 1.0:
+            cells, dist = fp.cells_near(np.array([pos, path[0]]))
+            v[cells] = np.minimum(v[cells], fp.umap.line_variance(dist))
+        g = gains()
+    return fleet.picks, v
+
+
+# -- the planner -----------------------------------------------------------------------------
+
+
+class AdaptivePlanner:
+    """Uncertainty-driven planner (module docstring); follows the ``Planner`` contract.
+
+    Parameters
+    ----------
+    params : AdaptiveParams
+    seed : int
+        Seed of the GP fit's subsample (reproducible runs).
+    """
+
+    name = "adaptive"
+
+    def __init__(self, params: AdaptiveParams = AdaptiveParams(), seed: int = 0  # noqa: B008
+                 ) -> None:
+        if params.model not in ("auto", "gp", "proxy"):
+            raise ValueError(f"model: must be auto, gp or proxy, got {params.model!r}")
+        if params.model == "auto":
+            params = dataclasses.replace(
+                params, model="gp" if params.target_levels else "proxy",
+                fit_length=params.fit_length and not params.target_levels)
+        if params.line_orientation not in ("ns", "ew", "both"):
+            raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
+        if params.start not in ("diagonals", "perimeter", "plan"):
+            raise ValueError(f"start: must be diagonals, perimeter or plan, got {params.start!r}")
+        self.params = params
+        self.seed = seed
+        self.hyper: MaternHyper | None = None
+        self.open_cells = 0
+        """Threshold mode: planning cells where an iso-line could still be (after the last plan)."""
+
+    def initiation(self, context: PlanContext) -> Batch | None:
+        """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
+        ``"diagonals"``), the area's boundary (``"perimeter"``: the reconstruction
+        extrapolates at the edges, where a survey has its first and last lines), or the
+        planner's own plan from its prior (``"plan"``)."""
+        if self.params.start == "diagonals":
+            return None
+        if self.params.start == "perimeter":
+            return perimeter_batch(context)
+        return self.next_batch(context)
+
+    def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
+        """Nothing to learn from the outcomes: the next plan starts from every sample."""
+
+    def uncertainty(self, context: PlanContext) -> tuple[UncertaintyMap, Grid]:
+        """The uncertainty of the current estimate on the planning grid (the prior —
+        uniform — before there is an estimate)."""
+        p = self.params
+        s = context.samples
+        plan_grid = Grid.with_spacing(context.region, p.plan_spacing_m)
+        if context.estimate is None or context.grid is None or len(s) < 3:
+            xx, yy = plan_grid.mesh
+            n = xx.size
+            return UncertaintyMap(xx.ravel(), yy.ravel(), np.ones(n), np.full(n, p.floor or 1.0),
+                                  np.zeros(n), "proxy", p.length_m, None, plan_grid), plan_grid
+        if p.model == "gp":
+            self.hyper = fit_matern(s.x_m, s.y_m, s.value, seed=self.seed + context.iteration)
+            if not p.fit_length:
+                self.hyper = dataclasses.replace(self.hyper, length_m=p.length_m)
+        umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid, plan_grid,
+                               model=p.model, length_m=p.length_m, floor=p.floor or None,
+                               gradient_gain_m=p.gradient_gain_m, hyper=self.hyper)
+        return umap, plan_grid
+
+    def next_batch(self, context: PlanContext) -> Batch:
+        p = self.params
+        umap, _ = self.uncertainty(context)
+        s = context.samples
+        region = context.region
+        if p.target_levels:
+            levels = np.asarray(p.target_levels, dtype=float)
+            gap = np.min(np.abs(umap.mean[:, None] - levels[None, :]), axis=1)
+            cells_xy = np.column_stack([umap.x_m, umap.y_m])
+            dist = np.full(umap.x_m.size, np.inf)
+            band = np.full(umap.x_m.size, np.inf)
+            span = float(np.ptp(s.value)) if len(s) else 1.0
+            if len(s):
+                dist, _ = cKDTree(np.column_stack([s.x_m, s.y_m])).query(cells_xy)
+                on_level = np.min(np.abs(s.value[:, None] - levels[None, :]), axis=1) <= (
+                    p.level_tol * span)
+                if on_level.any():
+                    band, _ = cKDTree(np.column_stack([s.x_m[on_level], s.y_m[on_level]])).query(
+                        cells_xy)
+            # Closed: observed cells, and the band along an iso-line already flown on (its
+            # samples read the level: the iso-line is there, to within the tracking error).
+            open_cells = (dist > p.resolve_m) & (band > p.band_m)
+            # Coverage floor: farther than explore_m from every sample the iso-line could
+            # be anywhere (features narrower than the data can show), whatever the model
+            # says: such places score in proportion to how much farther they are.
+            eps = 1e-3 * max(span, 1e-9)
+            amp = umap.amplitude
+
+            def cell_value(var: FloatArray, cells: NDArray[np.intp]) -> FloatArray:
+                model = straddle(amp[cells], var, gap[cells], open_cells[cells])
+                far = umap.equivalent_distance_m(var) / p.explore_m - 1.0
+                cover = np.where(open_cells[cells], amp[cells] * np.maximum(far, 0.0), 0.0)
+                return np.maximum(model, cover)
+
+            now = cell_value(umap.variance, np.arange(umap.x_m.size))
+            self.open_cells = int(np.count_nonzero(now > 10 * eps))
+            if self.open_cells == 0:
+                return Batch([], levels_planned=len(levels), done=True)
+            cands = [] if context.estimate is None or context.grid is None else (
+                contour_candidates(context.estimate, context.grid, levels, p.piece_m,
+                                   p.min_piece_m, whole=True))
+        else:
+            amp = umap.amplitude
+
+            def cell_value(var: FloatArray, cells: NDArray[np.intp]) -> FloatArray:
+                return expected_error(amp[cells], var, p.power)
+
+            now = expected_error(amp, umap.variance, p.power)
+            levels = np.zeros(0)
+            cands = []
+            if context.estimate is not None and context.grid is not None:
+                lo, hi = np.quantile(context.estimate, [0.005, 0.995])
+                levels = np.linspace(lo, hi, p.levels + 2)[1:-1]
+                cands = contour_candidates(context.estimate, context.grid, levels, p.piece_m,
+                                           p.min_piece_m)
+        cands += leg_candidates(umap, now, region, p.legs, p.leg_m)
+        cands += line_candidates(region, p.line_spacing_m, p.line_orientation)
+        share = max(p.batch_m, p.batch_growth * context.flown_m)
+        per_vehicle = min(share, context.budget_left_m / max(1, context.n_vehicles))
+        positions = list(context.positions_m) or [(region.xmin, region.ymin)] * context.n_vehicles
+        footprints = Footprints(umap, [c.points_m for c in cands])
+        picks, _ = greedy_plan(cands, footprints, umap.variance, cell_value, positions,
+                               [per_vehicle] * len(positions), p.trace_overhead_m)
+        return self._batch(picks, levels)
+
+    def _batch(self, picks: list[list[Pick]], levels: FloatArray) -> Batch:
+        p = self.params
+        jobs: list[Job] = []
+        survey_m = 0.0
+        traced: set[float] = set()
+        for route in picks:
+            for pick in route:
+                c, path = pick.candidate, pick.path_m
+                start = (float(path[0, 0]), float(path[0, 1]))
+                end = start if c.closed else (float(path[-1, 0]), float(path[-1, 1]))
+                length = path_length(path[:, 0], path[:, 1])
+                if c.kind == CandidateKind.TRACE:
+                    max_len = 0.0 if c.whole else length
+                    # the estimated contour, for vehicles that fly it as waypoints
+                    contour = tuple((float(x), float(y)) for x, y in path)
+                    task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0,
+                                     route_m=contour)
+                    jobs.append(Job([task], start, end, length, vehicle=pick.vehicle))
+                    traced.add(c.level)
+                else:
+                    jobs.append(Job([Waypoint(*start), Waypoint(*end)], start, end, length,
+                                    vehicle=pick.vehicle))
+                    survey_m += length
+        return Batch(jobs, levels_planned=len(levels), levels=np.array(sorted(traced)),
+                     survey_m=survey_m)

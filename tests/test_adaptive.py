@@ -1,0 +1,247 @@
+"""The adaptive planner: uncertainty, candidates, greedy selection, threshold mapping, and
+whole runs through the DFC loop with the real onboard tracer."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from econdor_gcs import dfc
+from econdor_gcs.core.adaptive import (
+    AdaptiveParams,
+    AdaptivePlanner,
+    Candidate,
+    CandidateKind,
+    contour_candidates,
+    greedy_plan,
+    line_candidates,
+    perimeter_batch,
+)
+from econdor_gcs.core.assignment import assign_jobs
+from econdor_gcs.core.geometry import Grid, Region
+from econdor_gcs.core.planners import PlanContext
+from econdor_gcs.core.tasks import Phase, SampleLog, TraceTask, Waypoint
+from econdor_gcs.core.uncertainty import Footprints, UncertaintyMap, expected_error
+from econdor_gcs.mission import load_mission
+from econdor_lab.inprocess import InProcessExecutor
+
+ROOT = Path(__file__).resolve().parents[1]
+REGION = Region(0, 100, 0, 100)
+GRID = Grid(REGION, 101, 101)
+PLAN = Grid.with_spacing(REGION, 2.0)
+
+
+def uniform_map(variance: np.ndarray | None = None) -> UncertaintyMap:
+    xx, yy = PLAN.mesh
+    n = xx.size
+    v = np.ones(n) if variance is None else variance
+    return UncertaintyMap(xx.ravel(), yy.ravel(), v, np.ones(n), np.zeros(n), "proxy", 5.0,
+                          None, PLAN)
+
+
+def mae_value(umap: UncertaintyMap):
+    return lambda var, cells: expected_error(umap.amplitude[cells], var, 2.0)
+
+
+def samples_along(points: list[tuple[float, float]], field, step_m: float = 0.8) -> SampleLog:
+    xs, ys = [], []
+    for (ax, ay), (bx, by) in zip(points[:-1], points[1:], strict=True):
+        n = max(2, int(math.hypot(bx - ax, by - ay) / step_m))
+        xs.append(np.linspace(ax, bx, n))
+        ys.append(np.linspace(ay, by, n))
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    return SampleLog(np.arange(x.size) * 0.1, x, y, np.asarray(field(x, y), dtype=float),
+                     np.full(x.size, Phase.SURVEY, dtype=np.int8), np.zeros(x.size, np.int16))
+
+
+def after_diagonals(seed: int, positions: list[tuple[float, float]], budget_left_m: float
+                    ) -> PlanContext:
+    """The context of iteration 1 on plume field ``seed``: the diagonals flown."""
+    from econdor_gcs.core.spline import reconstruct
+
+    field = load_mission(ROOT / "missions" / "plume.yaml").build_field(seed)
+    s = samples_along([(0, 0), (100, 100), (100, 0), (0, 100)], field)
+    est = reconstruct(s.x_m, s.y_m, s.value, GRID)
+    return PlanContext(iteration=1, region=REGION, n_vehicles=len(positions), grid=GRID,
+                       estimate=est, samples=s, positions_m=positions,
+                       budget_left_m=budget_left_m)
+
+
+def test_contour_pieces_are_cut_and_oriented_for_the_tracer():
+    xx, _ = GRID.mesh
+    ramp = xx.copy()  # g = x: iso-lines run north-south, higher values to the east
+    cands = contour_candidates(ramp, GRID, np.array([30.0, 70.0]), piece_m=30.0, min_piece_m=4.0)
+    assert len(cands) == 8  # two 100 m lines, four pieces each
+    for c in cands:
+        assert c.kind == CandidateKind.TRACE and c.length_m <= 30.0 + 1e-6
+        # the tracer keeps higher values on its left: walking a g = x line means going south
+        assert c.points_m[0, 1] > c.points_m[-1, 1]
+
+
+def test_greedy_flies_where_the_uncertainty_is_and_keeps_to_the_budget():
+    var = np.ones(PLAN.nx * PLAN.ny)
+    xx, _ = PLAN.mesh
+    var[xx.ravel() < 50] = 0.01  # the west half is known already
+    umap = uniform_map(var)
+    cands = line_candidates(REGION, 2.0, "ns")
+    picks, after = greedy_plan(cands, Footprints(umap, [c.points_m for c in cands]), var,
+                               mae_value(umap), [(50.0, 0.0)], [350.0])
+    route = picks[0]
+    assert 2 <= len(route) <= 3
+    assert all(p.path_m[0, 0] > 50 for p in route)  # only the uncertain east half
+    flown = sum(p.transit_m + p.candidate.length_m for p in route)
+    assert flown <= 350.0
+    assert after.sum() < var.sum()
+
+
+def test_redundancy_is_judged_in_space():
+    umap = uniform_map()
+    leg = np.array([[20.0, 50.0], [50.0, 50.0]])
+    twins = [Candidate(CandidateKind.LEG, leg, reversible=True),
+             Candidate(CandidateKind.LEG, leg + [0.0, 0.5], reversible=True),
+             Candidate(CandidateKind.LEG, leg + [40.0, 30.0], reversible=True)]
+    # room for two of them: the second is the far leg, not the twin of the first
+    picks, _ = greedy_plan(twins, Footprints(umap, [c.points_m for c in twins]), umap.variance,
+                           mae_value(umap), [(20.0, 50.0)], [100.0])
+    chosen = [p.candidate for p in picks[0]]
+    assert len(chosen) == 2 and chosen[1] is twins[2]
+
+
+def test_the_fleet_shares_the_work():
+    umap = uniform_map()
+    cands = line_candidates(REGION, 4.0, "ns")
+    picks, _ = greedy_plan(cands, Footprints(umap, [c.points_m for c in cands]), umap.variance,
+                           mae_value(umap), [(0.0, 0.0), (100.0, 0.0)], [300.0, 300.0])
+    assert len(picks[0]) >= 2 and len(picks[1]) >= 2
+    assert np.mean([p.path_m[0, 0] for p in picks[0]]) < np.mean([p.path_m[0, 0] for p in picks[1]])
+
+
+def test_planner_routes_its_jobs_and_the_assignment_keeps_them():
+    ctx = after_diagonals(0, [(0.0, 100.0), (100.0, 0.0)], 5000.0)
+    batch = AdaptivePlanner(AdaptiveParams(batch_m=300.0)).next_batch(ctx)
+    assert batch.jobs and all(j.vehicle in (0, 1) for j in batch.jobs)
+    plans = assign_jobs(batch.jobs, ctx.positions_m, first_piece_id=7000)
+    for v in (0, 1):  # each vehicle flies its own jobs, in the planner's order
+        expected = [t for j in batch.jobs if j.vehicle == v for t in j.tasks]
+        assert len(plans[v]) == len(expected)
+        for got, want in zip(plans[v], expected, strict=True):
+            assert type(got) is type(want) and (got.x_m, got.y_m) == (want.x_m, want.y_m)
+    ids = [t.piece_id for plan in plans for t in plan if isinstance(t, TraceTask)]
+    assert ids == sorted(set(ids)) and (not ids or ids[0] == 7000)
+    # never more than the batch, except the first pick of a vehicle
+    for v in (0, 1):
+        assert sum(j.length_m for j in batch.jobs if j.vehicle == v) <= 300.0 + 150.0
+
+
+def test_trace_tasks_carry_their_estimated_contour_for_stock_autopilots():
+    """A vehicle without the tracer flies a contour piece as its waypoint polyline: every
+    trace task of the adaptive planner carries its route, from its start point."""
+    from econdor_gcs.core.waypoints import task_waypoints
+
+    ctx = after_diagonals(0, [(0.0, 100.0), (100.0, 0.0)], 5000.0)
+    batch = AdaptivePlanner(AdaptiveParams(batch_m=300.0)).next_batch(ctx)
+    traces = [t for j in batch.jobs for t in j.tasks if isinstance(t, TraceTask)]
+    assert traces
+    for t in traces:
+        assert len(t.route_m) >= 2 and t.route_m[0] == (t.x_m, t.y_m)
+        wps = task_waypoints(t, 1.0)
+        assert (wps[0].x_m, wps[0].y_m) == (t.x_m, t.y_m)
+
+
+def test_planner_never_plans_beyond_the_budget_left():
+    ctx = after_diagonals(1, [(0.0, 100.0)], 120.0)
+    batch = AdaptivePlanner().next_batch(ctx)
+    assert len(batch.jobs) == 1  # one pick may overrun a tiny remainder; no second one
+
+
+def test_perimeter_is_split_over_the_fleet():
+    ctx = PlanContext(iteration=0, region=REGION, n_vehicles=3)
+    batch = perimeter_batch(ctx)
+    assert [j.vehicle for j in batch.jobs] == [0, 1, 2]
+    assert batch.survey_m == pytest.approx(4 * 99.0, rel=1e-6)
+    assert all(isinstance(t, Waypoint) for j in batch.jobs for t in j.tasks)
+
+
+def test_threshold_mode_is_done_when_nothing_straddles():
+    """A constant field far from the level, sampled everywhere: nowhere to look."""
+    pts = []
+    for x in np.arange(0.0, 100.1, 5.0):
+        pts += [(x, 0.0), (x, 100.0)] if int(x / 5) % 2 == 0 else [(x, 100.0), (x, 0.0)]
+    s = samples_along(pts, lambda x, y: np.full(np.shape(x), 10.0) + 0.01 * np.asarray(x))
+    est = np.full(GRID.shape, 10.0) + 0.01 * GRID.mesh[0]
+    ctx = PlanContext(iteration=3, region=REGION, n_vehicles=1, grid=GRID, estimate=est,
+                      samples=s, positions_m=[(0.0, 0.0)])
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,)))
+    batch = planner.next_batch(ctx)
+    assert batch.done and not batch.jobs and planner.open_cells == 0
+    # the same with a gap nobody flew: not done
+    far = SampleLog(s.t_s[s.x_m < 60], s.x_m[s.x_m < 60], s.y_m[s.x_m < 60],
+                    s.value[s.x_m < 60], s.phase[s.x_m < 60], s.vehicle[s.x_m < 60])
+    ctx2 = PlanContext(iteration=3, region=REGION, n_vehicles=1, grid=GRID, estimate=est,
+                       samples=far, positions_m=[(0.0, 0.0)])
+    batch2 = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).next_batch(ctx2)
+    assert not batch2.done and batch2.jobs
+    assert all(t.x_m > 40 for j in batch2.jobs for t in j.tasks)
+
+
+def test_adaptive_is_registered_and_configured_from_the_mission():
+    m = load_mission(ROOT / "missions" / "threshold.yaml")
+    planner = dfc.build_planner("adaptive", m)
+    assert isinstance(planner, AdaptivePlanner)
+    assert planner.params.target_levels == (55.0,)
+    assert planner.params.model == "gp" and not planner.params.fit_length  # "auto"
+    with pytest.raises(ValueError, match="model"):
+        AdaptivePlanner(AdaptiveParams(model="nope"))
+
+
+@pytest.mark.slow
+def test_adaptive_run_maps_a_plume_field_to_a_stated_error():
+    """A whole in-process run with the real tracer: 2 km of flight on plume seed 3."""
+    m = load_mission(ROOT / "missions" / "plume.yaml").with_overrides(flight_budget_m=2000.0)
+    field = m.build_field(3)
+    flown: list[type] = []
+
+    def progress(event: dfc.DfcEvent) -> None:
+        if isinstance(event, dfc.IterationPlanned):
+            flown.extend(type(t) for plan in event.plans for t in plan)
+
+    result = dfc.Dfc(m, InProcessExecutor(m, field, seed=3), planner="adaptive", truth=field,
+                     seed=3, progress=progress).run()
+    assert result.stop_reason == "flight_budget"
+    assert 2000.0 <= result.flight_distance_m - result.return_m < 2000.0 + 400.0
+    assert result.records[-1].mae_db < -15.0
+    assert result.records[-1].mae_db < result.records[0].mae_db - 20.0
+    # ordinary mission items: trace tasks (traced onboard) and waypoint legs
+    assert set(flown) == {TraceTask, Waypoint}
+
+
+@pytest.mark.slow
+def test_threshold_study_finds_every_piece_and_stops_when_nothing_is_left(tmp_path):
+    """``econdor study missions/threshold.yaml``: the diagonals miss pieces of the iso-line at
+    55; the planner finds them, traces them and stops (``planner_done``) before the budget
+    does; study.csv reports the iso-line error at the target and the pieces missed."""
+    import csv
+    import json
+
+    from econdor.cli import main
+
+    out = tmp_path / "study"
+    assert main(["study", str(ROOT / "missions" / "threshold.yaml"), "--seeds", "0",
+                 "--planner", "adaptive", "--out", str(out), "--workers", "1", "--no-figures",
+                 "--quiet"]) == 0
+    run = json.loads((out / "summary.json").read_text())["runs"][0]
+    assert run["stop_reason"] == "planner_done"
+    assert run["flight_distance_m"] - run["return_m"] < 3000.0  # the budget did not stop it
+    assert run["isoline_error_m"]["target@55"] == run["isoline_error_m"]["target"] < 0.5
+    with (out / "study.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    first, last = rows[0], rows[-1]
+    assert float(first["isoline_target_missed"]) >= 1  # the diagonals alone miss a piece
+    assert float(first["isoline_target_m"]) > 2.0
+    assert float(last["isoline_target_missed"]) == 0
+    assert float(last["isoline_target_m"]) < 0.5
+    errors = [float(r["isoline_target_m"]) for r in rows]
+    assert all(e == e for e in errors)  # a number in every row, never NaN

@@ -1,0 +1,17 @@
+"""The examples in the numerical modules' docstrings run (as scikit-image's do)."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+MODULES = ["econdor_gcs.core.gp", "econdor_gcs.core.uncertainty", "econdor_gcs.core.levels",
+           "econdor_gcs.core.adaptive", "econdor_gcs.core.tasks"]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_docstring_examples(name):
+    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
+    assert result.failed == 0
