@@ -21,7 +21,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
     lawnmower: {spacing_m, budget_m}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
                line_orientation, start, model, length_m, fit_length, floor, gradient_gain_m, power,
-               plan_spacing_m, search_radius_m, resolve_m, explore_m, band_m, level_tol}
+               plan_spacing_m, search_radius_m, resolve_m, explore_m, band_m, level_tol,
+               threshold_batch_m, crossings_first}
 """
 
 from __future__ import annotations
@@ -142,6 +143,8 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "explore_m": (float, 10.0, _positive),
         "band_m": (float, 3.0, _non_negative),
         "level_tol": (float, 0.01, _range(0.0, 0.5)),
+        "threshold_batch_m": (float, 130.0, _positive),
+        "crossings_first": (bool, False, None),
     },
 }
 
@@ -326,6 +329,8 @@ class AdaptiveConfig:
     explore_m: float
     band_m: float
     level_tol: float
+    threshold_batch_m: float
+    crossings_first: bool
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,9 @@ from econdor_gcs.core.adaptive import (
     CandidateKind,
     contour_candidates,
     greedy_plan,
+    level_crossings,
     line_candidates,
+    mark_crossings,
     perimeter_batch,
 )
 from econdor_gcs.core.assignment import assign_jobs
@@ -229,7 +231,7 @@ def test_threshold_study_finds_every_piece_and_stops_when_nothing_is_left(tmp_pa
     from econdor.cli import main
 
     out = tmp_path / "study"
-    assert main(["study", str(ROOT / "missions" / "threshold.yaml"), "--seeds", "0",
+    assert main(["study", str(ROOT / "missions" / "threshold.yaml"), "--seeds", "5",
                  "--planner", "adaptive", "--out", str(out), "--workers", "1", "--no-figures",
                  "--quiet"]) == 0
     run = json.loads((out / "summary.json").read_text())["runs"][0]
@@ -245,3 +247,68 @@ def test_threshold_study_finds_every_piece_and_stops_when_nothing_is_left(tmp_pa
     assert float(last["isoline_target_m"]) < 0.5
     errors = [float(r["isoline_target_m"]) for r in rows]
     assert all(e == e for e in errors)  # a number in every row, never NaN
+
+
+def test_level_crossings_come_from_survey_and_transit_samples_only():
+    x = np.arange(0.0, 10.0, 0.5)
+    value = x.copy()  # crosses 4.25 once, between x = 4.0 and 4.5
+    for phase, found in ((Phase.SURVEY, 1), (Phase.TRANSIT, 1), (Phase.TRACE, 0)):
+        s = SampleLog(x, x, np.zeros_like(x), value, np.full(x.size, phase, dtype=np.int8),
+                      np.zeros(x.size, np.int16))
+        pts, lv = level_crossings(s, np.array([4.25, 50.0]))
+        assert len(pts) == found and lv.tolist() == [4.25] * found
+        if found:
+            assert pts[0].tolist() == pytest.approx([4.25, 0.0])
+    # consecutive samples of two vehicles, or far apart, do not make a crossing
+    two = SampleLog(x, x, np.zeros_like(x), value, np.full(x.size, Phase.SURVEY, dtype=np.int8),
+                    (x > 4.2).astype(np.int16))
+    assert len(level_crossings(two, np.array([4.25]))[0]) == 0
+    assert len(level_crossings(s, np.array([4.25]), max_step_m=0.1)[0]) == 0
+
+
+def test_crossings_first_traces_a_sampled_crossing_before_anything_else():
+    """A ring iso-line crossed by one survey leg: its component is picked first, entered at
+    the crossing; once traced there it is an ordinary candidate again."""
+    xx, yy = GRID.mesh
+    def field(x, y):
+        return 100.0 * np.exp(-((np.asarray(x) - 70) ** 2 + (np.asarray(y) - 30) ** 2) / 200.0)
+
+    est = field(xx, yy)
+    s = samples_along([(0.0, 30.0), (100.0, 30.0)], field)  # west-east through the bump
+    ring = contour_candidates(est, GRID, np.array([50.0]), 30.0, 4.0, whole=True)
+    assert len(ring) == 1 and ring[0].closed
+    marked = mark_crossings(ring, s, np.array([50.0]), band_m=3.0)
+    c = marked[0]
+    assert c.first and c.entry_m is not None
+    assert abs(c.entry_m[1] - 30.0) < 1e-9 and abs(abs(c.entry_m[0] - 70.0) - 11.77) < 0.1
+    umap = uniform_map()
+    legs = line_candidates(REGION, 4.0, "ns")
+    cands = [*legs, c]
+    picks, _ = greedy_plan(cands, Footprints(umap, [k.points_m for k in cands]), umap.variance,
+                           mae_value(umap), [(0.0, 0.0)], [400.0])
+    assert picks[0][0].candidate is c  # before every line the greedy would prefer
+    batch = AdaptivePlanner()._batch(picks, np.array([50.0]))
+    first = batch.jobs[0].tasks[0]
+    assert isinstance(first, TraceTask) and (first.x_m, first.y_m) == tuple(c.entry_m)
+    assert first.max_length_m == pytest.approx(max(2 * c.length_m, 60.0))  # capped
+    # traced (samples of the TRACE phase along the ring): no longer first
+    loop = ring[0].points_m
+    n = len(loop)
+    traced = SampleLog(np.r_[s.t_s, 100.0 + np.arange(n)], np.r_[s.x_m, loop[:, 0]],
+                       np.r_[s.y_m, loop[:, 1]], np.r_[s.value, np.full(n, 50.0)],
+                       np.r_[s.phase, np.full(n, Phase.TRACE)].astype(np.int8),
+                       np.r_[s.vehicle, np.zeros(n)].astype(np.int16))
+    again = mark_crossings(contour_candidates(est, GRID, np.array([50.0]), 30.0, 4.0, whole=True),
+                           traced, np.array([50.0]), band_m=3.0)
+    assert not any(k.first for k in again)
+
+
+def test_threshold_mode_plans_its_own_batch_size():
+    ctx = after_diagonals(0, [(0.0, 100.0)], 5000.0)
+    planned = {}
+    for batch_m in (100.0, 400.0):
+        params = AdaptiveParams(target_levels=(55.0,), threshold_batch_m=batch_m, batch_m=999.0)
+        jobs = AdaptivePlanner(params).next_batch(ctx).jobs
+        planned[batch_m] = sum(j.length_m for j in jobs)
+    assert planned[100.0] <= 100.0 + 100.0  # one pick may overrun what is left
+    assert planned[400.0] > 2 * planned[100.0]

@@ -57,7 +57,7 @@ from .contours import contour_pieces
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext
-from .tasks import FlightReport, Task, TraceTask, Waypoint
+from .tasks import FlightReport, Phase, SampleLog, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
     UncertaintyMap,
@@ -66,6 +66,11 @@ from .uncertainty import (
     straddle,
     uncertainty_map,
 )
+
+WHOLE_TRACE_FACTOR = 2.0
+"""A whole-component trace stops after this multiple of the estimated component's length."""
+WHOLE_TRACE_MIN_M = 60.0
+"""... and never before this length (the estimate's component can be far too short)."""
 
 
 class CandidateKind(StrEnum):
@@ -90,6 +95,10 @@ class Candidate:
     """A closed contour: entered at its point nearest the vehicle, traced round."""
     whole: bool = False
     """Trace until the contour closes or meets the area's edge (threshold mode)."""
+    entry_m: FloatArray | None = None
+    """Where the trace starts, if not at ``points_m[0]`` (a sampled crossing of the level)."""
+    first: bool = False
+    """Picked before any other candidate (``crossings_first``)."""
 
     @property
     def length_m(self) -> float:
@@ -155,6 +164,14 @@ class AdaptiveParams:
         flown on there.
     level_tol : float
         See ``band_m``.
+    threshold_batch_m : float
+        Threshold mode: flight planned per vehicle and iteration (m), in place of
+        ``batch_m``.
+    crossings_first : bool
+        Threshold mode: before anything else, trace the estimate's components at a target
+        level that pass through a crossing of that level already sampled (where two
+        consecutive survey or transit samples straddle it) and not yet traced: the iso-line
+        is known to be there.
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -182,6 +199,8 @@ class AdaptiveParams:
     explore_m: float = 10.0
     band_m: float = 3.0
     level_tol: float = 0.01
+    threshold_batch_m: float = 130.0
+    crossings_first: bool = False
     target_levels: tuple[float, ...] = ()
 
 
@@ -237,6 +256,64 @@ def contour_candidates(estimate: FloatArray, grid: Grid, levels: FloatArray, pie
             if path_length(sub[:, 0], sub[:, 1]) >= min_piece_m:
                 out.append(Candidate(CandidateKind.TRACE, sub, piece.level))
     return out
+
+
+def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 2.0
+                    ) -> tuple[FloatArray, FloatArray]:
+    """Where consecutive survey or transit samples of one vehicle straddle a level:
+    the crossing points (interpolated) and their levels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from econdor_gcs.core.tasks import Phase, SampleLog
+    >>> x = np.arange(5.0)
+    >>> s = SampleLog(x, x, np.zeros(5), np.array([0.0, 1.0, 3.0, 1.0, 0.0]),
+    ...               np.full(5, Phase.SURVEY, dtype=np.int8), np.zeros(5, np.int16))
+    >>> pts, lv = level_crossings(s, np.array([2.0]))
+    >>> pts[:, 0].tolist(), lv.tolist()
+    ([1.5, 2.5], [2.0, 2.0])
+    """
+    x, y, v = samples.x_m, samples.y_m, samples.value
+    if len(x) < 2:
+        return np.zeros((0, 2)), np.zeros(0)
+    ok = ((samples.phase[:-1] == samples.phase[1:])
+          & np.isin(samples.phase[:-1], (Phase.SURVEY, Phase.TRANSIT))
+          & (samples.vehicle[:-1] == samples.vehicle[1:])
+          & (np.hypot(np.diff(x), np.diff(y)) <= max_step_m))
+    pts, lvs = [], []
+    for lv in np.asarray(levels, dtype=float):
+        a, b = v[:-1] - lv, v[1:] - lv
+        i = np.nonzero(ok & (a * b < 0))[0]
+        t = a[i] / (a[i] - b[i])
+        pts.append(np.column_stack([x[i] + t * (x[i + 1] - x[i]), y[i] + t * (y[i + 1] - y[i])]))
+        lvs.append(np.full(i.size, lv))
+    return np.vstack(pts), np.concatenate(lvs)
+
+
+def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArray,
+                   band_m: float, near_m: float = 4.0) -> list[Candidate]:
+    """Whole contour candidates through a sampled, not yet traced crossing of their level
+    become ``first`` and start at that crossing (``crossings_first``)."""
+    pts, lvs = level_crossings(samples, levels)
+    if not len(pts):
+        return cands
+    traced = np.isin(samples.phase, (Phase.TRACE, Phase.SEARCH))
+    if traced.any():
+        d, _ = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]])).query(pts)
+        keep = d > band_m
+        pts, lvs = pts[keep], lvs[keep]
+    for c in cands:
+        if not c.whole or not len(pts):
+            continue
+        on = np.isclose(lvs, c.level)
+        if not on.any():
+            continue
+        d, _ = cKDTree(resample_polyline(c.points_m, 1.0)).query(pts[on])
+        if d.min() <= near_m:
+            c.entry_m = pts[on][int(np.argmin(d))].copy()
+            c.first = True
+    return cands
 
 
 def _clip_segment(region: Region, a: FloatArray, b: FloatArray) -> FloatArray | None:
@@ -356,6 +433,8 @@ def _entry(c: Candidate, pos: FloatArray) -> tuple[FloatArray, float]:
     """The path as flown from ``pos`` (a leg from its nearer end, a loop from its nearest
     point) and the transit to its start."""
     pts = c.points_m
+    if c.entry_m is not None:
+        return pts, float(np.hypot(*(c.entry_m - pos)))
     if c.reversible:
         d0, d1 = np.hypot(*(pts[0] - pos)), np.hypot(*(pts[-1] - pos))
         return (pts, float(d0)) if d0 <= d1 else (pts[::-1], float(d1))
@@ -447,6 +526,9 @@ def greedy_plan(
     ends = np.array([[*c.points_m[0], *c.points_m[-1]] for c in candidates]).reshape(n, 4)
     reversible = np.array([c.reversible for c in candidates], dtype=bool)
     closed = np.array([c.closed for c in candidates], dtype=bool)
+    first = np.array([c.first for c in candidates], dtype=bool)
+    entry = np.array([c.entry_m if c.entry_m is not None else c.points_m[0]
+                      for c in candidates]).reshape(n, 2)
     used = np.zeros(n, dtype=bool)
     active = [b > 0 for b in fleet.budgets]
     starts = [p.copy() for p in fleet.positions]
@@ -470,10 +552,15 @@ def greedy_plan(
             for i in np.nonzero(closed & ~used)[0].tolist():
                 pts = candidates[i].points_m
                 transit[i] = float(np.min(np.hypot(pts[:, 0] - pos[0], pts[:, 1] - pos[1])))
+        if first.any():
+            transit = np.where(first, np.hypot(entry[:, 0] - pos[0], entry[:, 1] - pos[1]),
+                               transit)
         cost = lengths + transit + overhead
         left = fleet.budgets[k] - fleet.loads[k]
         fits = (cost <= left) | (not fleet.picks[k])  # a vehicle's first pick may overrun
         score = np.where(~used & fits & (g > 0), g / np.maximum(cost, 1e-6), -np.inf)
+        # crossings first: the nearest one, before anything the greedy would pick
+        score = np.where(first & ~used & fits, 1e12 - transit, score)
         best = int(np.argmax(score))
         if not np.isfinite(score[best]):
             # nothing fits: fly the picks in a shorter order, and use what that frees
@@ -493,12 +580,13 @@ def greedy_plan(
         used[best] = True
         fleet.picks[k].append(Pick(c, k, path, t_m))
         fleet.loads[k] += float(cost[best])
-        fleet.positions[k] = path[0] if c.closed else path[-1]
+        begin = c.entry_m if c.entry_m is not None else path[0]
+        fleet.positions[k] = begin if c.closed else path[-1]
         # what this pick (and the transit to it) will observe
         sl = slice(fp.start[best], fp.start[best + 1])
         v[fp.cells[sl]] = np.minimum(v[fp.cells[sl]], fp.line_var[sl])
         if t_m > 1.0:
-            cells, dist = fp.cells_near(np.array([pos, path[0]]))
+            cells, dist = fp.cells_near(np.array([pos, begin]))
             v[cells] = np.minimum(v[cells], fp.umap.line_variance(dist))
         g = gains()
     return fleet.picks, v
@@ -612,6 +700,8 @@ class AdaptivePlanner:
             cands = [] if context.estimate is None or context.grid is None else (
                 contour_candidates(context.estimate, context.grid, levels, p.piece_m,
                                    p.min_piece_m, whole=True))
+            if p.crossings_first:
+                cands = mark_crossings(cands, s, levels, p.band_m)
         else:
             amp = umap.amplitude
 
@@ -628,7 +718,8 @@ class AdaptivePlanner:
                                            p.min_piece_m)
         cands += leg_candidates(umap, now, region, p.legs, p.leg_m)
         cands += line_candidates(region, p.line_spacing_m, p.line_orientation)
-        share = max(p.batch_m, p.batch_growth * context.flown_m)
+        batch_m = p.threshold_batch_m if p.target_levels else p.batch_m
+        share = max(batch_m, p.batch_growth * context.flown_m)
         per_vehicle = min(share, context.budget_left_m / max(1, context.n_vehicles))
         positions = list(context.positions_m) or [(region.xmin, region.ymin)] * context.n_vehicles
         footprints = Footprints(umap, [c.points_m for c in cands])
@@ -644,11 +735,16 @@ class AdaptivePlanner:
         for route in picks:
             for pick in route:
                 c, path = pick.candidate, pick.path_m
-                start = (float(path[0, 0]), float(path[0, 1]))
+                begin = c.entry_m if c.entry_m is not None else path[0]
+                start = (float(begin[0]), float(begin[1]))
                 end = start if c.closed else (float(path[-1, 0]), float(path[-1, 1]))
                 length = path_length(path[:, 0], path[:, 1])
                 if c.kind == CandidateKind.TRACE:
-                    max_len = 0.0 if c.whole else length
+                    # a whole component: until it closes or meets the edge, but never
+                    # more than WHOLE_TRACE_FACTOR x the estimate's length (a lost
+                    # tracer does not wander the area)
+                    max_len = (max(WHOLE_TRACE_FACTOR * length, WHOLE_TRACE_MIN_M) if c.whole
+                               else length)
                     # the estimated contour, for vehicles that fly it as waypoints
                     contour = tuple((float(x), float(y)) for x, y in path)
                     task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0,
