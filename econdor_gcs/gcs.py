@@ -101,6 +101,7 @@ from .link.mission import (
 )
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import (
+    AIRBORNE_ALT_M,
     Router,
     Sample,
     VehicleLost,
@@ -147,8 +148,6 @@ cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
-
-log = logging.getLogger(__name__)
 
 
 class StatusAssembler:
@@ -519,6 +518,8 @@ class MavlinkExecutor(SampleRecovery):
         its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
+        self._abort = threading.Event()
+        """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
         self.router.add_sample_handler(self._on_sample)
         self.router.add_message_handler(self._on_message)
         self.router.add_event_handler(self._on_event)
@@ -743,6 +744,19 @@ class MavlinkExecutor(SampleRecovery):
             raise ValueError(f"expected {self.n_vehicles} plans, got {len(plans)}")
         self.iteration = iteration
         return self.station.call(self._fly(plans, iteration))
+
+    def abort_flight(self) -> None:
+        """End the flight in progress now (an operator's stop; any thread): every vehicle
+        still flying its mission is sent home, its unfinished tasks stay unreported, and
+        :meth:`fly` returns what was flown. Later flights are not started (:meth:`fly`
+        returns at once); :meth:`finish` still brings everyone down."""
+        self._abort.set()
+        self.station.loop.call_soon_threadsafe(self._changed.set)
+
+    @property
+    def aborted(self) -> bool:
+        """Whether :meth:`abort_flight` was called."""
+        return self._abort.is_set()
 
     def finish(self) -> list[FlightReport]:
         """RTL every airborne vehicle; wait until each has landed and disarmed."""
@@ -1006,6 +1020,8 @@ class MavlinkExecutor(SampleRecovery):
         reports = {v.index: self._end_idle(v) for v in self.vehicles.values()}
         plans = self._reassign([list(p) for p in plans], [])
         for round_no in range(len(self.sysids)):
+            if self._abort.is_set():
+                break
             flown = await self._round(plans, iteration, round_no)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
@@ -1087,9 +1103,15 @@ class MavlinkExecutor(SampleRecovery):
             self._check_lost()
             self._check_progress(flying)
 
-        await self._until(lambda: all(v.lost is not None or (v.flight is not None
-                                                             and v.flight.done)
-                                      for v in flying), on_tick=tick)
+        await self._until(lambda: self._abort.is_set() or all(
+            v.lost is not None or (v.flight is not None and v.flight.done) for v in flying),
+            on_tick=tick)
+        if self._abort.is_set():
+            busy = [v for v in flying if v.lost is None and v.flight is not None
+                    and not v.flight.done]
+            log.warning("operator stop: vehicles %s leave their missions and return to launch",
+                        [v.sysid for v in busy])
+            await self._all([self._tolerant(v, self._return(v)) for v in busy])
         self.timings["flight_s"] += time.monotonic() - t1
         await self._recover([v for v in flying if v.lost is None])
         return flying
@@ -1107,7 +1129,7 @@ class MavlinkExecutor(SampleRecovery):
             if v.lost is not None:
                 continue
             link = self.router.vehicles[v.sysid]
-            airborne = (link.rel_alt_m or 0.0) > 0.5
+            airborne = (link.rel_alt_m or 0.0) > AIRBORNE_ALT_M
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
@@ -1129,7 +1151,7 @@ class MavlinkExecutor(SampleRecovery):
                 link = self.router.vehicles[v.sysid]
                 f = v.flight
                 if f is not None and not f.landed and not link.armed and \
-                        (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
+                        (link.rel_alt_m or 0.0) < AIRBORNE_ALT_M and time.monotonic() - t1 > 1.5:
                     f.landed = True  # the heartbeat says so (EXTENDED_SYS_STATE may be lost)
             return all(v.flight is None or v.flight.landed or v.lost is not None
                        for v in going)

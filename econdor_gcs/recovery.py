@@ -69,6 +69,9 @@ class SampleRecovery:
 
         def _check_lost(self) -> None: ...
 
+        @property
+        def aborted(self) -> bool: ...
+
     async def _recover(self, vs: list[VehicleState]) -> None:
         t0 = time.monotonic()
         await self._all([self._tolerant(v, self._recover_one(v)) for v in vs
@@ -160,8 +163,12 @@ class SampleRecovery:
         f = v.flight
         if f is None or f.style != TaskStyle.TRACE:
             return  # contours flown as waypoints have no TRACE reports
+        # after an operator's stop only the items the vehicle got past have a report
+        current = v.current_seq if v.current_seq is not None else 0
+        due = [t for t, (_, last) in zip(f.tasks, f.task_seqs, strict=True)
+               if not self.aborted or last < current or last in f.reached]
         for _ in range(RECOVERY_ROUNDS):
-            missing = [t.piece_id for t in f.tasks
+            missing = [t.piece_id for t in due
                        if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
             if not missing:
                 return
@@ -170,7 +177,7 @@ class SampleRecovery:
             await self._until(functools.partial(_all_in, missing, f.pieces),
                               deadline=time.monotonic() + 1.0)
         log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
-                  [t.piece_id for t in f.tasks
+                  [t.piece_id for t in due
                    if isinstance(t, TraceTask) and t.piece_id not in f.pieces])
 
     async def _quiet(self, v: VehicleState) -> None:

@@ -220,7 +220,8 @@ def run_mission(
                 live.start()
                 progress.append(live.progress)
             if page is not None:
-                page.attach(executor.status_rows, sysids, station.router)
+                page.attach(executor.status_rows, sysids, station.router,
+                            on_stop=executor.abort_flight)
                 progress.append(page.progress)
                 on_samples.append(page.add_samples)
             # the run directory records each flight (samples, then its line) before the DFC
