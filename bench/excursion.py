@@ -26,9 +26,7 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -129,15 +127,9 @@ def _table(title: str, data: dict[str, Any]) -> None:
 
 
 def _run_tree(ref: str, settings: str, seeds: str) -> dict[str, Any]:
-    with tempfile.TemporaryDirectory() as tmp:
-        archive = subprocess.run(["git", "-C", str(REPO), "archive", ref], check=True,
-                                 capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        out = subprocess.run(
-            [sys.executable, str(Path(__file__).resolve()), "--tree", tmp, "--json",
-             "--settings", settings, "--seeds", seeds],
-            check=True, capture_output=True, text=True)
-        return json.loads(out.stdout.strip().splitlines()[-1])
+    from against import run_tree
+
+    return run_tree(__file__, ref, "--settings", settings, "--seeds", seeds)
 
 
 def main() -> int:

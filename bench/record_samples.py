@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
             samples = result.samples
             final_mae_db = result.records[-1].mae_db
         else:
-            from econdor_gcs.gcs import run_mission
+            from econdor_gcs.run import run_mission
             from econdor_gcs.rundir import read_samples
 
             with tempfile.TemporaryDirectory(prefix="econdor-record-") as tmp:

@@ -280,7 +280,7 @@ def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from econdor_gcs.gcs import run_mission_cli
+    from econdor_gcs.run import run_mission_cli
 
     if not args.connect:
         # the vehicles we start load the compiled tracer from numba's cache; on a cold

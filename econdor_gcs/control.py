@@ -8,7 +8,10 @@ flight:
 * **pause** — the loop holds before the next iteration (the vehicles hover where their
   missions ended) until **resume**;
 * **stop** — the loop ends before the next iteration; the DFC then has the executor bring
-  every vehicle home (``executor.finish()``: return to launch, land, disarm).
+  every vehicle home (``executor.finish()``: return to launch, land, disarm). ``econdor run
+  --web`` also ends the flight in progress at once (the MAVLink executor's
+  ``abort_flight``): the vehicles leave their missions for home and the DFC takes in what
+  was flown before it stops.
 
 States (:class:`ControlState`)::
 
@@ -53,7 +56,8 @@ class ControlState(StrEnum):
     """Pause asked for; the iteration in flight finishes first."""
     PAUSED = "paused"
     STOPPING = "stopping"
-    """Stop asked for; the iteration in flight finishes, then every vehicle returns."""
+    """Stop asked for; the loop ends at its next checkpoint, then every vehicle returns (the
+    web page also ends the flight in progress through the executor)."""
     STOPPED = "stopped"
     FINISHED = "finished"
     """The loop ended on its own (stop rule, error); requests are refused."""

@@ -1,4 +1,4 @@
-"""The ground station: the DFC loop flown by MAVLink vehicles (``econdor run``).
+"""The ground station's MAVLink executor: the DFC loop flown by MAVLink vehicles.
 
 Pieces, from the bottom up:
 
@@ -21,9 +21,12 @@ Pieces, from the bottom up:
     a vehicle that refused trace items), the vehicle started the autopilot's way
     (:func:`~.link.autopilots.start_mission`), and its samples collected until it reports
     ``MISSION_ITEM_REACHED`` for its last task item.
-:func:`run_mission_cli`
-    The ``econdor run`` command: run directory, simulated fleet (or ``--connect``), live
-    display, results, figures, and one-line errors that still leave a usable run directory.
+    After each flight it makes sure every sample the vehicles took is here
+    (:class:`~.recovery.SampleRecovery`).
+:mod:`econdor_gcs.run`
+    The ``econdor run`` command on top of them: run directory, simulated fleet (or
+    ``--connect``), live display, results, figures, and one-line errors that still leave a
+    usable run directory.
 
 Conventions and choices (see also DESIGN.md §4):
 
@@ -57,15 +60,12 @@ import asyncio
 import bisect
 import contextlib
 import dataclasses
-import functools
 import json
 import logging
 import math
-import signal
-import sys
 import threading
 import time
-from collections.abc import Callable, Coroutine, Iterator, Sequence
+from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -73,10 +73,6 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from .core.tasks import (
-    SAMPLE_COUNT_COMMAND,
-    SAMPLE_RESEND_COMMAND,
-    SAMPLE_RESEND_MAX,
-    TRACE_RESEND_COMMAND,
     FlightReport,
     OutcomeStatus,
     Phase,
@@ -88,7 +84,6 @@ from .core.tasks import (
     TraceTask,
 )
 from .errors import (
-    EcondorError,
     LinkError,
     MissionRejected,
     ProtocolError,
@@ -97,7 +92,6 @@ from .errors import (
 )
 from .link.autopilots import AutopilotKind, start_mission
 from .link.codec import MAVLinkMessage, mavlink
-from .link.forward import Forwarder
 from .link.mission import (
     MAV_CMD_WAYPOINT_USER_1,
     MissionItemSpec,
@@ -107,17 +101,16 @@ from .link.mission import (
 )
 from .link.reports import PhaseTrack, phase_change, trace_report
 from .link.router import (
+    AIRBORNE_ALT_M,
     Router,
     Sample,
-    VehicleDiscovered,
     VehicleLost,
-    VehicleRecovered,
 )
 from .link.tlog import TlogWriter
 from .mission import Mission
 from .mission_files import write_wpl
-from .rundir import RunDirMode, RunLog, Severity
-from .signing import SigningKey, load_signing_key
+from .recovery import SampleRecovery
+from .signing import SigningKey
 
 if TYPE_CHECKING:
     from .fleet import VehicleKind
@@ -128,8 +121,6 @@ __all__ = [
     "StatusAssembler",
     "VehicleStatus",
     "build_report",
-    "run_mission",
-    "run_mission_cli",
 ]
 
 T = TypeVar("T")
@@ -144,13 +135,6 @@ UPLOAD_ATTEMPTS = 3
 INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
 RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR})
 """MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
-RECOVERY_ROUNDS = 200
-"""At most this many rounds of resend requests for one vehicle's missing samples ..."""
-RECOVERY_STALLED_ROUNDS = 4
-"""... and the station gives up earlier when this many rounds in a row brought nothing."""
-RECOVERY_GAPS_PER_ROUND = 100
-"""Resend requests per round: a vehicle answers them in one burst, and a burst larger than
-its socket's send buffer (~1000 packets) is dropped on the vehicle itself."""
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
 LOSS_SILENCE_S = 5.0
@@ -161,13 +145,9 @@ ITEM_TIME_FACTOR = 3.0
 ITEM_TIME_MARGIN_S = 60.0
 """A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
 cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
-RECOVERY_SETTLE_S = 0.25
-"""Wall time without a new sample after which a round of resends counts as arrived."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
-
-log = logging.getLogger(__name__)
 
 
 class StatusAssembler:
@@ -292,10 +272,6 @@ def build_report(flight: Flight) -> FlightReport:
         sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
     return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
                         outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
-
-
-def _all_in(keys: Sequence[int], mapping: dict[int, Any]) -> bool:
-    return all(k in mapping for k in keys)
 
 
 def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
@@ -486,7 +462,7 @@ STREAM_WALL_HZ = {
 }
 
 
-class MavlinkExecutor:
+class MavlinkExecutor(SampleRecovery):
     """Flies the DFC's per-vehicle task lists on MAVLink vehicles (the :class:`Executor`
     protocol; the drop-in twin of :class:`econdor_lab.inprocess.InProcessExecutor`).
 
@@ -542,6 +518,8 @@ class MavlinkExecutor:
         its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
+        self._abort = threading.Event()
+        """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
         self.router.add_sample_handler(self._on_sample)
         self.router.add_message_handler(self._on_message)
         self.router.add_event_handler(self._on_event)
@@ -766,6 +744,19 @@ class MavlinkExecutor:
             raise ValueError(f"expected {self.n_vehicles} plans, got {len(plans)}")
         self.iteration = iteration
         return self.station.call(self._fly(plans, iteration))
+
+    def abort_flight(self) -> None:
+        """End the flight in progress now (an operator's stop; any thread): every vehicle
+        still flying its mission is sent home, its unfinished tasks stay unreported, and
+        :meth:`fly` returns what was flown. Later flights are not started (:meth:`fly`
+        returns at once); :meth:`finish` still brings everyone down."""
+        self._abort.set()
+        self.station.loop.call_soon_threadsafe(self._changed.set)
+
+    @property
+    def aborted(self) -> bool:
+        """Whether :meth:`abort_flight` was called."""
+        return self._abort.is_set()
 
     def finish(self) -> list[FlightReport]:
         """RTL every airborne vehicle; wait until each has landed and disarmed."""
@@ -1029,6 +1020,8 @@ class MavlinkExecutor:
         reports = {v.index: self._end_idle(v) for v in self.vehicles.values()}
         plans = self._reassign([list(p) for p in plans], [])
         for round_no in range(len(self.sysids)):
+            if self._abort.is_set():
+                break
             flown = await self._round(plans, iteration, round_no)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
@@ -1110,9 +1103,15 @@ class MavlinkExecutor:
             self._check_lost()
             self._check_progress(flying)
 
-        await self._until(lambda: all(v.lost is not None or (v.flight is not None
-                                                             and v.flight.done)
-                                      for v in flying), on_tick=tick)
+        await self._until(lambda: self._abort.is_set() or all(
+            v.lost is not None or (v.flight is not None and v.flight.done) for v in flying),
+            on_tick=tick)
+        if self._abort.is_set():
+            busy = [v for v in flying if v.lost is None and v.flight is not None
+                    and not v.flight.done]
+            log.warning("operator stop: vehicles %s leave their missions and return to launch",
+                        [v.sysid for v in busy])
+            await self._all([self._tolerant(v, self._return(v)) for v in busy])
         self.timings["flight_s"] += time.monotonic() - t1
         await self._recover([v for v in flying if v.lost is None])
         return flying
@@ -1130,7 +1129,7 @@ class MavlinkExecutor:
             if v.lost is not None:
                 continue
             link = self.router.vehicles[v.sysid]
-            airborne = (link.rel_alt_m or 0.0) > 0.5
+            airborne = (link.rel_alt_m or 0.0) > AIRBORNE_ALT_M
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
@@ -1152,7 +1151,7 @@ class MavlinkExecutor:
                 link = self.router.vehicles[v.sysid]
                 f = v.flight
                 if f is not None and not f.landed and not link.armed and \
-                        (link.rel_alt_m or 0.0) < 0.5 and time.monotonic() - t1 > 1.5:
+                        (link.rel_alt_m or 0.0) < AIRBORNE_ALT_M and time.monotonic() - t1 > 1.5:
                     f.landed = True  # the heartbeat says so (EXTENDED_SYS_STATE may be lost)
             return all(v.flight is None or v.flight.landed or v.lost is not None
                        for v in going)
@@ -1177,132 +1176,6 @@ class MavlinkExecutor:
                 r.end_x_m, r.end_y_m = self._position(v.sysid)
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
         return reports
-
-    # -- sample recovery (README, "No sample lost") ------------------------------------------
-    async def _recover(self, vs: list[VehicleState]) -> None:
-        t0 = time.monotonic()
-        await self._all([self._tolerant(v, self._recover_one(v)) for v in vs
-                         if v.lost is None])
-        self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
-            time.monotonic() - t0
-
-    async def _count(self, v: VehicleState, first_ms: int, last_ms: int) -> int:
-        ack = await self.router.command_int(v.sysid, SAMPLE_COUNT_COMMAND, first_ms, last_ms,
-                                            timeout_s=0.3, retries=20)
-        return int(ack.result_param2)
-
-    def _gaps(self, v: VehicleState, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
-        """Time ranges of [first_ms, last_ms] with no sample here that may hold samples the
-        vehicle took: between two received samples more than 1.5 sensor periods apart,
-        and before the first / after the last. (A range where the vehicle took none, e.g.
-        while it climbed, costs one request and brings nothing.)"""
-        lo = bisect.bisect_left(v.seen_ms, first_ms)
-        hi = bisect.bisect_right(v.seen_ms, last_ms)
-        times = [first_ms - 1, *v.seen_ms[lo:hi], last_ms + 1]
-        period_ms = 1000.0 / self.mission.vehicles.sample_rate_hz
-        # a long gap goes in pieces the vehicle will resend (half its limit at our rate)
-        piece_ms = max(1, int(SAMPLE_RESEND_MAX * period_ms / 2))
-        gaps = []
-        for a, b in zip(times, times[1:], strict=False):
-            if b - a > 1.5 * period_ms or (a == first_ms - 1 and b > first_ms) \
-                    or (b == last_ms + 1 and a < last_ms):
-                gaps += [(s, min(s + piece_ms - 1, b - 1)) for s in range(a + 1, b, piece_ms)]
-        return gaps
-
-    def _pieces(self, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
-        """[first_ms, last_ms] in ranges of at most a quarter of a resend's limit at the
-        mission's sample rate."""
-        step = max(1, int(SAMPLE_RESEND_MAX * 1000.0 / self.mission.vehicles.sample_rate_hz
-                          / 4))
-        return [(s, min(s + step - 1, last_ms)) for s in range(first_ms, last_ms + 1, step)]
-
-    async def _recover_one(self, v: VehicleState) -> None:
-        """Make sure every sample ``v`` took since the last recovery is here: ask for its
-        count, request every gap again, wait for the resends, repeat."""
-        link = self.router.vehicles[v.sysid]
-        first = v.synced_ms + 1
-        last = max(link.time_boot_ms or 0, v.newest_ms)
-        if last < first:
-            return
-        n = have = 0
-        v.recovering = True
-        try:
-            n, have = await self._recover_range(v, first, last)
-            # a report may be stamped after the last time we know of (the vehicle's last
-            # position report can lag behind its last item): ask up to the end of time
-            await self._recover_reports(v, first, 2**31 - 1)
-        finally:
-            v.recovering = False
-        v.vehicle_samples = (v.vehicle_samples or 0) + n
-        v.missing += max(0, n - have)
-        if n > have:
-            log.error("vehicle %d: %d of its %d samples in %d..%d ms never arrived", v.sysid,
-                      n - have, n, first, last)
-        v.synced_ms = last
-
-    async def _recover_range(self, v: VehicleState, first: int, last: int) -> tuple[int, int]:
-        n = have = 0
-        stalled, best = 0, -1
-        for round_no in range(RECOVERY_ROUNDS):
-            self._check_lost()
-            n = await self._count(v, first, last)
-            have = v.count_seen(first, last)
-            if have >= n:
-                break
-            stalled = stalled + 1 if have <= best else 0
-            best = max(best, have)
-            if stalled >= RECOVERY_STALLED_ROUNDS:
-                break
-            # a sample missing where the spacing does not show it (a vehicle sampling faster
-            # than the mission says): the whole range again, in pieces it will resend
-            gaps = self._gaps(v, first, last) or self._pieces(first, last)
-            # fire and forget (what arrives is what counts), a round's worth at a time,
-            # rotating, so gaps where the vehicle took nothing (a climb) cannot crowd out
-            # the others
-            k = round_no * RECOVERY_GAPS_PER_ROUND % len(gaps)
-            for a, b in (gaps[k:] + gaps[:k])[:RECOVERY_GAPS_PER_ROUND]:
-                self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
-            await self._quiet(v)
-        return n, have
-
-    async def _recover_reports(self, v: VehicleState, first: int, last: int) -> None:
-        """Ask again for the TRACE reports of trace items that have none (lost on the way)."""
-        f = v.flight
-        if f is None or f.style != TaskStyle.TRACE:
-            return  # contours flown as waypoints have no TRACE reports
-        for _ in range(RECOVERY_ROUNDS):
-            missing = [t.piece_id for t in f.tasks
-                       if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
-            if not missing:
-                return
-            await self.router.command_int(v.sysid, TRACE_RESEND_COMMAND, first, last,
-                                          timeout_s=0.3, retries=20)
-            await self._until(functools.partial(_all_in, missing, f.pieces),
-                              deadline=time.monotonic() + 1.0)
-        log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
-                  [t.piece_id for t in f.tasks
-                   if isinstance(t, TraceTask) and t.piece_id not in f.pieces])
-
-    async def _quiet(self, v: VehicleState) -> None:
-        """Wait until ``v``'s samples stop arriving (the resends are in, or lost)."""
-        start = time.monotonic()
-        seen = [len(v.seen_ms), start]  # samples so far, and when that last changed
-
-        def quiet() -> bool:
-            now = time.monotonic()
-            if len(v.seen_ms) != seen[0]:
-                seen[:] = [len(v.seen_ms), now]
-            return now - seen[1] >= RECOVERY_SETTLE_S
-
-        await self._until(quiet, tick_s=0.05, deadline=start + 5.0)
-
-    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
-        """Per vehicle: samples it took (its own count), received, recovered by resends,
-        duplicates dropped, missing (for summary.json)."""
-        return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
-                               "recovered": v.recovered, "duplicates": v.duplicates,
-                               "missing": v.missing, "lost": v.lost is not None}
-                for v in self.vehicles.values()}
 
     # -- for the live display ---------------------------------------------------------------
     def status_rows(self) -> list[VehicleStatus]:
@@ -1361,462 +1234,3 @@ class MavlinkExecutor:
     @staticmethod
     def _phase_now(v: VehicleState) -> Phase:
         return v.phases.latest if v.phases.known else v.item_phase
-
-
-# --------------------------------------------------------------------------------------------
-# econdor run
-
-
-def _default_out(mission: Mission) -> Path:
-    return Path("runs") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, delivered like Ctrl-C so every ``finally`` runs."""
-
-
-def _on_sigterm(signum: int, frame: Any) -> None:
-    raise _Terminated()
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.signal(signal.SIGTERM, _on_sigterm)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
-def run_mission(
-    mission: Mission,
-    out: Path,
-    *,
-    planner: str | None = None,
-    vehicles: int | None = None,
-    speedup: float | None = None,
-    seed: int | None = None,
-    connect: str | None = None,
-    timeout_s: float = 20.0,
-    quiet: bool = True,
-    mission_path: Path | None = None,
-    figures: bool = True,
-    mode: RunDirMode = RunDirMode.NEW,
-    signing_key_file: Path | None = None,
-    web: str | None = None,
-    announce: Callable[[str], None] | None = None,
-    autopilots: Sequence[VehicleKind] | None = None,
-    tolerance_m: float = 1.0,
-    forward: str | None = None,
-    forward_commands: bool = False,
-) -> dict[str, Any]:
-    """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
-
-    ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
-    PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
-    waypoint polylines for vehicles that refuse contour items. ``forward`` is a watcher's
-    ``udpout:HOST:PORT`` that gets every vehicle message (:mod:`.link.forward`); what it sends
-    back reaches the vehicles only with ``forward_commands``.
-
-    ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
-    resume a run use :func:`resume_mission`. With ``signing_key_file`` (see
-    :func:`~.signing.load_signing_key`) every message is signed, unsigned telemetry is
-    dropped, and the vehicles this run starts sign too (the key is written nowhere).
-    ``web`` (``[HOST:]PORT``) serves the run's page (:mod:`econdor_gcs.web`) with pause /
-    resume / stop; ``announce`` is told its address as soon as it listens.
-
-    Raises :class:`EcondorError` on failure, after writing a partial run directory
-    (samples so far, tlog, ``summary.json`` with ``"error"``).
-    """
-    from .dfc import Dfc
-    from .fleet import DEFAULT_KIND, Fleet, kinds_for
-    from .plans import save_next_batch
-    from .rundir import RunDir, read_checkpoint
-
-    wall0 = time.perf_counter()
-    signing = load_signing_key(signing_key_file) if signing_key_file is not None else None
-    n = vehicles or mission.vehicles.count
-    speed = speedup or mission.vehicles.speedup
-    seed = mission.seed if seed is None else seed
-    planner = planner or mission.algorithm.planner
-    mission = mission.with_vehicles(count=n, speedup=speed)
-    out = Path(out)
-    kinds = list(autopilots or [DEFAULT_KIND])
-    resume = mode == RunDirMode.RESUME
-    replay = read_checkpoint(out) if resume else []
-    rd = RunDir(out, mode, grid=mission.grid)
-    runlog = RunLog(out / "log.jsonl")
-    if not resume:
-        mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
-        rd.write_run_config({
-            "transport": "mavlink", "mission": mission.name, "planner": planner, "seed": seed,
-            "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
-            "mission_path": str(mission_path.resolve()) if mission_path else None,
-            "signed": signing is not None,
-            "autopilots": [str(k) for k in kinds] if connect is None else None,
-            "tolerance_m": tolerance_m,
-        }, mission_text)
-    tlog = TlogWriter(out / "telemetry.tlog", append=resume)
-    station = Station(connect or "udpin:127.0.0.1:0", tlog,
-                      heartbeat_timeout_s=min(timeout_s, LOSS_SILENCE_S), signing=signing)
-    _log_station(station.router, runlog)
-    forwarder: Forwarder | None = None
-    fleet: Fleet | None = None
-    executor: MavlinkExecutor | None = None
-    dfc: Dfc | None = None
-    live = None
-    page: Any = None  # web.session.LiveWeb (aiohttp is imported only with --web)
-    base: dict[str, Any] = {"transport": "mavlink", "truth_known": True,
-                            "mission": mission.name, "planner": planner, "seed": seed,
-                            "vehicles": n, "speedup": speed,
-                            "connect": connect or None}
-    timings: dict[str, float] = {}
-
-    def fill_timings() -> None:
-        timings["total_wall_s"] = time.perf_counter() - wall0
-        if executor is not None:
-            timings.update(executor.timings)
-            timings["sim_s"] = executor.sim_s
-            fw = executor.timings["flight_s"] + executor.timings["return_s"]
-            timings["achieved_speedup"] = executor.sim_s / fw if fw > 0 else math.nan
-        if dfc is not None:
-            timings["reconstruction_s"] = dfc.recon_s
-        timings["requested_speedup"] = speed
-
-    try:
-        with _sigterm_as_interrupt(), _logging_to(runlog):
-            if web is not None:
-                from .web.session import LiveWeb
-
-                page = LiveWeb(web, mission=mission, planner=planner, run_dir=str(out),
-                               runlog=runlog)
-                url = page.start()
-                runlog.add("station", f"web page at {url}")
-                if announce is not None:
-                    announce(url)
-            host, port = station.start()
-            if forward is not None:
-                forwarder = station.call(
-                    Forwarder(station.router, forward, forward_commands).start())
-            if connect is None:
-                if mission_path is None:
-                    raise RunError("run_mission: mission_path is needed to start vehicles")
-                fleet = Fleet(mission_path, out / "vehicles")
-                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed,
-                            signing_key_file=signing_key_file, kinds=kinds)
-                sysids = list(range(1, n + 1))
-                try:
-                    station.call(station.router.wait_for_vehicles(sysids, timeout_s))
-                except VehicleTimeout as exc:
-                    raise VehicleTimeout(fleet.explain(str(exc))) from None
-            else:
-                sysids = station.call(_wait_count(station.router, n, timeout_s))
-            t_setup = time.perf_counter() - wall0
-            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
-                                       tolerance_m=tolerance_m)
-            executor.wait_ready()
-            truth = mission.build_field(seed)
-            progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
-            on_samples: list[Callable[[SampleLog], None]] = []
-            if not quiet:
-                from .live import LiveDisplay
-
-                live = LiveDisplay(executor, planner=planner, mission=mission.name)
-                live.start()
-                progress.append(live.progress)
-            if page is not None:
-                page.attach(executor.status_rows, sysids, station.router)
-                progress.append(page.progress)
-                on_samples.append(page.add_samples)
-            # the run directory records each flight (samples, then its line) before the DFC
-            # uses it; displays see the samples as the DFC takes them in
-            dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
-                      progress=_all_of(progress), on_samples=_all_of(on_samples),
-                      on_flight=rd.record_flight, replay=replay,
-                      checkpoint=page.checkpoint if page is not None else None)
-            result = dfc.run()
-            if live is not None:
-                live.stop()
-                live = None
-            fill_timings()
-            timings["setup_s"] = t_setup
-            result.wall_s = time.perf_counter() - wall0
-            result.sim_s = executor.sim_s
-            parser = station.router.parser
-            save_next_batch(out, dfc.planner, mission, result)
-            started = kinds_for(n, kinds) if connect is None else None
-            extra = {**base, "sysids": sysids, "timings": timings,
-                     "fleet": executor.fleet_summary(started),
-                     "forward": ({"to": forward, "commands": forward_commands,
-                                  **forwarder.stats} if forwarder is not None else None),
-                     "samples_dropped_unpaired": station.router.pairer.dropped,
-                     "report_errors": executor.report_errors,
-                     "sample_recovery": executor.sample_accounting(),
-                     "lost_vehicles": executor.losses,
-                     "fence": {"margin_m": FENCE_MARGIN_M,
-                               "refused_by": executor.fences_refused},
-                     "link": {"bad_packets": parser.bad_packets,
-                              "unknown_packets": parser.unknown_packets,
-                              "unsigned_dropped": parser.unsigned_packets,
-                              "bad_signature_dropped": parser.bad_signature_packets},
-                     "signed": signing is not None}
-            if resume:
-                extra["resumed"] = {"flights_replayed": dfc.replayed,
-                                    "samples_interrupted": rd.interrupted_samples}
-            timings["rundir_s"] = rd.write_s
-            rd.write_result(result, extra=extra)
-            summary = {**result.summary(), **extra, "samples_recorded": rd.n_samples}
-            if page is not None:
-                page.close(summary)
-                page = None
-    except (EcondorError, KeyboardInterrupt) as exc:
-        if live is not None:
-            live.stop()
-            live = None
-        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)
-        runlog.add("station", f"run failed: {msg}", Severity.ERROR)
-        _write_partial(rd, dfc, executor, base, timings, fill_timings, msg)
-        if page is not None:
-            page.close({**base, "error": msg})
-            page = None
-        raise
-    finally:
-        if live is not None:
-            live.stop()
-        if page is not None:
-            page.close(None)
-        if forwarder is not None:
-            station.loop.call_soon_threadsafe(forwarder.close)
-        station.close()
-        if fleet is not None:
-            fleet.stop()
-        tlog.close()
-        rd.close()
-        runlog.close()
-    if figures:
-        from .figures import plot_run
-
-        plot_run(out)
-    return summary
-
-
-def _all_of(callbacks: Sequence[Callable[[T], None]]) -> Callable[[T], None]:
-    """One callback that calls each of ``callbacks`` in turn."""
-    def call(arg: T) -> None:
-        for cb in callbacks:
-            cb(arg)
-
-    return call
-
-
-def _log_station(router: Router, runlog: RunLog) -> None:
-    """Vehicles' STATUSTEXT (chunks joined), discoveries, losses and recoveries into the
-    run's log."""
-
-    assembler = StatusAssembler()
-
-    def on_message(sysid: int, msg: MAVLinkMessage) -> None:
-        if msg.get_type() != "STATUSTEXT":
-            return
-        raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
-            msg.text.encode("utf-8", "replace")
-        text = assembler.add(sysid, raw, getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0))
-        if text is None:
-            return
-        sev = (Severity.ERROR if msg.severity <= mavlink.MAV_SEVERITY_ERROR else
-               Severity.WARNING if msg.severity == mavlink.MAV_SEVERITY_WARNING else
-               Severity.INFO)
-        runlog.add(f"vehicle {sysid}", text, sev)
-
-    def on_event(event: object) -> None:
-        if isinstance(event, VehicleLost):
-            runlog.add(f"vehicle {event.sysid}", f"lost: no heartbeat for {event.silent_s:.0f} s",
-                       Severity.ERROR)
-        elif isinstance(event, VehicleRecovered):
-            runlog.add(f"vehicle {event.sysid}", "heard again", Severity.WARNING)
-        elif isinstance(event, VehicleDiscovered):
-            runlog.add(f"vehicle {event.sysid}", f"discovered at {event.address[0]}:"
-                                                 f"{event.address[1]}")
-
-    router.add_message_handler(on_message)
-    router.add_event_handler(on_event)
-
-
-class _RunLogHandler(logging.Handler):
-    """Station warnings (``logging``, ``econdor_gcs.*``) into the run's log."""
-
-    def __init__(self, runlog: RunLog) -> None:
-        super().__init__(logging.WARNING)
-        self.runlog = runlog
-
-    def emit(self, record: logging.LogRecord) -> None:
-        sev = Severity.ERROR if record.levelno >= logging.ERROR else Severity.WARNING
-        try:
-            self.runlog.add("station", record.getMessage(), sev)
-        except (OSError, ValueError):  # the log file is gone or closed: say so, on stderr
-            self.handleError(record)
-
-
-@contextlib.contextmanager
-def _logging_to(runlog: RunLog) -> Iterator[None]:
-    logger = logging.getLogger("econdor_gcs")
-    handler = _RunLogHandler(runlog)
-    logger.addHandler(handler)
-    try:
-        yield
-    finally:
-        logger.removeHandler(handler)
-
-
-def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
-                   connect: str | None = None, timeout_s: float | None = None,
-                   signing_key_file: Path | None = None) -> dict[str, Any]:
-    """Continue the MAVLink run recorded in ``out`` after its last finished flight.
-
-    The finished flights are replayed from ``flights.jsonl`` and ``samples.csv`` (the DFC
-    plans them again from the same estimates and checks the plans match), then the vehicles
-    fly on from wherever they are: started anew by this process, or the ones at
-    ``connect`` (default: the run's own ``--connect``). Samples of the interrupted flight
-    are kept in ``samples_interrupted.csv`` and not used.
-    """
-    from .fleet import VehicleKind
-    from .mission import parse_mission
-    from .rundir import read_run_config
-
-    config = read_run_config(out)
-    if config.get("transport") != "mavlink":
-        raise RunError(f"{out}: a {config.get('transport')} run, not a MAVLink one")
-    if config.get("signed") and signing_key_file is None:
-        raise RunError(f"{out}: the run was signed; resume it with --signing-key")
-    copy = out / "mission.yaml"
-    original = Path(config["mission_path"]) if config.get("mission_path") else None
-    try:
-        text = copy.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RunError(f"{copy}: cannot read the run's mission ({exc.strerror or exc})") from exc
-    import yaml
-
-    base_dir = original.parent if original is not None else out
-    mission = parse_mission(yaml.safe_load(text), base_dir=base_dir, source=str(copy))
-    mission_path = original if original is not None and original.exists() else copy
-    return run_mission(
-        mission, out, planner=config["planner"], vehicles=config["vehicles"],
-        speedup=config["speedup"], seed=config["seed"],
-        connect=connect if connect is not None else config.get("connect"),
-        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
-        quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
-        signing_key_file=signing_key_file,
-        autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
-        tolerance_m=float(config.get("tolerance_m", 1.0)))
-
-
-def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
-                   base: dict[str, Any], timings: dict[str, float], fill: Any,
-                   error: str) -> None:
-    """Leave a usable run directory after ``error``: the samples still pending, the metrics
-    so far, a ``summary.json`` with ``"error"``.
-
-    Failures on this path do not hide the original error: each is logged (one line on
-    stderr) and listed in the summary's ``"error_path"``.
-    """
-    problems: list[str] = []
-    if executor is not None:
-        try:
-            pending = executor.pending_samples()
-            if len(pending):
-                # an unfinished flight: resume sets these aside (no flights.jsonl line)
-                rd.append_samples(pending, executor.iteration)
-        except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
-            problems.append(f"the samples still pending were not written: {exc!r}")
-            log.exception("econdor: %s", problems[-1])
-    fill()
-    records = list(dfc.records) if dfc is not None else []
-    last = records[-1] if records else None
-    summary = {
-        **base,
-        "error": error,
-        "iterations": max(0, len(records) - 1),
-        "final_mae": last.mae if last else None,
-        "final_mae_db": last.mae_db if last else None,
-        "span_ratio": last.span_ratio if last else None,
-        "flight_distance_m": dfc.flight_m if dfc is not None else 0.0,
-        "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
-        "samples": sum(len(s) for s in dfc.logs) if dfc is not None else 0,
-        "samples_recorded": rd.n_samples,
-        "converged": False,
-        "wall_s": timings.get("total_wall_s"),
-        "sim_s": timings.get("sim_s", 0.0),
-        "timings": timings,
-    }
-    if problems:
-        summary["error_path"] = problems
-    try:
-        rd.write_partial(records, summary)
-    except Exception as exc:  # noqa: BLE001 - as above
-        log.exception("econdor: the partial summary.json was not written: %r", exc)
-
-
-async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
-    try:
-        return await router.wait_for_vehicles(n, timeout_s)
-    except VehicleTimeout:
-        seen = sorted(router.vehicles)
-        expected = list(range(1, n + 1))
-        missing = [s for s in expected if s not in seen]
-        if missing and all(s in expected for s in seen):
-            word = "vehicle" if len(missing) == 1 else "vehicles"
-            raise VehicleTimeout(
-                f"{word} {', '.join(map(str, missing))} never appeared within {timeout_s:g} s "
-                f"(heard from: {', '.join(map(str, seen)) or 'none'})") from None
-        raise
-
-
-def run_mission_cli(args: Any) -> int:
-    """``econdor run`` (arguments parsed by :mod:`econdor.cli`)."""
-    from .fleet import parse_kinds
-    from .mission import load_mission
-
-    web = getattr(args, "web", None)
-    kinds = parse_kinds(args.autopilot) if getattr(args, "autopilot", None) else None
-    forward = getattr(args, "forward", None)
-    forward_commands = bool(getattr(args, "forward_commands", False))
-    if forward_commands and not forward:
-        raise EcondorError("--forward-commands needs --forward udpout:HOST:PORT")
-    if kinds is not None and args.connect:
-        raise EcondorError("--autopilot chooses the vehicles econdor starts; with --connect "
-                           "the vehicles are started elsewhere")
-    if args.resume is not None:
-        if kinds is not None:
-            raise EcondorError("--autopilot: a resumed run starts the vehicles it started "
-                               "before (its run.json)")
-        out = args.resume
-        summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
-                                 timeout_s=args.timeout, signing_key_file=args.signing_key)
-    else:
-        mission = load_mission(args.mission)
-        out = args.out or _default_out(mission)
-        mode = RunDirMode.FORCE if args.force else RunDirMode.NEW
-        summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
-                              speedup=args.speedup, seed=args.seed, connect=args.connect,
-                              timeout_s=args.timeout, quiet=args.quiet,
-                              mission_path=args.mission, mode=mode,
-                              signing_key_file=args.signing_key, web=web,
-                              announce=lambda url: print(f"web: {url}", flush=True),
-                              autopilots=kinds,
-                              tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
-                              forward=forward, forward_commands=forward_commands)
-    t = summary.get("timings", {})
-    mae_db = summary.get("final_mae_db")
-    print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "
-          f"{mae_db:.1f} dB ({summary['stop_reason']}), flown "
-          f"{summary['flight_distance_m']:.0f} m (contour {summary['contour_distance_m']:.0f} m), "
-          f"{summary['samples']} samples, {t.get('total_wall_s', 0):.1f} s wall "
-          f"({t.get('achieved_speedup', math.nan):.0f}x sim)")
-    print(f"run directory: {out}")
-    if web is not None:
-        print(f"replay it in the browser: econdor view {out}")
-    sys.stdout.flush()
-    return 0

@@ -178,7 +178,7 @@ def upload_cli(args: argparse.Namespace) -> int:
                 hint = (" (a stock autopilot flies contours as waypoints: export with "
                         "--style waypoints)")
             raise EcondorError(f"{exc}{hint}") from None
-        parts = [f"{n} {name} items" for name, n in result.counts.items()]
+        parts = [f"{n} {name} item{'' if n == 1 else 's'}" for name, n in result.counts.items()]
         note = " (item 0 replaced by its home, as ArduPilot does)" if result.home_replaced else ""
         print(f"vehicle {sysid} ({result.autopilot.value}): uploaded and verified "
               f"{', '.join(parts)}{note}")

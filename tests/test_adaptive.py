@@ -139,6 +139,21 @@ def test_planner_routes_its_jobs_and_the_assignment_keeps_them():
         assert sum(j.length_m for j in batch.jobs if j.vehicle == v) <= 300.0 + 150.0
 
 
+def test_trace_tasks_carry_their_estimated_contour_for_stock_autopilots():
+    """A vehicle without the tracer flies a contour piece as its waypoint polyline: every
+    trace task of the adaptive planner carries its route, from its start point."""
+    from econdor_gcs.core.waypoints import task_waypoints
+
+    ctx = after_diagonals(0, [(0.0, 100.0), (100.0, 0.0)], 5000.0)
+    batch = AdaptivePlanner(AdaptiveParams(batch_m=300.0)).next_batch(ctx)
+    traces = [t for j in batch.jobs for t in j.tasks if isinstance(t, TraceTask)]
+    assert traces
+    for t in traces:
+        assert len(t.route_m) >= 2 and t.route_m[0] == (t.x_m, t.y_m)
+        wps = task_waypoints(t, 1.0)
+        assert (wps[0].x_m, wps[0].y_m) == (t.x_m, t.y_m)
+
+
 def test_planner_never_plans_beyond_the_budget_left():
     ctx = after_diagonals(1, [(0.0, 100.0)], 120.0)
     batch = AdaptivePlanner().next_batch(ctx)

@@ -13,8 +13,9 @@ import pytest
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Waypoint
 from econdor_gcs.errors import RunError
-from econdor_gcs.gcs import MavlinkExecutor, Station, _write_partial
+from econdor_gcs.gcs import MavlinkExecutor, Station
 from econdor_gcs.link.mission import build_mission
+from econdor_gcs.run import _write_partial
 from econdor_gcs.rundir import RunDir
 from sim_vehicle.transport import UdpTransport, parse_endpoint
 

@@ -62,7 +62,8 @@ def test_upload_start_round_trips_and_flies_on_both_personalities(tmp_path, caps
         out = capsys.readouterr()
         assert code == 0, out.err
         assert f"vehicle 1 ({autopilot}): uploaded and verified {len(mfile.items)} mission " \
-               f"items, 4 fence items, 1 rally items" in out.out
+               f"items, 4 fence items, 1 rally item" in out.out
+        assert "1 rally items" not in out.out
         assert ("item 0 replaced by its home" in out.out) == (autopilot == "ardupilot")
         assert "mission started" in out.out
         # the vehicle stored the fence and rally point of the plan

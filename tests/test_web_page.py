@@ -234,3 +234,44 @@ def test_pause_then_stop_brings_every_vehicle_home(tmp_path: Path, browser: Brow
     log = (out / "log.jsonl").read_text()
     assert f"paused before iteration {held + 1}" in log
     assert f"stopped before iteration {held + 1}" in log
+
+
+def test_stop_ends_the_flight_in_progress_and_brings_every_vehicle_home(
+        tmp_path: Path, browser: Browser) -> None:
+    """Stop while the vehicles fly iteration 1 (at 20x, so the flight lasts): they leave
+    their missions for home at once; the pieces they had not finished stay unreported,
+    the samples flown so far are kept, and the run ends stopped in that iteration."""
+    out = tmp_path / "run"
+    proc = EcondorProcess("run", str(write_mission(tmp_path, iterations=4, speedup=20)),
+                          "--out", str(out), "--quiet", "--web", "127.0.0.1:0")
+    try:
+        page = browser.page(proc.url)
+        wait_for(lambda: page.is_enabled("#btn-stop"), 60, "the stop button")
+
+        def mid_flight() -> bool:
+            if estimate_iteration(page) != 0:  # iteration 1 flies on the initiation's estimate
+                return False
+            rows = vehicle_rows(page).values()
+            return sum(c["status"] == "flying" and int(c["item"].split("/")[0]) >= 3
+                       for c in rows) >= 2
+        wait_for(mid_flight, 120, "vehicles in the middle of iteration 1")
+        t_stop = time.monotonic()
+        confirm_control(page, "#btn-stop")
+        assert proc.wait(120) == 0, proc.output()
+        wait_for(lambda: page.inner_text("#run-state") == "stopped", 10, "stopped")
+        rows = vehicle_rows(page)
+        assert {c["status"] for c in rows.values()} == {"landed"}
+        for sysid, cells in rows.items():
+            assert math.dist((float(cells["x"]), float(cells["y"])), (0.0, 0.0)) < 3.0, sysid
+        page.close()
+    finally:
+        proc.close()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stop_reason"] == "stopped" and summary["iterations"] == 1, summary
+    last = json.loads((out / "iterations.json").read_text())[-1]
+    assert last["iteration"] == 1
+    assert last["outcomes"].get("unreported", 0) >= 1, last["outcomes"]  # cut short
+    assert summary["samples_recorded"] == summary["samples"]  # nothing flown was dropped
+    log = (out / "log.jsonl").read_text()
+    assert "stopping in iteration 1" in log and "return to launch" in log
+    assert time.monotonic() - t_stop < 120

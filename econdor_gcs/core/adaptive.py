@@ -776,7 +776,10 @@ class AdaptivePlanner:
                     # tracer does not wander the area)
                     max_len = (max(WHOLE_TRACE_FACTOR * length, WHOLE_TRACE_MIN_M) if c.whole
                                else length)
-                    task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0)
+                    # the estimated contour, for vehicles that fly it as waypoints
+                    contour = tuple((float(x), float(y)) for x, y in path)
+                    task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0,
+                                     route_m=contour)
                     jobs.append(Job([task], start, end, length, vehicle=pick.vehicle))
                     traced.add(c.level)
                 else:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..control import ControlState, RunControl
@@ -16,7 +16,11 @@ from .server import WebServer, parse_web_address
 
 
 class LiveWeb:
-    """``econdor run --web``: serve the run's page; pause / resume / stop between iterations.
+    """``econdor run --web``: serve the run's page; pause after the iteration, resume, stop.
+
+    Stop ends the flight in progress at once (``on_stop`` of :meth:`attach`, the executor's
+    ``abort_flight``): every vehicle returns to launch and the DFC ends after taking in
+    what was flown.
 
     Parameters
     ----------
@@ -29,6 +33,7 @@ class LiveWeb:
         host, port = parse_web_address(address)
         self.runlog = runlog
         self.control = RunControl(on_change=self._on_control)
+        self._on_stop: Callable[[], None] | None = None
         self.feed = LiveFeed(mission_name=mission.name, planner=planner, grid=mission.grid,
                              origin=mission.origin, runlog=runlog, control=self.control,
                              max_iterations=mission.algorithm.max_iterations,
@@ -40,20 +45,25 @@ class LiveWeb:
         return self.server.start()
 
     def _on_control(self, state: ControlState, iteration: int) -> None:
+        if state is ControlState.STOPPING and self._on_stop is not None:
+            self._on_stop()
         self.feed.on_control(state, iteration)
         where = {ControlState.PAUSING: f"pausing after iteration {iteration}",
                  ControlState.PAUSED: f"paused before iteration {iteration}",
                  ControlState.RUNNING: "resumed",
-                 ControlState.STOPPING: f"stopping after iteration {iteration}; then every "
-                                        "vehicle returns to launch",
+                 ControlState.STOPPING: f"stopping in iteration {iteration}: the flight "
+                                        "in progress ends, every vehicle returns to launch",
                  ControlState.STOPPED: f"stopped before iteration {iteration}: vehicles "
                                        "return to launch",
                  ControlState.FINISHED: "run over"}[state]
         if state is not ControlState.FINISHED:
             self.runlog.add("operator", where)
 
-    def attach(self, status: StatusSource, sysids: Sequence[int], router: Router) -> None:
-        """The fleet is up: vehicle snapshots from ``status``, trails from ``router``."""
+    def attach(self, status: StatusSource, sysids: Sequence[int], router: Router,
+               on_stop: Callable[[], None] | None = None) -> None:
+        """The fleet is up: vehicle snapshots from ``status``, trails from ``router``;
+        ``on_stop`` ends the flight in progress when the operator stops the run."""
+        self._on_stop = on_stop
         self.feed.attach(status, sysids)
         router.add_sample_handler(self.feed.on_sample)
 

@@ -399,7 +399,7 @@ function renderStatus() {
 const CONFIRM = {
   pause: "Pause after the current iteration? The vehicles finish what they are flying, then hover until you resume.",
   resume: "Resume the run?",
-  stop: "Stop the run? The iteration in flight finishes, then every vehicle returns to launch and lands.",
+  stop: "Stop the run? The flight in progress ends now: every vehicle returns to launch and lands.",
 };
 function askControl(action) {
   const dlg = $("confirm");
