@@ -24,6 +24,10 @@ range) against the survey's distance to the same iso-line error.
     python bench/efficiency.py --quick                      # 2 seeds, a smoke run
     python bench/efficiency.py --seeds 0:20 --markdown --json runs/efficiency.json
     python bench/efficiency.py --fields plume --planners adaptive --threshold
+    python bench/efficiency.py --seeds 0:8 --planners 'adaptive,adaptive[batch_m=200]'
+
+A planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
+on top of ``--adaptive``: variants measured against the default in the same run.
 """
 
 from __future__ import annotations
@@ -82,6 +86,40 @@ def parse_settings(text: str) -> dict[str, Any]:
     return out
 
 
+def split_variant(planner: str) -> tuple[str, dict[str, Any]]:
+    """``"adaptive[batch_m=200]"`` -> ``("adaptive", {"batch_m": 200})``.
+
+    >>> split_variant("adaptive[batch_m=200,legs=0]")
+    ('adaptive', {'batch_m': 200, 'legs': 0})
+    >>> split_variant("no-sg")
+    ('no-sg', {})
+    """
+    name, bracket, rest = planner.partition("[")
+    if not bracket:
+        return planner, {}
+    if not rest.endswith("]"):
+        raise ValueError(f"planner {planner!r}: settings must end with ']'")
+    return name, parse_settings(rest[:-1])
+
+
+def split_planners(text: str) -> list[str]:
+    """Split ``--planners`` at the commas outside brackets.
+
+    >>> split_planners("adaptive,adaptive[batch_m=200,legs=0],no-sg")
+    ['adaptive', 'adaptive[batch_m=200,legs=0]', 'no-sg']
+    """
+    out, depth, item = [], 0, ""
+    for ch in text:
+        depth += {"[": 1, "]": -1}.get(ch, 0)
+        if ch == "," and depth == 0:
+            out.append(item)
+            item = ""
+        else:
+            item += ch
+    out.append(item)
+    return out
+
+
 def mission_for(field: str, budget_m: float, planner: str, reconstruction: str,
                 target_levels: tuple[float, ...] = (), survey_lines: int = 0,
                 adaptive: dict[str, Any] | None = None) -> Mission:
@@ -125,7 +163,9 @@ def _row(rec: Any, flight_m: float) -> dict[str, Any]:
 
 def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]) -> dict[str, Any]:
     """One budget-true run: per-iteration rows (flight home excluded), sources missed."""
-    field, seed, planner, budget_m, recon, threshold, adaptive = args
+    field, seed, label, budget_m, recon, threshold, adaptive = args
+    planner, variant = split_variant(label)
+    adaptive = {**adaptive, **variant}
     targets = (mid_level(mission_for(field, budget_m, planner, recon), seed),) if threshold else ()
     mission = mission_for(field, budget_m, planner, recon, targets, adaptive=adaptive)
     truth = mission.build_field(seed)
@@ -140,7 +180,7 @@ def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]) ->
     for row in rows:
         n = row["samples"]
         row["missed"] = sources_missed(truth, s.x_m[:n], s.y_m[:n])
-    return {"field": field, "seed": seed, "planner": planner + (":threshold" if threshold else ""),
+    return {"field": field, "seed": seed, "planner": label + (":threshold" if threshold else ""),
             "rows": rows, "stop": res.stop_reason, "wall_s": time.perf_counter() - t0,
             "target": targets[0] if targets else math.nan}
 
@@ -442,7 +482,12 @@ def main() -> int:
     unknown = [f for f in fields if f not in FIELDS]
     if unknown:
         p.error(f"--fields: unknown field {unknown[0]!r} (one of {', '.join(FIELDS)})")
-    planners = [x for x in a.planners.split(",") if x]
+    planners = [x for x in split_planners(a.planners) if x]
+    try:
+        for pl in planners:
+            split_variant(pl)
+    except ValueError as exc:
+        p.error(f"--planners: {exc}")
     budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
     budgets.append(a.budget)
     if a.cache:

@@ -20,9 +20,9 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                 min_piece_length_m, keep_diagonals, max_idle_iterations, target_levels}
     lawnmower: {spacing_m, budget_m}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
-               line_orientation, start, model, length_m, fit_length, floor, gradient_gain_m, power,
-               plan_spacing_m, search_radius_m, resolve_m, explore_m, band_m, level_tol,
-               threshold_batch_m, crossings_first}
+               line_orientation, start, start_lines, model, length_m, fit_length, floor,
+               gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
+               band_m, level_tol, threshold_batch_m, crossings_first}
 """
 
 from __future__ import annotations
@@ -122,7 +122,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "budget_m": (float, 0.0, _non_negative),
     },
     "adaptive": {
-        "batch_m": (float, 400.0, _positive),
+        "batch_m": (float, 200.0, _positive),
         "batch_growth": (float, 0.0, _non_negative),
         "levels": (int, 30, _range(1, 1000)),
         "piece_m": (float, 30.0, _positive),
@@ -130,7 +130,8 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "legs": (int, 40, _range(0, 10000)),
         "line_spacing_m": (float, 2.0, _non_negative),
         "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
-        "start": (str, "diagonals", _one_of("diagonals", "perimeter", "plan")),
+        "start": (str, "auto", _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
+        "start_lines": (int, 16, _range(1, 1000)),
         "model": (str, "auto", _one_of("auto", "gp", "proxy")),
         "length_m": (float, 5.0, _positive),
         "fit_length": (bool, True, None),
@@ -317,6 +318,7 @@ class AdaptiveConfig:
     line_spacing_m: float
     line_orientation: str
     start: str
+    start_lines: int
     model: str
     length_m: float
     fit_length: bool

@@ -3,6 +3,7 @@ whole runs through the DFC loop with the real onboard tracer."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -201,8 +202,9 @@ def test_adaptive_is_registered_and_configured_from_the_mission():
 
 @pytest.mark.slow
 def test_adaptive_run_maps_a_plume_field_to_a_stated_error():
-    """A whole in-process run with the real tracer: 2 km of flight on plume seed 3."""
-    m = load_mission(ROOT / "missions" / "plume.yaml").with_overrides(flight_budget_m=2000.0)
+    """A whole in-process run with the real tracer: 3 km of flight on plume seed 3 (the
+    16-line survey start, 1.7 km, then adaptive plans)."""
+    m = load_mission(ROOT / "missions" / "plume.yaml").with_overrides(flight_budget_m=3000.0)
     field = m.build_field(3)
     flown: list[type] = []
 
@@ -213,9 +215,11 @@ def test_adaptive_run_maps_a_plume_field_to_a_stated_error():
     result = dfc.Dfc(m, InProcessExecutor(m, field, seed=3), planner="adaptive", truth=field,
                      seed=3, progress=progress).run()
     assert result.stop_reason == "flight_budget"
-    assert 2000.0 <= result.flight_distance_m - result.return_m < 2000.0 + 400.0
-    assert result.records[-1].mae_db < -15.0
-    assert result.records[-1].mae_db < result.records[0].mae_db - 20.0
+    assert 3000.0 <= result.flight_distance_m - result.return_m < 3000.0 + 400.0
+    print(f"plume seed 3: {result.records[0].mae_db:.1f} dB after the survey start, "
+          f"{result.records[-1].mae_db:.1f} dB at 3 km")
+    assert result.records[-1].mae_db < -25.0
+    assert result.records[-1].mae_db < result.records[0].mae_db - 10.0
     # ordinary mission items: trace tasks (traced onboard) and waypoint legs
     assert set(flown) == {TraceTask, Waypoint}
 
@@ -312,3 +316,41 @@ def test_threshold_mode_plans_its_own_batch_size():
         planned[batch_m] = sum(j.length_m for j in jobs)
     assert planned[100.0] <= 100.0 + 100.0  # one pick may overrun what is left
     assert planned[400.0] > 2 * planned[100.0]
+
+
+def test_survey_start_flies_even_strips_over_the_fleet_then_plans():
+    """``start: survey``: the first flight is ``start_lines`` north-south lines at the
+    strip centres, shared by the fleet; the adaptive plans follow within the budget."""
+    m = load_mission(ROOT / "missions" / "paper.yaml").with_overrides(flight_budget_m=1400.0)
+    m = dataclasses.replace(m, adaptive=dataclasses.replace(m.adaptive, start="survey",
+                                                            start_lines=8))
+    field = m.build_field(0)
+    plans: dict[int, list[list[object]]] = {}
+
+    def progress(event: dfc.DfcEvent) -> None:
+        if isinstance(event, dfc.IterationPlanned):
+            plans[event.iteration] = event.plans
+
+    result = dfc.Dfc(m, InProcessExecutor(m, field, seed=0), planner="adaptive", truth=field,
+                     seed=0, progress=progress).run()
+    first = plans[0]
+    assert sum(1 for plan in first if plan) == min(m.vehicles.count, 8)
+    r = m.region
+    xs = sorted({t.x_m for plan in first for t in plan if isinstance(t, Waypoint)})
+    assert xs == pytest.approx([r.xmin + (k + 0.5) * r.width_m / 8 for k in range(8)])
+    assert result.records[0].flight_distance_m >= 8 * r.height_m
+    assert len(result.records) >= 2 and 1 in plans
+    assert result.stop_reason == "flight_budget"
+    with pytest.raises(ValueError, match="start"):
+        AdaptivePlanner(AdaptiveParams(start="zigzag"))
+
+
+def test_start_auto_is_a_survey_for_the_field_and_the_diagonals_for_thresholds():
+    ctx = PlanContext(iteration=0, region=REGION, n_vehicles=1)
+    first = AdaptivePlanner().initiation(ctx)
+    assert first is not None and len(first.jobs) == 16
+    assert AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(ctx) is None
+    # a budget that holds fewer lines gets fewer (lines plus the cross-track legs)
+    small = PlanContext(iteration=0, region=REGION, n_vehicles=1, budget_left_m=700.0)
+    first = AdaptivePlanner().initiation(small)
+    assert first is not None and len(first.jobs) == 6

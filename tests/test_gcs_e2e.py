@@ -378,6 +378,9 @@ def test_adaptive_planner_runs_over_mavlink(tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:
     """``econdor run --planner adaptive``: its jobs are ordinary mission items."""
     mission = write_mission(tmp_path, iterations=2)
+    # from the diagonals, so two iterations hold contour pieces (the default survey start
+    # flies 16 lines first: waypoints only)
+    mission.write_text(mission.read_text() + "adaptive: {start: diagonals}\n", encoding="utf-8")
     out = tmp_path / "run"
     code, _, err = run_cli(capsys, str(mission), "--out", str(out), "--vehicles", "2",
                            "--planner", "adaptive", "--quiet")

@@ -1,6 +1,8 @@
 """The adaptive planner: fly where the estimate is most uncertain, per metre.
 
-Each iteration the planner
+It starts (``start: auto``) with an even survey of ``start_lines`` north-south lines when
+mapping the whole field, the mission's diagonals in threshold mode. Each iteration after
+that the planner
 
 1. models how uncertain the estimate still is (:mod:`econdor_gcs.core.uncertainty`): a
    unit posterior variance ``v(x)`` from where the samples are, times an amplitude that
@@ -56,7 +58,7 @@ from scipy.spatial import cKDTree
 from .contours import contour_pieces
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
-from .planners import Batch, Job, PlanContext
+from .planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
 from .tasks import FlightReport, Phase, SampleLog, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
@@ -129,9 +131,14 @@ class AdaptiveParams:
         Spacing of the full-width line candidates (0: none).
     line_orientation : {"ns", "ew", "both"}
         Their direction(s).
-    start : {"diagonals", "perimeter", "plan"}
-        The first flight: the mission's initiation pattern, the area's boundary, or the
-        planner's own plan from its prior (uniform uncertainty: spread-out lines).
+    start : {"auto", "diagonals", "perimeter", "plan", "survey"}
+        The first flight: the mission's initiation pattern, the area's boundary, the
+        planner's own plan from its prior (uniform uncertainty: spread-out lines), or an
+        even survey of ``start_lines`` north-south lines. ``auto``: the survey when
+        mapping the whole field (it measured best there), the diagonals in threshold mode.
+    start_lines : int
+        Lines of the ``survey`` start, at the centres of equal strips (the first and last
+        half a spacing inside the edges, as the best survey flies them).
     model : {"auto", "proxy", "gp"}
         Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
         proxy when mapping the whole field (it measured best there), the GP posterior
@@ -176,7 +183,7 @@ class AdaptiveParams:
         Threshold mode when not empty.
     """
 
-    batch_m: float = 400.0
+    batch_m: float = 200.0
     batch_growth: float = 0.0
     levels: int = 30
     piece_m: float = 30.0
@@ -185,7 +192,8 @@ class AdaptiveParams:
     legs: int = 40
     line_spacing_m: float = 2.0
     line_orientation: str = "ns"
-    start: str = "diagonals"
+    start: str = "auto"
+    start_lines: int = 16
     model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
@@ -381,6 +389,17 @@ def line_candidates(region: Region, spacing_m: float, orientation: str = "ns") -
             out.append(Candidate(CandidateKind.LEG, np.array([[lo_x, y], [hi_x, y]]),
                                  reversible=True))
     return out
+
+
+def survey_start_batch(region: Region, lines: int) -> Batch:
+    """``lines`` north-south lines at the centres of ``lines`` equal strips.
+
+    >>> b = survey_start_batch(Region(0.0, 100.0, 0.0, 100.0), 4)
+    >>> [job.start_m[0] for job in b.jobs]
+    [12.5, 37.5, 62.5, 87.5]
+    """
+    xs = region.xmin + (np.arange(lines) + 0.5) * region.width_m / lines
+    return Batch(survey_jobs(region, xs), levels_planned=0)
 
 
 def perimeter_batch(context: PlanContext, inset_m: float = 0.5) -> Batch:
@@ -617,8 +636,12 @@ class AdaptivePlanner:
                 fit_length=params.fit_length and not params.target_levels)
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
-        if params.start not in ("diagonals", "perimeter", "plan"):
-            raise ValueError(f"start: must be diagonals, perimeter or plan, got {params.start!r}")
+        if params.start not in ("auto", "diagonals", "perimeter", "plan", "survey"):
+            raise ValueError(f"start: must be auto, diagonals, perimeter, plan or survey, "
+                             f"got {params.start!r}")
+        if params.start == "auto":
+            params = dataclasses.replace(
+                params, start="diagonals" if params.target_levels else "survey")
         self.params = params
         self.seed = seed
         self.hyper: MaternHyper | None = None
@@ -628,12 +651,20 @@ class AdaptivePlanner:
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
         ``"diagonals"``), the area's boundary (``"perimeter"``: the reconstruction
-        extrapolates at the edges, where a survey has its first and last lines), or the
-        planner's own plan from its prior (``"plan"``)."""
+        extrapolates at the edges, where a survey has its first and last lines), the
+        planner's own plan from its prior (``"plan"``), or an even survey of
+        ``start_lines`` lines (``"survey"``: on a smooth field the error is set by the
+        widest gaps, and lines added one by one are even only at doubling steps)."""
         if self.params.start == "diagonals":
             return None
         if self.params.start == "perimeter":
             return perimeter_batch(context)
+        if self.params.start == "survey":
+            r = context.region
+            lines = self.params.start_lines
+            if math.isfinite(context.budget_left_m):  # never more than the budget holds
+                lines = min(lines, lawnmower_lines_for_budget(r, context.budget_left_m))
+            return survey_start_batch(r, lines)
         return self.next_batch(context)
 
     def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
