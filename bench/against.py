@@ -8,6 +8,7 @@ are measured on the same machine, one right after the other.
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -28,3 +29,26 @@ def run_tree(script: str | Path, ref: str, *args: str) -> dict[str, Any]:
             [sys.executable, str(Path(script).resolve()), "--tree", tmp, "--json", *args],
             check=True, capture_output=True, text=True)
         return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def parser(description: str, settings: str, seeds: str) -> argparse.ArgumentParser:
+    """The arguments every ``--against`` benchmark takes: ``--settings``, ``--seeds``,
+    ``--quick`` (seed 0 only), ``--against REF`` and the hidden ``--tree`` / ``--json`` of
+    the run on another revision (:func:`run_tree`)."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--settings", default=settings)
+    p.add_argument("--seeds", default=seeds, help="A:B (Python slice) or a comma list")
+    p.add_argument("--quick", action="store_true", help="seed 0 only")
+    p.add_argument("--against", metavar="REF", help="also measure git revision REF")
+    p.add_argument("--tree", help=argparse.SUPPRESS)  # measure the code in this directory
+    p.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
+    return p
+
+
+def parse(p: argparse.ArgumentParser) -> argparse.Namespace:
+    """Parse; ``--quick`` means seed 0, and the tree measured goes first on ``sys.path``."""
+    a = p.parse_args()
+    if a.quick:
+        a.seeds = "0"
+    sys.path.insert(0, a.tree or str(REPO))
+    return a

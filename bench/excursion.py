@@ -22,7 +22,6 @@ tree's, so before/after are measured in the same run on the same machine.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -126,24 +125,11 @@ def _table(title: str, data: dict[str, Any]) -> None:
           + ", ".join(f"{r['setting']}:{r['seed']}={r['max_m']:.2f}" for r in data["runs"]))
 
 
-def _run_tree(ref: str, settings: str, seeds: str) -> dict[str, Any]:
-    from against import run_tree
-
-    return run_tree(__file__, ref, "--settings", settings, "--seeds", seeds)
-
-
 def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--settings", default="paper,plume,demo")
-    p.add_argument("--seeds", default="0:5", help="A:B (Python slice) or a comma list")
-    p.add_argument("--quick", action="store_true", help="seed 0 only")
-    p.add_argument("--against", metavar="REF", help="also measure git revision REF")
-    p.add_argument("--tree", help=argparse.SUPPRESS)  # measure the code in this directory
-    p.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
-    a = p.parse_args()
-    if a.quick:
-        a.seeds = "0"
-    sys.path.insert(0, a.tree or str(REPO))
+    import against
+
+    p = against.parser(__doc__.splitlines()[0], settings="paper,plume,demo", seeds="0:5")
+    a = against.parse(p)
     from econdor_lab.study import parse_seeds
 
     seeds = parse_seeds(a.seeds)
@@ -157,7 +143,8 @@ def main() -> int:
     print(f"# in-process runs, econdor planner: samples outside the area ({REPO.name})")
     _table("this tree", data)
     if a.against:
-        _table(f"revision {a.against}", _run_tree(a.against, a.settings, a.seeds))
+        _table(f"revision {a.against}", against.run_tree(
+            __file__, a.against, "--settings", a.settings, "--seeds", a.seeds))
     return 0
 
 

@@ -29,7 +29,6 @@ tree's, so before/after are measured in the same run on the same machine.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -165,24 +164,11 @@ def _table(title: str, data: dict[str, Any]) -> None:
               f"{med['metrics_s']:.2f} | {med['setup_s']:.2f} | {rate:.0f} | | |")
 
 
-def _run_tree(ref: str, settings: str, seeds: str) -> dict[str, Any]:
-    from against import run_tree
-
-    return run_tree(__file__, ref, "--settings", settings, "--seeds", seeds)
-
-
 def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--settings", default="paper,plume")
-    p.add_argument("--seeds", default="0:3", help="A:B (Python slice) or a comma list")
-    p.add_argument("--quick", action="store_true", help="seed 0 only")
-    p.add_argument("--against", metavar="REF", help="also measure git revision REF")
-    p.add_argument("--tree", help=argparse.SUPPRESS)  # measure the code in this directory
-    p.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
-    a = p.parse_args()
-    if a.quick:
-        a.seeds = "0"
-    sys.path.insert(0, a.tree or str(REPO))
+    import against
+
+    p = against.parser(__doc__.splitlines()[0], settings="paper,plume", seeds="0:3")
+    a = against.parse(p)
     from econdor_lab.study import parse_seeds
 
     seeds = parse_seeds(a.seeds)
@@ -197,7 +183,7 @@ def main() -> int:
     print(f"# in-process runs, econdor planner, one vehicle ({REPO.name})")
     _table("this tree", data)
     if a.against:
-        ref = _run_tree(a.against, a.settings, a.seeds)
+        ref = against.run_tree(__file__, a.against, "--settings", a.settings, "--seeds", a.seeds)
         _table(f"revision {a.against}", ref)
         for setting in settings:
             new = statistics.median(r["wall_s"] for r in data["runs"] if r["setting"] == setting)

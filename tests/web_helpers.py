@@ -84,7 +84,9 @@ class Browser:
         return page
 
     def close(self) -> None:
-        with contextlib.suppress(Exception):  # the browser may already be gone
+        from playwright.sync_api import Error as PlaywrightError
+
+        with contextlib.suppress(PlaywrightError):  # the browser may already be gone
             self.context.close()
         self._pw.stop()
         self._profile.cleanup()
