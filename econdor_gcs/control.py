@@ -83,7 +83,8 @@ class RunControl:
     ----------
     on_change:
         Called with ``(state, iteration)`` after every change of state, on the thread that
-        caused it (keep it quick: it may be the DFC's).
+        caused it and with the control's (re-entrant) lock held, so the calls come in the
+        order of the changes (keep it quick: it may be the DFC's).
     poll_s:
         How often a paused checkpoint wakes up (so Ctrl-C in the main thread is seen).
     """
@@ -136,29 +137,23 @@ class RunControl:
                 raise ControlError(f"cannot {action.value}: the run is {self._state.value}")
             changed = new != self._state
             self._set(new)
-            iteration = self._iteration
-        if changed:
-            self._report(new, iteration)
+            if changed:  # under the lock: reports arrive in the order of the changes
+                self._report(new, self._iteration)
         return new
 
     def checkpoint(self, iteration: int) -> bool:
         """The DFC's :data:`~econdor_gcs.dfc.Checkpoint`: block while paused, ``False`` to stop."""
-        reports: list[ControlState] = []
         with self._cond:
             self._iteration = iteration
             if self._state is ControlState.PAUSING:
                 self._set(ControlState.PAUSED)
-                reports.append(ControlState.PAUSED)
-        for state in reports:
-            self._report(state, iteration)
-        with self._cond:
+                self._report(ControlState.PAUSED, iteration)
             while self._state is ControlState.PAUSED:
                 self._cond.wait(self._poll_s)
             stop = self._state is ControlState.STOPPING
             if stop:
                 self._set(ControlState.STOPPED)
-        if stop:
-            self._report(ControlState.STOPPED, iteration)
+                self._report(ControlState.STOPPED, iteration)
         return not stop
 
     def finish(self) -> None:
@@ -170,5 +165,4 @@ class RunControl:
                 self._set(ControlState.STOPPED)
             else:
                 self._set(ControlState.FINISHED)
-            state, iteration = self._state, self._iteration
-        self._report(state, iteration)
+            self._report(self._state, self._iteration)

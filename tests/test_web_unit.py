@@ -469,3 +469,30 @@ def test_the_last_update_has_the_vehicles_as_they_ended() -> None:
     msgs = feed.updates(cur)
     assert _types(msgs) == ["vehicles", "done"]
     assert msgs[0]["vehicles"][0]["status"] == "landed"
+
+
+def test_control_reports_arrive_in_the_order_of_the_changes() -> None:
+    """A stop while paused: the DFC's checkpoint turns STOPPING into STOPPED at once, on its
+    own thread; the page must still hear STOPPING before STOPPED, even when the callback
+    for STOPPING is slow (it ends the flight in progress first)."""
+    heard: list[ControlState] = []
+
+    def on_change(state: ControlState, iteration: int) -> None:
+        if state is ControlState.STOPPING:
+            time.sleep(0.3)  # the checkpoint polls every 0.01 s meanwhile
+        heard.append(state)
+
+    control = RunControl(on_change=on_change, poll_s=0.01)
+    control.request(ControlAction.PAUSE)
+    result: list[bool] = []
+    dfc = threading.Thread(target=lambda: result.append(control.checkpoint(2)))
+    dfc.start()
+    deadline = time.monotonic() + 5
+    while control.state is not ControlState.PAUSED:
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    control.request(ControlAction.STOP)
+    dfc.join(5)
+    assert result == [False]
+    assert heard == [ControlState.PAUSING, ControlState.PAUSED, ControlState.STOPPING,
+                     ControlState.STOPPED]
