@@ -51,6 +51,12 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from econdor_gcs.core.contours import contour_pieces  # noqa: E402
+from econdor_gcs.core.geometry import path_length  # noqa: E402
+from econdor_gcs.core.gp import kriging_reconstruct  # noqa: E402
+from econdor_gcs.core.metrics import isoline_error  # noqa: E402
+from econdor_gcs.core.spline import reconstruct  # noqa: E402
+from econdor_gcs.core.uncertainty import resample_polyline  # noqa: E402
 from econdor_gcs.dfc import Dfc, isoline_levels  # noqa: E402
 from econdor_gcs.mission import Mission, parse_mission  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
@@ -248,8 +254,50 @@ class SurveyScan:
         return None
 
 
-def scan_survey(args: tuple[str, int, float, str, str | None, list[float]]) -> dict[str, Any]:
-    field, seed, budget_m, recon, cache, budgets = args
+def ideal_tracer(field: str, seed: int, recon: str, max_lines: int = 40) -> dict[str, Any]:
+    """What a planner that knew where the iso-line is would fly: every piece of the true
+    iso-line at the middle level (sampled every 0.8 m, as at 8 m/s and 10 Hz) after the
+    fewest even survey lines (0, 1, 2, ...) with which the estimate's iso-line error is
+    ≤ ISO_TARGET_M. Its distance counts the lines, the pieces and the transits between
+    them (nearest piece next, from the home corner or the survey's end), no search: a
+    floor for planners that find the iso-line by flying on it, not a bound for all."""
+    mission = mission_for(field, 0.0, "lawnmower", recon)
+    truth, grid, region = mission.build_field(seed), mission.grid, mission.region
+    level = mid_level(mission, seed)
+    xx, yy = grid.mesh
+    true_grid = np.asarray(truth(xx, yy))
+    pieces = [p.points_m for p in contour_pieces(true_grid, grid, np.array([level]), 1.0)]
+    for lines in range(max_lines + 1):
+        xs = region.xmin + (np.arange(lines) + 0.5) * region.width_m / max(lines, 1)
+        ys = np.arange(region.ymin + 0.5, region.ymax - 0.5 + 1e-9, 0.8)
+        pts = [np.column_stack([np.repeat(xs, ys.size), np.tile(ys, lines)])]
+        flown = lines * float(ys[-1] - ys[0]) + (float(xs[-1] - xs[0]) if lines else 0.0)
+        pos = np.array([xs[-1], ys[-1] if lines % 2 else ys[0]]) if lines else np.array(
+            [region.xmin, region.ymin])
+        left = list(pieces)
+        while left:
+            gaps = [float(np.min(np.hypot(*(q - pos).T))) for q in left]
+            k = int(np.argmin(gaps))
+            q = left.pop(k)
+            i = int(np.argmin(np.hypot(*(q - pos).T)))
+            closed = len(q) > 2 and np.allclose(q[0], q[-1])
+            q = np.vstack([q[i:-1], q[:i + 1]]) if closed and i else q
+            flown += gaps[k] + path_length(q[:, 0], q[:, 1])
+            pts.append(resample_polyline(q, 0.8))
+            pos = q[-1]
+        p = np.vstack(pts)
+        v = np.asarray(truth(p[:, 0], p[:, 1]))
+        est = (kriging_reconstruct(p[:, 0], p[:, 1], v, grid) if recon == "kriging"
+               else reconstruct(p[:, 0], p[:, 1], v, grid))
+        err = isoline_error(true_grid, est, grid, level)
+        if err <= ISO_TARGET_M:
+            return {"km": flown / 1000, "lines": lines, "iso": err}
+    return {"km": math.nan, "lines": max_lines, "iso": math.nan}
+
+
+def scan_survey(args: tuple[str, int, float, str, str | None, list[float], bool]
+                ) -> dict[str, Any]:
+    field, seed, budget_m, recon, cache, budgets, threshold = args
     scan = SurveyScan(field, seed, recon, Path(cache) if cache else None)
     t0 = time.perf_counter()
     max_lines = int((budget_m - 100.0) // 100.0)
@@ -261,6 +309,8 @@ def scan_survey(args: tuple[str, int, float, str, str | None, list[float]]) -> d
         out["to_db"][str(t)] = r["flight_m"] if r else math.nan
     r = scan.first_reaching(lambda row: row["iso"][1] <= ISO_TARGET_M, max_lines)
     out["to_iso50"] = r["flight_m"] if r else math.nan
+    if threshold:
+        out["ideal"] = ideal_tracer(field, seed, recon)
     for n in LADDER:  # the whole ladder within the budget: the survey's curve in the figures
         if n <= max_lines:
             scan.get(n)
@@ -379,29 +429,49 @@ def table(field: str, planners: list[str], runs: list[dict[str, Any]],
 
 def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
                     budget_m: float, bar: str, md: bool) -> None:
+    """Per threshold mapper: each seed's distance to iso <= ISO_TARGET_M against the best
+    survey's and the ideal tracer's (see :func:`ideal_tracer`), then one summary line."""
     rs = [r for r in runs if r["field"] == field and r["planner"].endswith(":threshold")]
-    if not rs:
+    labels = list(dict.fromkeys(r["planner"] for r in rs))
+    summary = []
+    for label in labels:
+        head = ["seed", "level", f"km to iso ≤ {ISO_TARGET_M} m", "survey km", "ratio",
+                "ideal tracer km (lines)", "ideal ratio", "final iso m", "pieces missed", "stop",
+                "flown km"]
+        print(f"\n### threshold mapping, field {field}: {label.removesuffix(':threshold')}\n")
+        print(bar + bar.join(head) + bar)
+        if md:
+            print(bar + bar.join("---" for _ in head) + bar)
+        ratios, ideal = [], []
+        for r in sorted((r for r in rs if r["planner"] == label), key=lambda r: r["seed"]):
+            d = distance_to(r["rows"], lambda row: row["iso_target"] <= ISO_TARGET_M, budget_m)
+            sv = surveys[r["seed"]]
+            to_iso = sv["to_iso50"]
+            ratio = d / to_iso if to_iso and not math.isnan(to_iso) else math.nan
+            ratios.append(ratio)
+            tracer = sv.get("ideal") or {"km": math.nan, "lines": -1}
+            ideal.append(tracer["km"] * 1000 / to_iso if to_iso else math.nan)
+            last = r["rows"][-1]
+            print(bar + bar.join([
+                str(r["seed"]), fmt(r["target"]), fmt(d / 1000, ".2f"), fmt(to_iso / 1000, ".2f"),
+                fmt(ratio, ".2f"), f"{fmt(tracer['km'], '.2f')} ({tracer['lines']})",
+                fmt(ideal[-1], ".2f"), fmt(last["iso_target"], ".2f"),
+                fmt(last["target_missed"], ".0f"), r["stop"],
+                fmt(last["flight_m"] / 1000, ".2f")]) + bar)
+        got = [x for x in ratios if not math.isnan(x)]
+        summary.append((label, med(ratios), len(got), len(ratios), sum(x <= 0.5 for x in got),
+                        sum(x < 1.0 for x in got), med(ideal)))
+    if not summary:
         return
-    head = ["seed", "level", f"adaptive km to iso ≤ {ISO_TARGET_M} m", "survey km", "ratio",
-            "final iso m", "pieces missed", "stop", "flown km"]
-    print(f"\n### threshold mapping, field {field}\n")
+    print(f"\n### threshold mapping, field {field}: summary\n")
+    head = ["mapper", "median ratio to the survey", "runs there", "ratio ≤ 0.5", "beat survey",
+            "ideal tracer's median ratio"]
     print(bar + bar.join(head) + bar)
     if md:
         print(bar + bar.join("---" for _ in head) + bar)
-    ratios = []
-    for r in sorted(rs, key=lambda r: r["seed"]):
-        d = distance_to(r["rows"], lambda row: row["iso_target"] <= ISO_TARGET_M, budget_m)
-        sv = surveys[r["seed"]]["to_iso50"]
-        ratio = d / sv if sv and not math.isnan(sv) else math.nan
-        ratios.append(ratio)
-        last = r["rows"][-1]
-        print(bar + bar.join([str(r["seed"]), fmt(r["target"]), fmt(d / 1000, ".2f"),
-                              fmt(sv / 1000, ".2f"), fmt(ratio, ".2f"), fmt(last["iso_target"], ".2f"),
-                              fmt(last["target_missed"], ".0f"), r["stop"],
-                              fmt(last["flight_m"] / 1000, ".2f")]) + bar)
-    print(f"\nmedian ratio {fmt(med(ratios), '.2f')}; adaptive got there in "
-          f"{sum(not math.isnan(x) for x in ratios)}/{len(ratios)} runs, "
-          f"ratio ≤ 0.5 in {sum(x <= 0.5 for x in ratios if not math.isnan(x))}")
+    for label, ratio, got, n, half, won, ideal_ratio in summary:
+        print(bar + bar.join([label.removesuffix(":threshold"), fmt(ratio, ".2f"), f"{got}/{n}",
+                              str(half), str(won), fmt(ideal_ratio, ".2f")]) + bar)
 
 
 def figures(out: Path, fields: list[str], planners: list[str], runs: list[dict[str, Any]],
@@ -465,7 +535,11 @@ def main() -> int:
     p.add_argument("--planners", default="adaptive,econdor,no-sg")
     p.add_argument("--budget", type=float, default=10_000.0, help="flight budget per run (m)")
     p.add_argument("--reconstruction", default="auto", help="auto | kriging (all planners)")
-    p.add_argument("--threshold", action="store_true", help="add threshold mapping runs")
+    p.add_argument("--threshold", action="store_true",
+                   help="add threshold mapping runs: each adaptive planner (variants too) of "
+                        "--planners, or the default adaptive planner if there is none")
+    p.add_argument("--threshold-only", action="store_true",
+                   help="only the threshold mapping runs (implies --threshold)")
     p.add_argument("--adaptive", default="", help="adaptive settings, e.g. model=proxy,floor=20")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cache", default=None, help="directory memoising survey runs")
@@ -493,12 +567,16 @@ def main() -> int:
     if a.cache:
         Path(a.cache).mkdir(parents=True, exist_ok=True)
     settings = parse_settings(a.adaptive)
-    jobs: list[tuple[Any, ...]] = [(f, s, pl, a.budget, a.reconstruction, False, settings)
-                                   for f in fields for s in seeds for pl in planners]
+    a.threshold = a.threshold or a.threshold_only
+    jobs: list[tuple[Any, ...]] = [] if a.threshold_only else [
+        (f, s, pl, a.budget, a.reconstruction, False, settings)
+        for f in fields for s in seeds for pl in planners]
     if a.threshold:
-        jobs += [(f, s, "adaptive", a.budget, a.reconstruction, True, settings)
-                 for f in fields for s in seeds]
-    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets) for f in fields for s in seeds]
+        mappers = [pl for pl in planners if split_variant(pl)[0] == "adaptive"] or ["adaptive"]
+        jobs += [(f, s, pl, a.budget, a.reconstruction, True, settings)
+                 for f in fields for s in seeds for pl in mappers]
+    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets, a.threshold)
+                   for f in fields for s in seeds]
     t0 = time.perf_counter()
     if a.from_json:
         saved = json.loads(Path(a.from_json).read_text())
@@ -525,7 +603,8 @@ def main() -> int:
     for field in fields:
         print(f"\n## field: {field}\n")
         by_seed = {s["seed"]: s for s in surveys if s["field"] == field}
-        table(field, planners, runs, by_seed, budgets, bar, a.markdown)
+        if not a.threshold_only:
+            table(field, planners, runs, by_seed, budgets, bar, a.markdown)
         threshold_table(field, runs, by_seed, a.budget, bar, a.markdown)
     if a.figures:
         for path in figures(Path(a.figures), fields, planners, runs, surveys, a.budget):

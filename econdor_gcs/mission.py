@@ -22,7 +22,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
                line_orientation, start, start_lines, model, length_m, fit_length, floor,
                gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
-               band_m, level_tol, threshold_batch_m, crossings_first}
+               band_m, level_tol, threshold_batch_m, crossings_first,
+               open_entry, probes, probe_m, probe_prominence}
 """
 
 from __future__ import annotations
@@ -144,8 +145,12 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "explore_m": (float, 10.0, _positive),
         "band_m": (float, 3.0, _non_negative),
         "level_tol": (float, 0.01, _range(0.0, 0.5)),
-        "threshold_batch_m": (float, 130.0, _positive),
-        "crossings_first": (bool, False, None),
+        "threshold_batch_m": (float, 80.0, _positive),
+        "crossings_first": (bool, True, None),
+        "open_entry": (str, "crossing", _one_of("end", "crossing")),
+        "probes": (bool, True, None),
+        "probe_m": (float, 30.0, _positive),
+        "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
     },
 }
 
@@ -333,6 +338,10 @@ class AdaptiveConfig:
     level_tol: float
     threshold_batch_m: float
     crossings_first: bool
+    open_entry: str
+    probes: bool
+    probe_m: float
+    probe_prominence: float
 
 
 @dataclass(frozen=True)

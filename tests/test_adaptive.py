@@ -14,16 +14,19 @@ from econdor_gcs import dfc
 from econdor_gcs.core.adaptive import (
     AdaptiveParams,
     AdaptivePlanner,
-    Candidate,
-    CandidateKind,
-    contour_candidates,
     greedy_plan,
-    level_crossings,
-    line_candidates,
-    mark_crossings,
     perimeter_batch,
 )
 from econdor_gcs.core.assignment import assign_jobs
+from econdor_gcs.core.candidates import (
+    Candidate,
+    CandidateKind,
+    contour_candidates,
+    extremum_probes,
+    level_crossings,
+    line_candidates,
+    mark_crossings,
+)
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.planners import PlanContext
 from econdor_gcs.core.tasks import Phase, SampleLog, TraceTask, Waypoint
@@ -305,6 +308,109 @@ def test_crossings_first_traces_a_sampled_crossing_before_anything_else():
     again = mark_crossings(contour_candidates(est, GRID, np.array([50.0]), 30.0, 4.0, whole=True),
                            traced, np.array([50.0]), band_m=3.0)
     assert not any(k.first for k in again)
+
+
+def _peak(cx: float, cy: float, height: float, sigma: float = 4.0):
+    def field(x, y):
+        r2 = (np.asarray(x) - cx) ** 2 + (np.asarray(y) - cy) ** 2
+        return 10.0 + height * np.exp(-r2 / (2 * sigma ** 2))
+    return field
+
+
+def _join(*logs: SampleLog) -> SampleLog:
+    t0 = 0.0
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("t_s", "x_m", "y_m", "value", "phase",
+                                                         "vehicle")}
+    for log in logs:
+        for k in cols:
+            cols[k].append(getattr(log, k) + (t0 if k == "t_s" else 0))
+        t0 += 1000.0
+    return SampleLog(*(np.concatenate(cols[k]) for k in ("t_s", "x_m", "y_m", "value", "phase",
+                                                           "vehicle")))
+
+
+def test_a_peak_beside_the_track_is_probed_across_it():
+    """A line passes 10 m from a peak that reaches the level: the samples peak where the
+    line is closest, and the probe crosses the track there, over the peak."""
+    field = _peak(50.0, 40.0, 90.0)
+    line = samples_along([(0.0, 50.0), (100.0, 50.0)], field)
+    probes = extremum_probes(line, np.array([55.0]), REGION, 30.0, 1e-4, 3.0)
+    assert len(probes) == 1
+    p = probes[0]
+    assert p.first and p.kind == CandidateKind.LEG and p.reversible
+    assert np.allclose(p.points_m[:, 0], 50.0, atol=0.5)  # across the west-east track
+    assert sorted(p.points_m[:, 1].tolist()) == pytest.approx([35.0, 65.0], abs=0.5)
+    # a minimum above the level is probed the same way; a maximum above it is a crossing
+    dip = samples_along([(0.0, 50.0), (100.0, 50.0)],
+                        lambda x, y: 110.0 - _peak(50.0, 40.0, 90.0)(x, y) + 10.0)
+    assert len(extremum_probes(dip, np.array([55.0]), REGION, 30.0, 1e-4, 3.0)) == 1
+    over = samples_along([(0.0, 40.0), (100.0, 40.0)], field)
+    assert extremum_probes(over, np.array([55.0]), REGION, 30.0, 1e-4, 3.0) == []
+    # with nothing to reach (the level below the maximum seen) or nothing standing out
+    assert extremum_probes(line, np.array([5.0]), REGION, 30.0, 1e-4, 3.0) == []
+    far = samples_along([(0.0, 99.0), (100.0, 99.0)], _peak(50.0, 10.0, 90.0, sigma=3.0))
+    assert np.ptp(far.value) < 1e-12  # nothing there to stand out
+    assert extremum_probes(far, np.array([55.0]), REGION, 30.0, 1e-4, 3.0) == []
+
+
+def test_probing_climbs_to_the_peak_and_stops_there():
+    """A peak short of the level: the first probe finds the peak's row, the second (parallel
+    to the first line) runs through the peak, and there the climb ends (the extremum of
+    the second was sampled across by the first)."""
+    field = _peak(50.0, 40.0, 40.0)  # 50 at the top, the level 55 is never reached
+    levels = np.array([55.0])
+    flown = samples_along([(0.0, 52.0), (100.0, 52.0)], field)
+    seen = []
+    for _ in range(4):
+        probes = extremum_probes(flown, levels, REGION, 30.0, 1e-4, 3.0)
+        seen.append(len(probes))
+        if not probes:
+            break
+        a, b = probes[0].points_m
+        flown = _join(flown, samples_along([tuple(a), tuple(b)], field))
+    assert seen == [1, 1, 0]
+    # the second probe ran west-east through the peak
+    assert np.min(np.hypot(flown.x_m - 50.0, flown.y_m - 40.0)) < 0.5
+
+
+def test_threshold_mode_flies_its_probes_first():
+    """After the diagonals on plume seed 1 (both pieces of the iso-line at 55 missed) the
+    plan starts with a probe across a diagonal; without probes it does not."""
+    ctx = after_diagonals(1, [(0.0, 100.0)], 5000.0)
+    with_probes = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).next_batch(ctx)
+    first = with_probes.jobs[0]
+    assert all(isinstance(t, Waypoint) for t in first.tasks)
+    a, b = (np.array((t.x_m, t.y_m)) for t in first.tasks)
+    d = b - a
+    # a diagonal runs along (1, 1) or (1, -1): a probe across it along the other one
+    assert abs(abs(d[0]) - abs(d[1])) < 1.0 and 25.0 < np.hypot(*d) <= 30.0 + 1e-6
+    probes = extremum_probes(ctx.samples, np.array([55.0]), REGION, 30.0, 1e-4, 3.0)
+    assert any(np.allclose(sorted(map(tuple, p.points_m)), sorted([tuple(a), tuple(b)]))
+               for p in probes)
+    without = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,), probes=False)).next_batch(ctx)
+    assert [j.start_m for j in without.jobs] != [j.start_m for j in with_probes.jobs]
+
+
+def test_a_whole_piece_at_the_edge_is_entered_at_an_end_or_at_its_crossing():
+    """A straight iso-line across the area: one whole candidate, 2 m inside the edges at
+    both ends, flown from either end; through a sampled crossing it goes first, entered
+    at the crossing (``open_entry: crossing``) or still at an end (``end``)."""
+    xx, _ = GRID.mesh
+    est = xx.astype(float)  # the iso-line at 40 is the line x = 40
+    (c,) = contour_candidates(est, GRID, np.array([40.0]), 30.0, 4.0, whole=True)
+    assert c.whole and not c.closed and c.reversible
+    ys = sorted([c.points_m[0, 1], c.points_m[-1, 1]])
+    assert ys == pytest.approx([2.0, 98.0], abs=1e-6)
+    s = samples_along([(0.0, 60.0), (100.0, 60.0)], lambda x, y: np.asarray(x, dtype=float))
+    (at_crossing,) = mark_crossings([c], s, np.array([40.0]), band_m=3.0)
+    assert at_crossing.first and at_crossing.entry_m.tolist() == pytest.approx([40.0, 60.0])
+    (c2,) = contour_candidates(est, GRID, np.array([40.0]), 30.0, 4.0, whole=True)
+    (at_end,) = mark_crossings([c2], s, np.array([40.0]), band_m=3.0, open_at_end=True)
+    assert at_end.first and at_end.entry_m is None
+    picks, _ = greedy_plan([at_end], Footprints(uniform_map(), [at_end.points_m]),
+                           uniform_map().variance, mae_value(uniform_map()), [(40.0, 100.0)],
+                           [400.0])
+    assert picks[0][0].path_m[0].tolist() == pytest.approx([40.0, 98.0])  # the nearer end
 
 
 def test_threshold_mode_plans_its_own_batch_size():

@@ -32,7 +32,13 @@ feature narrower than the data can show may hide there whatever the model says. 
 within ``resolve_m`` of a sample (observed) or within ``band_m`` of a sample that reads a
 target level (an iso-line already flown on) count for nothing. Candidates are the
 estimate's whole contour components at the target levels (each traced until it closes or
-meets the area's edge on both sides) plus the exploration legs and lines. The planner
+meets the area's edge on both sides) plus the exploration legs and lines. Two kinds go
+before anything the greedy would pick (nearest first): a component through a crossing of
+its level that a survey or transit leg sampled and no trace has flown yet
+(``crossings_first``: the iso-line is known to be there), and a probe across the track
+through every local extremum of the samples along a flown line that falls short of a
+level (``probes``: a peak beside the line, and a closed iso-line round it, lies on that
+perpendicular; see :func:`~econdor_gcs.core.candidates.extremum_probes`). The planner
 reports ``done`` when no open cell scores any more: nowhere is left where an iso-line
 could still be, under the model (by default the GP posterior with ``l = length_m``: its
 variance shrinks where samples surround a place, which the distance proxy cannot see).
@@ -48,18 +54,24 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
-from .contours import contour_pieces
+from .candidates import (
+    Candidate,
+    CandidateKind,
+    contour_candidates,
+    extremum_probes,
+    leg_candidates,
+    line_candidates,
+    mark_crossings,
+)
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
-from .tasks import FlightReport, Phase, SampleLog, Task, TraceTask, Waypoint
+from .tasks import FlightReport, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
     UncertaintyMap,
@@ -73,38 +85,6 @@ WHOLE_TRACE_FACTOR = 2.0
 """A whole-component trace stops after this multiple of the estimated component's length."""
 WHOLE_TRACE_MIN_M = 60.0
 """... and never before this length (the estimate's component can be far too short)."""
-
-
-class CandidateKind(StrEnum):
-    """What a candidate path is flown as."""
-
-    TRACE = "trace"
-    """A contour piece, searched for at its start and traced onboard (``TraceTask``)."""
-    LEG = "leg"
-    """A straight leg between two waypoints."""
-
-
-@dataclass(eq=False)
-class Candidate:
-    """A path the planner may ask for, in flying order (``points_m[0]`` first)."""
-
-    kind: CandidateKind
-    points_m: FloatArray
-    level: float = math.nan
-    reversible: bool = False
-    """A leg may be flown either way."""
-    closed: bool = False
-    """A closed contour: entered at its point nearest the vehicle, traced round."""
-    whole: bool = False
-    """Trace until the contour closes or meets the area's edge (threshold mode)."""
-    entry_m: FloatArray | None = None
-    """Where the trace starts, if not at ``points_m[0]`` (a sampled crossing of the level)."""
-    first: bool = False
-    """Picked before any other candidate (``crossings_first``)."""
-
-    @property
-    def length_m(self) -> float:
-        return path_length(self.points_m[:, 0], self.points_m[:, 1])
 
 
 @dataclass(frozen=True)
@@ -179,6 +159,22 @@ class AdaptiveParams:
         level that pass through a crossing of that level already sampled (where two
         consecutive survey or transit samples straddle it) and not yet traced: the iso-line
         is known to be there.
+    open_entry : {"end", "crossing"}
+        Threshold mode: where a component through a sampled crossing that meets the
+        area's edge is entered (:func:`mark_crossings`).
+    probes : bool
+        Threshold mode: before anything else, fly a leg across the track through every
+        local extremum of the samples along a flown line that falls short of a target
+        level (a maximum below it, a minimum above it): the field's extremum, and a
+        closed iso-line around it, may lie off the track on that perpendicular (see
+        :func:`extremum_probes`).
+    probe_m : float
+        Length of those legs (m), centred on the extremum.
+    probe_prominence : float
+        An extremum counts when it stands out from its surroundings along the track
+        (``scipy.signal.find_peaks`` prominence) by this fraction of the sampled value
+        range. The simulated sensor is noise-free; with sensor noise it must exceed the
+        noise several times over.
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -207,188 +203,16 @@ class AdaptiveParams:
     explore_m: float = 10.0
     band_m: float = 3.0
     level_tol: float = 0.01
-    threshold_batch_m: float = 130.0
-    crossings_first: bool = False
+    threshold_batch_m: float = 80.0
+    crossings_first: bool = True
+    open_entry: str = "crossing"
+    probes: bool = True
+    probe_m: float = 30.0
+    probe_prominence: float = 1e-4
     target_levels: tuple[float, ...] = ()
 
 
-# -- candidates ----------------------------------------------------------------------------
-
-
-def _high_on_left(points: FloatArray, slope: Callable[[FloatArray], FloatArray]) -> bool:
-    """Whether walking ``points`` keeps higher values on the left (the tracer's sense)."""
-    mid = len(points) // 2
-    a, b = points[max(mid - 1, 0)], points[min(mid + 1, len(points) - 1)]
-    t = b - a
-    g = slope(0.5 * (a + b))
-    return bool(-t[1] * g[0] + t[0] * g[1] >= 0.0)
-
-
-def _slope_at(estimate: FloatArray, grid: Grid) -> Callable[[FloatArray], FloatArray]:
-    gy, gx = np.gradient(estimate, grid.dy, grid.dx)
-    fx = RegularGridInterpolator((grid.y, grid.x), gx, bounds_error=False, fill_value=None)
-    fy = RegularGridInterpolator((grid.y, grid.x), gy, bounds_error=False, fill_value=None)
-
-    def slope(p: FloatArray) -> FloatArray:
-        q = np.array([[p[1], p[0]]])
-        return np.array([float(fx(q)[0]), float(fy(q)[0])])
-
-    return slope
-
-
-def contour_candidates(estimate: FloatArray, grid: Grid, levels: FloatArray, piece_m: float,
-                       min_piece_m: float, whole: bool = False) -> list[Candidate]:
-    """Contour pieces of the estimate at ``levels``, oriented so the tracer follows them.
-
-    With ``whole=False`` each piece is cut into equal parts of at most ``piece_m``;
-    with ``whole=True`` each connected piece is one candidate (threshold mode).
-    """
-    slope = _slope_at(estimate, grid)
-    out: list[Candidate] = []
-    for piece in contour_pieces(estimate, grid, levels, min_piece_m):
-        pts = piece.points_m
-        if not _high_on_left(pts, slope):
-            pts = pts[::-1]
-        if whole:
-            out.append(Candidate(CandidateKind.TRACE, pts, piece.level, closed=piece.closed,
-                                 whole=True))
-            continue
-        seg = np.hypot(*np.diff(pts, axis=0).T)
-        cum = np.r_[0.0, np.cumsum(seg)]
-        n = max(1, int(math.ceil(cum[-1] / piece_m)))
-        cuts = np.searchsorted(cum, np.linspace(0.0, cum[-1], n + 1)[1:-1])
-        for part in np.split(np.arange(len(pts)), cuts):
-            if len(part) < 2:
-                continue
-            sub = pts[part[0]:part[-1] + 2] if part[-1] + 1 < len(pts) else pts[part[0]:]
-            if path_length(sub[:, 0], sub[:, 1]) >= min_piece_m:
-                out.append(Candidate(CandidateKind.TRACE, sub, piece.level))
-    return out
-
-
-def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 2.0
-                    ) -> tuple[FloatArray, FloatArray]:
-    """Where consecutive survey or transit samples of one vehicle straddle a level:
-    the crossing points (interpolated) and their levels.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from econdor_gcs.core.tasks import Phase, SampleLog
-    >>> x = np.arange(5.0)
-    >>> s = SampleLog(x, x, np.zeros(5), np.array([0.0, 1.0, 3.0, 1.0, 0.0]),
-    ...               np.full(5, Phase.SURVEY, dtype=np.int8), np.zeros(5, np.int16))
-    >>> pts, lv = level_crossings(s, np.array([2.0]))
-    >>> pts[:, 0].tolist(), lv.tolist()
-    ([1.5, 2.5], [2.0, 2.0])
-    """
-    x, y, v = samples.x_m, samples.y_m, samples.value
-    if len(x) < 2:
-        return np.zeros((0, 2)), np.zeros(0)
-    ok = ((samples.phase[:-1] == samples.phase[1:])
-          & np.isin(samples.phase[:-1], (Phase.SURVEY, Phase.TRANSIT))
-          & (samples.vehicle[:-1] == samples.vehicle[1:])
-          & (np.hypot(np.diff(x), np.diff(y)) <= max_step_m))
-    pts, lvs = [], []
-    for lv in np.asarray(levels, dtype=float):
-        a, b = v[:-1] - lv, v[1:] - lv
-        i = np.nonzero(ok & (a * b < 0))[0]
-        t = a[i] / (a[i] - b[i])
-        pts.append(np.column_stack([x[i] + t * (x[i + 1] - x[i]), y[i] + t * (y[i + 1] - y[i])]))
-        lvs.append(np.full(i.size, lv))
-    return np.vstack(pts), np.concatenate(lvs)
-
-
-def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArray,
-                   band_m: float, near_m: float = 4.0) -> list[Candidate]:
-    """Whole contour candidates through a sampled, not yet traced crossing of their level
-    become ``first`` and start at that crossing (``crossings_first``)."""
-    pts, lvs = level_crossings(samples, levels)
-    if not len(pts):
-        return cands
-    traced = np.isin(samples.phase, (Phase.TRACE, Phase.SEARCH))
-    if traced.any():
-        d, _ = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]])).query(pts)
-        keep = d > band_m
-        pts, lvs = pts[keep], lvs[keep]
-    for c in cands:
-        if not c.whole or not len(pts):
-            continue
-        on = np.isclose(lvs, c.level)
-        if not on.any():
-            continue
-        d, _ = cKDTree(resample_polyline(c.points_m, 1.0)).query(pts[on])
-        if d.min() <= near_m:
-            c.entry_m = pts[on][int(np.argmin(d))].copy()
-            c.first = True
-    return cands
-
-
-def _clip_segment(region: Region, a: FloatArray, b: FloatArray) -> FloatArray | None:
-    """The part of segment ``a``-``b`` inside ``region`` (Liang-Barsky), or None."""
-    d = b - a
-    t0, t1 = 0.0, 1.0
-    for p, q in ((-d[0], a[0] - region.xmin), (d[0], region.xmax - a[0]),
-                 (-d[1], a[1] - region.ymin), (d[1], region.ymax - a[1])):
-        if p == 0:
-            if q < 0:
-                return None
-            continue
-        r = q / p
-        if p < 0:
-            t0 = max(t0, r)
-        else:
-            t1 = min(t1, r)
-    if t1 <= t0:
-        return None
-    return np.array([a + t0 * d, a + t1 * d])
-
-
-def leg_candidates(umap: UncertaintyMap, cell_value: FloatArray, region: Region, legs: int,
-                   leg_m: float) -> list[Candidate]:
-    """Straight legs of ``leg_m`` in four directions through the ``legs`` highest-value
-    cells, no two centres closer than a third of a leg (non-maximum suppression)."""
-    inner = Region(region.xmin + 0.5, region.xmax - 0.5, region.ymin + 0.5, region.ymax - 0.5)
-    order = np.argsort(-cell_value, kind="stable")
-    centres: list[FloatArray] = []
-    min_gap = leg_m / 3.0
-    for i in order:
-        if cell_value[i] <= 0 or len(centres) >= legs:
-            break
-        c = np.array([umap.x_m[i], umap.y_m[i]])
-        if all(np.hypot(*(c - q)) >= min_gap for q in centres):
-            centres.append(c)
-    out: list[Candidate] = []
-    for c in centres:
-        for ang in (0.0, 0.25 * math.pi, 0.5 * math.pi, 0.75 * math.pi):
-            u = 0.5 * leg_m * np.array([math.cos(ang), math.sin(ang)])
-            seg = _clip_segment(inner, c - u, c + u)
-            if seg is not None and np.hypot(*(seg[1] - seg[0])) >= 0.5 * leg_m:
-                out.append(Candidate(CandidateKind.LEG, seg, reversible=True))
-    return out
-
-
-def line_candidates(region: Region, spacing_m: float, orientation: str = "ns") -> list[Candidate]:
-    """Full-width lines every ``spacing_m``, 0.5 m inside the area: north-south (``"ns"``),
-    east-west (``"ew"``) or both.
-
-    One family is the default: greedy picks from both make a grid, and a grid leaves
-    gaps twice as wide as parallel lines of the same total length.
-    """
-    if spacing_m <= 0:
-        return []
-    out: list[Candidate] = []
-    lo_y, hi_y = region.ymin + 0.5, region.ymax - 0.5
-    lo_x, hi_x = region.xmin + 0.5, region.xmax - 0.5
-    if orientation in ("ns", "both"):
-        for x in np.arange(region.xmin + 0.5 * spacing_m, region.xmax, spacing_m):
-            out.append(Candidate(CandidateKind.LEG, np.array([[x, lo_y], [x, hi_y]]),
-                                 reversible=True))
-    if orientation in ("ew", "both"):
-        for y in np.arange(region.ymin + 0.5 * spacing_m, region.ymax, spacing_m):
-            out.append(Candidate(CandidateKind.LEG, np.array([[lo_x, y], [hi_x, y]]),
-                                 reversible=True))
-    return out
+# -- starts ----------------------------------------------------------------------------------
 
 
 def survey_start_batch(region: Region, lines: int) -> Batch:
@@ -546,6 +370,7 @@ def greedy_plan(
     reversible = np.array([c.reversible for c in candidates], dtype=bool)
     closed = np.array([c.closed for c in candidates], dtype=bool)
     first = np.array([c.first for c in candidates], dtype=bool)
+    has_entry = np.array([c.entry_m is not None for c in candidates], dtype=bool)
     entry = np.array([c.entry_m if c.entry_m is not None else c.points_m[0]
                       for c in candidates]).reshape(n, 2)
     used = np.zeros(n, dtype=bool)
@@ -571,8 +396,8 @@ def greedy_plan(
             for i in np.nonzero(closed & ~used)[0].tolist():
                 pts = candidates[i].points_m
                 transit[i] = float(np.min(np.hypot(pts[:, 0] - pos[0], pts[:, 1] - pos[1])))
-        if first.any():
-            transit = np.where(first, np.hypot(entry[:, 0] - pos[0], entry[:, 1] - pos[1]),
+        if has_entry.any():
+            transit = np.where(has_entry, np.hypot(entry[:, 0] - pos[0], entry[:, 1] - pos[1]),
                                transit)
         cost = lengths + transit + overhead
         left = fleet.budgets[k] - fleet.loads[k]
@@ -636,6 +461,8 @@ class AdaptivePlanner:
                 fit_length=params.fit_length and not params.target_levels)
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
+        if params.open_entry not in ("end", "crossing"):
+            raise ValueError(f"open_entry: must be end or crossing, got {params.open_entry!r}")
         if params.start not in ("auto", "diagonals", "perimeter", "plan", "survey"):
             raise ValueError(f"start: must be auto, diagonals, perimeter, plan or survey, "
                              f"got {params.start!r}")
@@ -732,7 +559,11 @@ class AdaptivePlanner:
                 contour_candidates(context.estimate, context.grid, levels, p.piece_m,
                                    p.min_piece_m, whole=True))
             if p.crossings_first:
-                cands = mark_crossings(cands, s, levels, p.band_m)
+                cands = mark_crossings(cands, s, levels, p.band_m,
+                                       open_at_end=p.open_entry == "end")
+            if p.probes:
+                cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
+                                         2.0 * p.resolve_m)
         else:
             amp = umap.amplitude
 

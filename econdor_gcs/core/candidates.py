@@ -1,0 +1,342 @@
+"""Candidate paths of the adaptive planner: contour pieces of the estimate (traced
+onboard), straight exploration legs and full-width lines, and in threshold mode the
+pieces through sampled crossings of a level and the probes across the track at sampled
+extrema (:mod:`econdor_gcs.core.adaptive` picks among them)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import RegularGridInterpolator
+from scipy.signal import find_peaks
+from scipy.spatial import cKDTree
+
+from .contours import contour_pieces
+from .geometry import FloatArray, Grid, Region, path_length
+from .tasks import Phase, SampleLog
+from .uncertainty import UncertaintyMap, resample_polyline
+
+WHOLE_TRACE_INSET_M = 2.0
+"""A whole component that meets the area's edge is entered this far inside from an end."""
+
+
+class CandidateKind(StrEnum):
+    """What a candidate path is flown as."""
+
+    TRACE = "trace"
+    """A contour piece, searched for at its start and traced onboard (``TraceTask``)."""
+    LEG = "leg"
+    """A straight leg between two waypoints."""
+
+
+@dataclass(eq=False)
+class Candidate:
+    """A path the planner may ask for, in flying order (``points_m[0]`` first)."""
+
+    kind: CandidateKind
+    points_m: FloatArray
+    level: float = math.nan
+    reversible: bool = False
+    """A leg may be flown either way."""
+    closed: bool = False
+    """A closed contour: entered at its point nearest the vehicle, traced round."""
+    whole: bool = False
+    """Trace until the contour closes or meets the area's edge (threshold mode)."""
+    entry_m: FloatArray | None = None
+    """Where the trace starts, if not at ``points_m[0]`` (a sampled crossing of the level)."""
+    first: bool = False
+    """Picked before any other candidate (``crossings_first``)."""
+
+    @property
+    def length_m(self) -> float:
+        return path_length(self.points_m[:, 0], self.points_m[:, 1])
+
+
+
+
+def _high_on_left(points: FloatArray, slope: Callable[[FloatArray], FloatArray]) -> bool:
+    """Whether walking ``points`` keeps higher values on the left (the tracer's sense)."""
+    mid = len(points) // 2
+    a, b = points[max(mid - 1, 0)], points[min(mid + 1, len(points) - 1)]
+    t = b - a
+    g = slope(0.5 * (a + b))
+    return bool(-t[1] * g[0] + t[0] * g[1] >= 0.0)
+
+
+def _slope_at(estimate: FloatArray, grid: Grid) -> Callable[[FloatArray], FloatArray]:
+    gy, gx = np.gradient(estimate, grid.dy, grid.dx)
+    fx = RegularGridInterpolator((grid.y, grid.x), gx, bounds_error=False, fill_value=None)
+    fy = RegularGridInterpolator((grid.y, grid.x), gy, bounds_error=False, fill_value=None)
+
+    def slope(p: FloatArray) -> FloatArray:
+        q = np.array([[p[1], p[0]]])
+        return np.array([float(fx(q)[0]), float(fy(q)[0])])
+
+    return slope
+
+
+def contour_candidates(estimate: FloatArray, grid: Grid, levels: FloatArray, piece_m: float,
+                       min_piece_m: float, whole: bool = False) -> list[Candidate]:
+    """Contour pieces of the estimate at ``levels``, oriented so the tracer follows them.
+
+    With ``whole=False`` each piece is cut into equal parts of at most ``piece_m``;
+    with ``whole=True`` each connected piece is one candidate (threshold mode). A whole
+    piece that meets the area's edge is entered at either end (``reversible``), a little
+    inside: the tracer follows it to the far edge, or, entered at the end where its
+    sense of tracing leaves the area, turns there and follows it back across. Entered in
+    the middle, it would trace one half, fly back to the entry and trace the other.
+    """
+    slope = _slope_at(estimate, grid)
+    out: list[Candidate] = []
+    for piece in contour_pieces(estimate, grid, levels, min_piece_m):
+        pts = piece.points_m
+        if not _high_on_left(pts, slope):
+            pts = pts[::-1]
+        if whole:
+            if not piece.closed:
+                pts = trim_ends(pts, WHOLE_TRACE_INSET_M)
+            out.append(Candidate(CandidateKind.TRACE, pts, piece.level, closed=piece.closed,
+                                 whole=True, reversible=not piece.closed))
+            continue
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        cum = np.r_[0.0, np.cumsum(seg)]
+        n = max(1, int(math.ceil(cum[-1] / piece_m)))
+        cuts = np.searchsorted(cum, np.linspace(0.0, cum[-1], n + 1)[1:-1])
+        for part in np.split(np.arange(len(pts)), cuts):
+            if len(part) < 2:
+                continue
+            sub = pts[part[0]:part[-1] + 2] if part[-1] + 1 < len(pts) else pts[part[0]:]
+            if path_length(sub[:, 0], sub[:, 1]) >= min_piece_m:
+                out.append(Candidate(CandidateKind.TRACE, sub, piece.level))
+    return out
+
+
+def trim_ends(points: FloatArray, inset_m: float) -> FloatArray:
+    """``points`` without the first and last ``inset_m`` of their length (unchanged when
+    shorter than three times that).
+
+    >>> trim_ends(np.array([[0.0, 0.0], [10.0, 0.0]]), 2.0).tolist()
+    [[2.0, 0.0], [8.0, 0.0]]
+    """
+    seg = np.hypot(*np.diff(points, axis=0).T)
+    cum = np.r_[0.0, np.cumsum(seg)]
+    if cum[-1] < 3.0 * inset_m:
+        return points
+    lo, hi = inset_m, cum[-1] - inset_m
+    inner = (cum > lo) & (cum < hi)
+    ends = [np.array([np.interp(t, cum, points[:, 0]), np.interp(t, cum, points[:, 1])])
+            for t in (lo, hi)]
+    return np.vstack([ends[0], points[inner], ends[1]])
+
+
+def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 2.0
+                    ) -> tuple[FloatArray, FloatArray]:
+    """Where consecutive survey or transit samples of one vehicle straddle a level:
+    the crossing points (interpolated) and their levels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from econdor_gcs.core.tasks import Phase, SampleLog
+    >>> x = np.arange(5.0)
+    >>> s = SampleLog(x, x, np.zeros(5), np.array([0.0, 1.0, 3.0, 1.0, 0.0]),
+    ...               np.full(5, Phase.SURVEY, dtype=np.int8), np.zeros(5, np.int16))
+    >>> pts, lv = level_crossings(s, np.array([2.0]))
+    >>> pts[:, 0].tolist(), lv.tolist()
+    ([1.5, 2.5], [2.0, 2.0])
+    """
+    x, y, v = samples.x_m, samples.y_m, samples.value
+    if len(x) < 2:
+        return np.zeros((0, 2)), np.zeros(0)
+    ok = ((samples.phase[:-1] == samples.phase[1:])
+          & np.isin(samples.phase[:-1], (Phase.SURVEY, Phase.TRANSIT))
+          & (samples.vehicle[:-1] == samples.vehicle[1:])
+          & (np.hypot(np.diff(x), np.diff(y)) <= max_step_m))
+    pts, lvs = [], []
+    for lv in np.asarray(levels, dtype=float):
+        a, b = v[:-1] - lv, v[1:] - lv
+        i = np.nonzero(ok & (a * b < 0))[0]
+        t = a[i] / (a[i] - b[i])
+        pts.append(np.column_stack([x[i] + t * (x[i + 1] - x[i]), y[i] + t * (y[i + 1] - y[i])]))
+        lvs.append(np.full(i.size, lv))
+    return np.vstack(pts), np.concatenate(lvs)
+
+
+def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArray,
+                   band_m: float, near_m: float = 8.0, open_at_end: bool = False
+                   ) -> list[Candidate]:
+    """Whole contour candidates through a sampled, not yet traced crossing of their level
+    become ``first`` (``crossings_first``). A closed one is entered at that crossing (the
+    iso-line is known to be there); one that meets the area's edge at its nearer end
+    (``open_at_end``, see :func:`contour_candidates`: no flight back from the edge, but
+    the estimate's ends are extrapolated and the onboard search can miss there) or at
+    the crossing."""
+    pts, lvs = level_crossings(samples, levels)
+    if not len(pts):
+        return cands
+    traced = np.isin(samples.phase, (Phase.TRACE, Phase.SEARCH))
+    if traced.any():
+        d, _ = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]])).query(pts)
+        keep = d > band_m
+        pts, lvs = pts[keep], lvs[keep]
+    for c in cands:
+        if not c.whole or not len(pts):
+            continue
+        on = np.isclose(lvs, c.level)
+        if not on.any():
+            continue
+        d, _ = cKDTree(resample_polyline(c.points_m, 1.0)).query(pts[on])
+        if d.min() <= near_m:
+            if c.closed or not open_at_end:
+                c.entry_m = pts[on][int(np.argmin(d))].copy()
+            c.first = True
+    return cands
+
+
+def _track_runs(samples: SampleLog, max_step_m: float = 2.0) -> list[NDArray[np.intp]]:
+    """Index runs of consecutive survey or transit samples of one vehicle (straight flight
+    between waypoints or along survey lines; no gap wider than ``max_step_m``)."""
+    x, y = samples.x_m, samples.y_m
+    if len(x) < 2:
+        return []
+    flying = np.isin(samples.phase, (Phase.SURVEY, Phase.TRANSIT))
+    joined = ((samples.phase[:-1] == samples.phase[1:]) & flying[:-1]
+              & (samples.vehicle[:-1] == samples.vehicle[1:])
+              & (np.hypot(np.diff(x), np.diff(y)) <= max_step_m))
+    cuts = np.nonzero(~joined)[0] + 1
+    return [r for r in np.split(np.arange(len(x)), cuts) if flying[r[0]] and len(r) >= 5]
+
+
+def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, probe_m: float,
+                    prominence: float, covered_m: float) -> list[Candidate]:
+    """Legs across the track through the local extrema of the samples along flown lines
+    that fall short of a target level: a maximum below some level, a minimum above some.
+
+    Along a line that passes beside a peak, the samples peak where the line is closest
+    to it: the field's maximum, and a closed iso-line around it if the peak reaches the
+    level, lie on the perpendicular there (exactly so for a round peak). A probe across
+    the track finds it or, falling short again, has its own extremum, whose probe runs
+    parallel to the first line: a hill-climb that ends on the peak. An extremum within
+    ``covered_m`` of a sample of another line (the field was sampled across it already:
+    the climb has arrived) is not probed, nor is a probe most of which (80 %) lies
+    within ``covered_m`` of a sample.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from econdor_gcs.core.tasks import Phase, SampleLog
+    >>> x = np.linspace(0.0, 40.0, 51)
+    >>> v = 10.0 + np.exp(-((x - 20.0) ** 2) / 50.0)  # a bump beside the line y = 5
+    >>> s = SampleLog(x, x, np.full(51, 5.0), v, np.full(51, Phase.SURVEY, dtype=np.int8),
+    ...               np.zeros(51, np.int16))
+    >>> [c.points_m.round(1).tolist() for c in extremum_probes(
+    ...     s, np.array([50.0]), Region(0.0, 40.0, 0.0, 40.0), 20.0, 1e-4, 1.5)]
+    [[[20.0, 0.5], [20.0, 15.0]]]
+    """
+    levels = np.asarray(levels, dtype=float)
+    v_all = samples.value
+    if len(v_all) < 5 or not len(levels):
+        return []
+    span = float(np.ptp(v_all)) or 1.0
+    inner = Region(region.xmin + 0.5, region.xmax - 0.5, region.ymin + 0.5, region.ymax - 0.5)
+    tree = cKDTree(np.column_stack([samples.x_m, samples.y_m]))
+    out: list[Candidate] = []
+    for run in _track_runs(samples):
+        v = v_all[run]
+        for sign in (1.0, -1.0):
+            peaks, _ = find_peaks(sign * v, prominence=prominence * span)
+            for j in peaks.tolist():
+                # a maximum below some level (sign +1), a minimum above some (sign -1)
+                if not np.any(sign * (levels - v[j]) > 0):
+                    continue
+                a, b = run[max(j - 2, 0)], run[min(j + 2, len(run) - 1)]
+                t = np.array([samples.x_m[b] - samples.x_m[a], samples.y_m[b] - samples.y_m[a]])
+                norm = float(np.hypot(*t))
+                if norm < 1e-6:
+                    continue
+                n = np.array([-t[1], t[0]]) / norm
+                c = np.array([samples.x_m[run[j]], samples.y_m[run[j]]])
+                near = np.asarray(tree.query_ball_point(c, covered_m), dtype=np.intp)
+                if np.any((near < run[0]) | (near > run[-1])):
+                    continue  # sampled across already: a 2-D extremum, nothing off-track
+                seg = _clip_segment(inner, c - 0.5 * probe_m * n, c + 0.5 * probe_m * n)
+                if seg is None:
+                    continue
+                pts = resample_polyline(seg, 1.0)
+                d, _ = tree.query(pts)
+                if np.mean(d <= covered_m) >= 0.8:
+                    continue
+                out.append(Candidate(CandidateKind.LEG, seg, reversible=True, first=True))
+    return out
+
+
+def _clip_segment(region: Region, a: FloatArray, b: FloatArray) -> FloatArray | None:
+    """The part of segment ``a``-``b`` inside ``region`` (Liang-Barsky), or None."""
+    d = b - a
+    t0, t1 = 0.0, 1.0
+    for p, q in ((-d[0], a[0] - region.xmin), (d[0], region.xmax - a[0]),
+                 (-d[1], a[1] - region.ymin), (d[1], region.ymax - a[1])):
+        if p == 0:
+            if q < 0:
+                return None
+            continue
+        r = q / p
+        if p < 0:
+            t0 = max(t0, r)
+        else:
+            t1 = min(t1, r)
+    if t1 <= t0:
+        return None
+    return np.array([a + t0 * d, a + t1 * d])
+
+
+def leg_candidates(umap: UncertaintyMap, cell_value: FloatArray, region: Region, legs: int,
+                   leg_m: float) -> list[Candidate]:
+    """Straight legs of ``leg_m`` in four directions through the ``legs`` highest-value
+    cells, no two centres closer than a third of a leg (non-maximum suppression)."""
+    inner = Region(region.xmin + 0.5, region.xmax - 0.5, region.ymin + 0.5, region.ymax - 0.5)
+    order = np.argsort(-cell_value, kind="stable")
+    centres: list[FloatArray] = []
+    min_gap = leg_m / 3.0
+    for i in order:
+        if cell_value[i] <= 0 or len(centres) >= legs:
+            break
+        c = np.array([umap.x_m[i], umap.y_m[i]])
+        if all(np.hypot(*(c - q)) >= min_gap for q in centres):
+            centres.append(c)
+    out: list[Candidate] = []
+    for c in centres:
+        for ang in (0.0, 0.25 * math.pi, 0.5 * math.pi, 0.75 * math.pi):
+            u = 0.5 * leg_m * np.array([math.cos(ang), math.sin(ang)])
+            seg = _clip_segment(inner, c - u, c + u)
+            if seg is not None and np.hypot(*(seg[1] - seg[0])) >= 0.5 * leg_m:
+                out.append(Candidate(CandidateKind.LEG, seg, reversible=True))
+    return out
+
+
+def line_candidates(region: Region, spacing_m: float, orientation: str = "ns") -> list[Candidate]:
+    """Full-width lines every ``spacing_m``, 0.5 m inside the area: north-south (``"ns"``),
+    east-west (``"ew"``) or both.
+
+    One family is the default: greedy picks from both make a grid, and a grid leaves
+    gaps twice as wide as parallel lines of the same total length.
+    """
+    if spacing_m <= 0:
+        return []
+    out: list[Candidate] = []
+    lo_y, hi_y = region.ymin + 0.5, region.ymax - 0.5
+    lo_x, hi_x = region.xmin + 0.5, region.xmax - 0.5
+    if orientation in ("ns", "both"):
+        for x in np.arange(region.xmin + 0.5 * spacing_m, region.xmax, spacing_m):
+            out.append(Candidate(CandidateKind.LEG, np.array([[x, lo_y], [x, hi_y]]),
+                                 reversible=True))
+    if orientation in ("ew", "both"):
+        for y in np.arange(region.ymin + 0.5 * spacing_m, region.ymax, spacing_m):
+            out.append(Candidate(CandidateKind.LEG, np.array([[lo_x, y], [hi_x, y]]),
+                                 reversible=True))
+    return out
