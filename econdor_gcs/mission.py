@@ -23,7 +23,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                line_orientation, start, start_lines, model, length_m, fit_length, floor,
                gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
                band_m, level_tol, threshold_batch_m, crossings_first,
-               open_entry, probes, probe_m, probe_prominence}
+               open_entry, probes, probe_climb, probe_m, probe_prominence}
 """
 
 from __future__ import annotations
@@ -149,6 +149,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "crossings_first": (bool, True, None),
         "open_entry": (str, "crossing", _one_of("end", "crossing")),
         "probes": (bool, True, None),
+        "probe_climb": (bool, True, None),
         "probe_m": (float, 30.0, _positive),
         "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
     },
@@ -340,6 +341,7 @@ class AdaptiveConfig:
     crossings_first: bool
     open_entry: str
     probes: bool
+    probe_climb: bool
     probe_m: float
     probe_prominence: float
 

@@ -369,6 +369,13 @@ def test_probing_climbs_to_the_peak_and_stops_there():
         a, b = probes[0].points_m
         flown = _join(flown, samples_along([tuple(a), tuple(b)], field))
     assert seen == [1, 1, 0]
+    # without the climb (probe_climb: false) the first probe's own extremum is not probed
+    first = extremum_probes(samples_along([(0.0, 52.0), (100.0, 52.0)], field), levels, REGION,
+                            30.0, 1e-4, 3.0)[0].points_m
+    after_first = _join(samples_along([(0.0, 52.0), (100.0, 52.0)], field),
+                        samples_along([tuple(first[0]), tuple(first[1])], field))
+    assert len(extremum_probes(after_first, levels, REGION, 30.0, 1e-4, 3.0)) == 1
+    assert extremum_probes(after_first, levels, REGION, 30.0, 1e-4, 3.0, not_on=[first]) == []
     # the second probe ran west-east through the peak
     assert np.min(np.hypot(flown.x_m - 50.0, flown.y_m - 40.0)) < 0.5
 

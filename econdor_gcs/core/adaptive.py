@@ -168,6 +168,8 @@ class AdaptiveParams:
         level (a maximum below it, a minimum above it): the field's extremum, and a
         closed iso-line around it, may lie off the track on that perpendicular (see
         :func:`extremum_probes`).
+    probe_climb : bool
+        Probe the extrema of probes too (a hill-climb); else only those of other lines.
     probe_m : float
         Length of those legs (m), centred on the extremum.
     probe_prominence : float
@@ -207,6 +209,7 @@ class AdaptiveParams:
     crossings_first: bool = True
     open_entry: str = "crossing"
     probes: bool = True
+    probe_climb: bool = True
     probe_m: float = 30.0
     probe_prominence: float = 1e-4
     target_levels: tuple[float, ...] = ()
@@ -474,6 +477,7 @@ class AdaptivePlanner:
         self.hyper: MaternHyper | None = None
         self.open_cells = 0
         """Threshold mode: planning cells where an iso-line could still be (after the last plan)."""
+        self._probed: list[FloatArray] = []
 
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
@@ -563,7 +567,8 @@ class AdaptivePlanner:
                                        open_at_end=p.open_entry == "end")
             if p.probes:
                 cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
-                                         2.0 * p.resolve_m)
+                                         2.0 * p.resolve_m,
+                                         () if p.probe_climb else self._probed)
         else:
             amp = umap.amplitude
 
@@ -587,6 +592,8 @@ class AdaptivePlanner:
         footprints = Footprints(umap, [c.points_m for c in cands])
         picks, _ = greedy_plan(cands, footprints, umap.variance, cell_value, positions,
                                [per_vehicle] * len(positions), p.trace_overhead_m)
+        self._probed += [k.candidate.points_m for route in picks for k in route
+                         if k.candidate.kind == CandidateKind.LEG and k.candidate.first]
         return self._batch(picks, levels)
 
     def _batch(self, picks: list[list[Pick]], levels: FloatArray) -> Batch:

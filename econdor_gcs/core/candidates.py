@@ -6,7 +6,7 @@ extrema (:mod:`econdor_gcs.core.adaptive` picks among them)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -213,7 +213,8 @@ def _track_runs(samples: SampleLog, max_step_m: float = 2.0) -> list[NDArray[np.
 
 
 def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, probe_m: float,
-                    prominence: float, covered_m: float) -> list[Candidate]:
+                    prominence: float, covered_m: float,
+                    not_on: Sequence[FloatArray] = ()) -> list[Candidate]:
     """Legs across the track through the local extrema of the samples along flown lines
     that fall short of a target level: a maximum below some level, a minimum above some.
 
@@ -224,7 +225,8 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
     parallel to the first line: a hill-climb that ends on the peak. An extremum within
     ``covered_m`` of a sample of another line (the field was sampled across it already:
     the climb has arrived) is not probed, nor is a probe most of which (80 %) lies
-    within ``covered_m`` of a sample.
+    within ``covered_m`` of a sample. Extrema within 1 m of a segment in ``not_on`` (earlier
+    probes, when the climb is off) are not probed.
 
     Examples
     --------
@@ -261,6 +263,8 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
                     continue
                 n = np.array([-t[1], t[0]]) / norm
                 c = np.array([samples.x_m[run[j]], samples.y_m[run[j]]])
+                if any(_segment_distance(c, seg) <= 1.0 for seg in not_on):
+                    continue
                 near = np.asarray(tree.query_ball_point(c, covered_m), dtype=np.intp)
                 if np.any((near < run[0]) | (near > run[-1])):
                     continue  # sampled across already: a 2-D extremum, nothing off-track
@@ -273,6 +277,14 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
                     continue
                 out.append(Candidate(CandidateKind.LEG, seg, reversible=True, first=True))
     return out
+
+
+def _segment_distance(p: FloatArray, seg: FloatArray) -> float:
+    """Distance from point ``p`` to the segment ``seg[0]``-``seg[1]``."""
+    a, b = seg[0], seg[-1]
+    d = b - a
+    t = float(np.clip(np.dot(p - a, d) / max(float(np.dot(d, d)), 1e-12), 0.0, 1.0))
+    return float(np.hypot(*(p - (a + t * d))))
 
 
 def _clip_segment(region: Region, a: FloatArray, b: FloatArray) -> FloatArray | None:
