@@ -134,6 +134,15 @@ def trim_ends(points: FloatArray, inset_m: float) -> FloatArray:
     return np.vstack([ends[0], points[inner], ends[1]])
 
 
+def _flown_on(samples: SampleLog, max_step_m: float) -> NDArray[np.bool_]:
+    """For each pair of consecutive samples: both survey or both transit samples of one
+    vehicle, at most ``max_step_m`` apart (one straight flight, sampled without a gap)."""
+    phase = samples.phase
+    return ((phase[:-1] == phase[1:]) & np.isin(phase[:-1], (Phase.SURVEY, Phase.TRANSIT))
+            & (samples.vehicle[:-1] == samples.vehicle[1:])
+            & (np.hypot(np.diff(samples.x_m), np.diff(samples.y_m)) <= max_step_m))
+
+
 def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 2.0
                     ) -> tuple[FloatArray, FloatArray]:
     """Where consecutive survey or transit samples of one vehicle straddle a level:
@@ -153,10 +162,7 @@ def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 
     x, y, v = samples.x_m, samples.y_m, samples.value
     if len(x) < 2:
         return np.zeros((0, 2)), np.zeros(0)
-    ok = ((samples.phase[:-1] == samples.phase[1:])
-          & np.isin(samples.phase[:-1], (Phase.SURVEY, Phase.TRANSIT))
-          & (samples.vehicle[:-1] == samples.vehicle[1:])
-          & (np.hypot(np.diff(x), np.diff(y)) <= max_step_m))
+    ok = _flown_on(samples, max_step_m)
     pts, lvs = [], []
     for lv in np.asarray(levels, dtype=float):
         a, b = v[:-1] - lv, v[1:] - lv
@@ -201,15 +207,12 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
 def _track_runs(samples: SampleLog, max_step_m: float = 2.0) -> list[NDArray[np.intp]]:
     """Index runs of consecutive survey or transit samples of one vehicle (straight flight
     between waypoints or along survey lines; no gap wider than ``max_step_m``)."""
-    x, y = samples.x_m, samples.y_m
-    if len(x) < 2:
+    if len(samples) < 2:
         return []
+    cuts = np.nonzero(~_flown_on(samples, max_step_m))[0] + 1
     flying = np.isin(samples.phase, (Phase.SURVEY, Phase.TRANSIT))
-    joined = ((samples.phase[:-1] == samples.phase[1:]) & flying[:-1]
-              & (samples.vehicle[:-1] == samples.vehicle[1:])
-              & (np.hypot(np.diff(x), np.diff(y)) <= max_step_m))
-    cuts = np.nonzero(~joined)[0] + 1
-    return [r for r in np.split(np.arange(len(x)), cuts) if flying[r[0]] and len(r) >= 5]
+    return [r for r in np.split(np.arange(len(samples)), cuts)
+            if flying[r[0]] and len(r) >= 5]
 
 
 def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, probe_m: float,
