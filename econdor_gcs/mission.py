@@ -23,7 +23,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                line_orientation, start, start_lines, model, length_m, fit_length, floor,
                gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
                band_m, level_tol, threshold_batch_m, crossings_first,
-               open_entry, probes, probe_climb, probe_m, probe_prominence}
+               open_entry, orphan_crossings, probes, probe_climb, probe_m,
+               probe_prominence, probe_reach}
 """
 
 from __future__ import annotations
@@ -132,7 +133,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "line_spacing_m": (float, 2.0, _non_negative),
         "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
         "start": (str, "auto", _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
-        "start_lines": (int, 16, _range(1, 1000)),
+        "start_lines": (int, 0, _range(0, 1000)),
         "model": (str, "auto", _one_of("auto", "gp", "proxy")),
         "length_m": (float, 5.0, _positive),
         "fit_length": (bool, True, None),
@@ -148,10 +149,12 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "threshold_batch_m": (float, 80.0, _positive),
         "crossings_first": (bool, True, None),
         "open_entry": (str, "crossing", _one_of("end", "crossing")),
+        "orphan_crossings": (bool, True, None),
         "probes": (bool, True, None),
         "probe_climb": (bool, True, None),
         "probe_m": (float, 30.0, _positive),
         "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
+        "probe_reach": (float, 0.0, _non_negative),
     },
 }
 
@@ -340,10 +343,12 @@ class AdaptiveConfig:
     threshold_batch_m: float
     crossings_first: bool
     open_entry: str
+    orphan_crossings: bool
     probes: bool
     probe_climb: bool
     probe_m: float
     probe_prominence: float
+    probe_reach: float
 
 
 @dataclass(frozen=True)

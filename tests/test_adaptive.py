@@ -26,6 +26,7 @@ from econdor_gcs.core.candidates import (
     level_crossings,
     line_candidates,
     mark_crossings,
+    probe_reach,
 )
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.planners import PlanContext
@@ -353,6 +354,57 @@ def test_a_peak_beside_the_track_is_probed_across_it():
     assert extremum_probes(far, np.array([55.0]), REGION, 30.0, 1e-4, 3.0) == []
 
 
+def test_a_peak_that_cannot_reach_the_level_within_the_probe_is_not_probed():
+    """probe_reach: a sharp peak 10 m beside the line can rise to the level within the
+    probe; a broad low bump, as flat across as along, cannot (55 is far above its top)."""
+    levels = np.array([55.0])
+    sharp = samples_along([(0.0, 50.0), (100.0, 50.0)], _peak(50.0, 40.0, 90.0))
+    broad = samples_along([(0.0, 50.0), (100.0, 50.0)], _peak(50.0, 40.0, 20.0, sigma=15.0))
+    for flown in (sharp, broad):
+        assert len(extremum_probes(flown, levels, REGION, 30.0, 1e-4, 3.0)) == 1
+    assert len(extremum_probes(sharp, levels, REGION, 30.0, 1e-4, 3.0, reach=1.5)) == 1
+    assert extremum_probes(broad, levels, REGION, 30.0, 1e-4, 3.0, reach=1.5) == []
+    # the bound itself: the broad bump's top (30) is within it, the level is not
+    j = int(np.argmax(broad.value))
+    top = broad.value[j] + probe_reach(broad, np.arange(len(broad)), j, 1.0, 15.0)
+    assert 30.0 - 1.0 < top < 55.0
+
+
+def test_a_crossing_the_estimate_does_not_show_is_traced_from_the_crossing():
+    """orphan_crossings: the samples cross the level where the estimate has no component
+    (too few samples of it): a trace from the crossing goes first, once per place."""
+    def field(x, y):
+        return np.asarray(x, dtype=float)  # crosses 50 at x = 50 (a sample is on it)
+    s = samples_along([(0.0, 20.0), (100.0, 20.0)], field)
+    assert np.any(s.value == 50.0)
+    back = samples_along([(59.6, 22.0), (61.0, 22.0)], lambda x, y: 110.0 - np.asarray(x))
+    both = _join(s, back)
+    assert mark_crossings([], both, np.array([50.0]), band_m=3.0) == []  # the option is off
+    out = mark_crossings([], both, np.array([50.0]), band_m=3.0, orphan_max_m=400.0)
+    assert [c.entry_m.round(2).tolist() for c in out] == [[50.0, 20.0], [60.0, 22.0]]
+    c = out[0]
+    assert c.first and c.whole and c.closed and c.kind == CandidateKind.TRACE
+    # crossings within near_m of each other are one place
+    near = _join(s, samples_along([(52.0, 24.0), (48.0, 24.0)], field))
+    assert len(mark_crossings([], near, np.array([50.0]), 3.0, orphan_max_m=400.0)) == 1
+    # flown as a trace from the crossing, for at most orphan_max_m
+    picks, _ = greedy_plan([c], Footprints(uniform_map(), [c.points_m]), uniform_map().variance,
+                           mae_value(uniform_map()), [(0.0, 0.0)], [100.0])
+    (job,) = AdaptivePlanner()._batch(picks, np.array([50.0])).jobs
+    (task,) = job.tasks
+    assert isinstance(task, TraceTask) and (task.x_m, task.y_m) == (50.0, 20.0)
+    assert task.level == 50.0 and task.max_length_m == 400.0
+    # a component of the estimate through it, or a trace there already: no orphan
+    xx, yy = GRID.mesh
+    est_cands = contour_candidates(field(xx, yy), GRID, np.array([50.0]), 30.0, 4.0, whole=True)
+    marked = mark_crossings(est_cands, s, np.array([50.0]), 3.0, orphan_max_m=400.0)
+    assert len(marked) == len(est_cands) and marked[0].first
+    traced = _join(s, SampleLog(np.zeros(3), np.full(3, 50.5), np.array([19.0, 20.0, 21.0]),
+                                np.full(3, 50.0), np.full(3, Phase.TRACE, dtype=np.int8),
+                                np.zeros(3, np.int16)))
+    assert mark_crossings([], traced, np.array([50.0]), 3.0, orphan_max_m=400.0) == []
+
+
 def test_probing_climbs_to_the_peak_and_stops_there():
     """A peak short of the level: the first probe finds the peak's row, the second (parallel
     to the first line) runs through the peak, and there the climb ends (the extremum of
@@ -458,11 +510,14 @@ def test_survey_start_flies_even_strips_over_the_fleet_then_plans():
         AdaptivePlanner(AdaptiveParams(start="zigzag"))
 
 
-def test_start_auto_is_a_survey_for_the_field_and_the_diagonals_for_thresholds():
+def test_start_auto_is_a_survey_of_16_lines_for_the_field_and_1_for_thresholds():
     ctx = PlanContext(iteration=0, region=REGION, n_vehicles=1)
     first = AdaptivePlanner().initiation(ctx)
     assert first is not None and len(first.jobs) == 16
-    assert AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(ctx) is None
+    one = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(ctx)
+    assert one is not None and [j.start_m for j in one.jobs] == [(50.0, 0.0)]  # the middle
+    diagonals = AdaptiveParams(target_levels=(55.0,), start="diagonals")
+    assert AdaptivePlanner(diagonals).initiation(ctx) is None  # the mission's pattern
     # a budget that holds fewer lines gets fewer (lines plus the cross-track legs)
     small = PlanContext(iteration=0, region=REGION, n_vehicles=1, budget_left_m=700.0)
     first = AdaptivePlanner().initiation(small)

@@ -1,8 +1,7 @@
 """The adaptive planner: fly where the estimate is most uncertain, per metre.
 
-It starts (``start: auto``) with an even survey of ``start_lines`` north-south lines when
-mapping the whole field, the mission's diagonals in threshold mode. Each iteration after
-that the planner
+It starts (``start: auto``) with an even survey of ``start_lines`` north-south lines: 16
+when mapping the whole field, one in threshold mode. Each iteration after that the planner
 
 1. models how uncertain the estimate still is (:mod:`econdor_gcs.core.uncertainty`): a
    unit posterior variance ``v(x)`` from where the samples are, times an amplitude that
@@ -114,11 +113,14 @@ class AdaptiveParams:
     start : {"auto", "diagonals", "perimeter", "plan", "survey"}
         The first flight: the mission's initiation pattern, the area's boundary, the
         planner's own plan from its prior (uniform uncertainty: spread-out lines), or an
-        even survey of ``start_lines`` north-south lines. ``auto``: the survey when
-        mapping the whole field (it measured best there), the diagonals in threshold mode.
+        even survey of ``start_lines`` north-south lines. ``auto``: the survey (it
+        measured best in both modes).
     start_lines : int
         Lines of the ``survey`` start, at the centres of equal strips (the first and last
-        half a spacing inside the edges, as the best survey flies them).
+        half a spacing inside the edges, as the best survey flies them). 0 (``auto``): 16
+        when mapping the whole field; one in threshold mode (a line through the middle
+        costs 0.15 km against the diagonals' 0.38, and the iso-line is then found from its
+        crossings and extrema).
     model : {"auto", "proxy", "gp"}
         Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
         proxy when mapping the whole field (it measured best there), the GP posterior
@@ -162,6 +164,11 @@ class AdaptiveParams:
     open_entry : {"end", "crossing"}
         Threshold mode: where a component through a sampled crossing that meets the
         area's edge is entered (:func:`mark_crossings`).
+    orphan_crossings : bool
+        Threshold mode: a sampled crossing, not yet traced, that no component of the
+        estimate passes near is traced from the crossing itself (first too, for at most
+        the area's perimeter): the estimate smooths away components it has too few
+        samples of, but the crossing is a measurement.
     probes : bool
         Threshold mode: before anything else, fly a leg across the track through every
         local extremum of the samples along a flown line that falls short of a target
@@ -177,6 +184,10 @@ class AdaptiveParams:
         (``scipy.signal.find_peaks`` prominence) by this fraction of the sampled value
         range. The simulated sensor is noise-free; with sensor noise it must exceed the
         noise several times over.
+    probe_reach : float
+        0: probe every such extremum. Else only those a level is within this many times
+        the rise a round bump, as curved along the track as the samples there, can reach
+        on the probe (:func:`~econdor_gcs.core.candidates.probe_reach`).
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -191,7 +202,7 @@ class AdaptiveParams:
     line_spacing_m: float = 2.0
     line_orientation: str = "ns"
     start: str = "auto"
-    start_lines: int = 16
+    start_lines: int = 0
     model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
@@ -208,10 +219,12 @@ class AdaptiveParams:
     threshold_batch_m: float = 80.0
     crossings_first: bool = True
     open_entry: str = "crossing"
+    orphan_crossings: bool = True
     probes: bool = True
     probe_climb: bool = True
     probe_m: float = 30.0
     probe_prominence: float = 1e-4
+    probe_reach: float = 0.0
     target_levels: tuple[float, ...] = ()
 
 
@@ -470,8 +483,9 @@ class AdaptivePlanner:
             raise ValueError(f"start: must be auto, diagonals, perimeter, plan or survey, "
                              f"got {params.start!r}")
         if params.start == "auto":
-            params = dataclasses.replace(
-                params, start="diagonals" if params.target_levels else "survey")
+            params = dataclasses.replace(params, start="survey")
+        if params.start_lines == 0:
+            params = dataclasses.replace(params, start_lines=1 if params.target_levels else 16)
         self.params = params
         self.seed = seed
         self.hyper: MaternHyper | None = None
@@ -563,12 +577,15 @@ class AdaptivePlanner:
                 contour_candidates(context.estimate, context.grid, levels, p.piece_m,
                                    p.min_piece_m, whole=True))
             if p.crossings_first:
+                perimeter = 2.0 * (region.width_m + region.height_m)
                 cands = mark_crossings(cands, s, levels, p.band_m,
-                                       open_at_end=p.open_entry == "end")
+                                       open_at_end=p.open_entry == "end",
+                                       orphan_max_m=perimeter if p.orphan_crossings else 0.0)
             if p.probes:
                 cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
                                          2.0 * p.resolve_m,
-                                         () if p.probe_climb else self._probed)
+                                         () if p.probe_climb else self._probed,
+                                         reach=p.probe_reach)
         else:
             amp = umap.amplitude
 
@@ -614,6 +631,8 @@ class AdaptivePlanner:
                     # tracer does not wander the area)
                     max_len = (max(WHOLE_TRACE_FACTOR * length, WHOLE_TRACE_MIN_M) if c.whole
                                else length)
+                    if math.isfinite(c.max_length_m):
+                        max_len = c.max_length_m
                     # the estimated contour, for vehicles that fly it as waypoints
                     contour = tuple((float(x), float(y)) for x, y in path)
                     task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0,

@@ -13,7 +13,7 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import RegularGridInterpolator
-from scipy.signal import find_peaks
+from scipy.signal import find_peaks, peak_prominences
 from scipy.spatial import cKDTree
 
 from .contours import contour_pieces
@@ -51,6 +51,8 @@ class Candidate:
     """Where the trace starts, if not at ``points_m[0]`` (a sampled crossing of the level)."""
     first: bool = False
     """Picked before any other candidate (``crossings_first``)."""
+    max_length_m: float = math.nan
+    """A trace of a component the estimate does not show: how far it may go at most."""
 
     @property
     def length_m(self) -> float:
@@ -166,7 +168,8 @@ def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 
     pts, lvs = [], []
     for lv in np.asarray(levels, dtype=float):
         a, b = v[:-1] - lv, v[1:] - lv
-        i = np.nonzero(ok & (a * b < 0))[0]
+        # a sample exactly at the level counts once, with the pair that arrives at it
+        i = np.nonzero(ok & (((a < 0) & (b >= 0)) | ((a > 0) & (b <= 0))))[0]
         t = a[i] / (a[i] - b[i])
         pts.append(np.column_stack([x[i] + t * (x[i + 1] - x[i]), y[i] + t * (y[i + 1] - y[i])]))
         lvs.append(np.full(i.size, lv))
@@ -174,14 +177,32 @@ def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 
 
 
 def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArray,
-                   band_m: float, near_m: float = 8.0, open_at_end: bool = False
-                   ) -> list[Candidate]:
+                   band_m: float, near_m: float = 8.0, open_at_end: bool = False,
+                   orphan_max_m: float = 0.0) -> list[Candidate]:
     """Whole contour candidates through a sampled, not yet traced crossing of their level
     become ``first`` (``crossings_first``). A closed one is entered at that crossing (the
     iso-line is known to be there); one that meets the area's edge at its nearer end
     (``open_at_end``, see :func:`contour_candidates`: no flight back from the edge, but
     the estimate's ends are extrapolated and the onboard search can miss there) or at
-    the crossing."""
+    the crossing.
+
+    With ``orphan_max_m > 0``, a crossing that no candidate of its level passes within
+    ``near_m`` (the estimate smooths the component away, or shows it too short to be a
+    candidate) becomes a candidate of its own: traced from the crossing, ``first``, for
+    at most ``orphan_max_m``. One per ``near_m``: crossings that close together are one
+    place.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from econdor_gcs.core.tasks import Phase, SampleLog
+    >>> x = np.arange(5.0)
+    >>> s = SampleLog(x, x, np.zeros(5), np.array([0.0, 1.0, 3.0, 4.0, 5.0]),
+    ...               np.full(5, Phase.SURVEY, dtype=np.int8), np.zeros(5, np.int16))
+    >>> out = mark_crossings([], s, np.array([2.0]), 3.0, orphan_max_m=400.0)
+    >>> [(c.entry_m.tolist(), c.first, c.max_length_m) for c in out]
+    [([1.5, 0.0], True, 400.0)]
+    """
     pts, lvs = level_crossings(samples, levels)
     if not len(pts):
         return cands
@@ -190,6 +211,7 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
         d, _ = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]])).query(pts)
         keep = d > band_m
         pts, lvs = pts[keep], lvs[keep]
+    explained = np.zeros(len(pts), dtype=bool)
     for c in cands:
         if not c.whole or not len(pts):
             continue
@@ -197,10 +219,20 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
         if not on.any():
             continue
         d, _ = cKDTree(resample_polyline(c.points_m, 1.0)).query(pts[on])
+        explained[np.nonzero(on)[0][d <= near_m]] = True
         if d.min() <= near_m:
             if c.closed or not open_at_end:
                 c.entry_m = pts[on][int(np.argmin(d))].copy()
             c.first = True
+    if orphan_max_m > 0:
+        kept: list[FloatArray] = []
+        for p, lv in zip(pts[~explained], lvs[~explained], strict=True):
+            if any(np.hypot(*(p - q)) <= near_m for q in kept):
+                continue
+            kept.append(p)
+            cands.append(Candidate(CandidateKind.TRACE, np.vstack([p, p]), float(lv),
+                                   closed=True, whole=True, entry_m=p.copy(), first=True,
+                                   max_length_m=orphan_max_m))
     return cands
 
 
@@ -217,7 +249,7 @@ def _track_runs(samples: SampleLog, max_step_m: float = 2.0) -> list[NDArray[np.
 
 def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, probe_m: float,
                     prominence: float, covered_m: float,
-                    not_on: Sequence[FloatArray] = ()) -> list[Candidate]:
+                    not_on: Sequence[FloatArray] = (), reach: float = 0.0) -> list[Candidate]:
     """Legs across the track through the local extrema of the samples along flown lines
     that fall short of a target level: a maximum below some level, a minimum above some.
 
@@ -230,6 +262,10 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
     the climb has arrived) is not probed, nor is a probe most of which (80 %) lies
     within ``covered_m`` of a sample. Extrema within 1 m of a segment in ``not_on`` (earlier
     probes, when the climb is off) are not probed.
+
+    With ``reach > 0``, an extremum is probed only if a level it falls short of is within
+    ``reach`` times :func:`probe_reach` of it: a round bump as curved along the track as
+    the samples are there, its centre anywhere on the probe.
 
     Examples
     --------
@@ -257,8 +293,13 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
             peaks, _ = find_peaks(sign * v, prominence=prominence * span)
             for j in peaks.tolist():
                 # a maximum below some level (sign +1), a minimum above some (sign -1)
-                if not np.any(sign * (levels - v[j]) > 0):
+                short = sign * (levels - v[j]) > 0
+                if not np.any(short):
                     continue
+                if reach > 0:
+                    top = reach * probe_reach(samples, run, j, sign, 0.5 * probe_m)
+                    if not np.any(sign * (levels[short] - v[j]) <= top):
+                        continue
                 a, b = run[max(j - 2, 0)], run[min(j + 2, len(run) - 1)]
                 t = np.array([samples.x_m[b] - samples.x_m[a], samples.y_m[b] - samples.y_m[a]])
                 norm = float(np.hypot(*t))
@@ -280,6 +321,41 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
                     continue
                 out.append(Candidate(CandidateKind.LEG, seg, reversible=True, first=True))
     return out
+
+
+def probe_reach(samples: SampleLog, run: NDArray[np.intp], j: int, sign: float,
+                half_m: float, window_m: float = 2.0) -> float:
+    """How far beyond the extremum ``run[j]`` the field can go within ``half_m`` across
+    the track (``inf`` when the samples cannot say).
+
+    Along a line passing at distance ``d`` beside a round Gaussian bump of width ``s``,
+    the samples peak at ``h = A exp(-d²/2s²)`` over the bump's base, with curvature
+    ``-h/s²``. With ``h`` the extremum's prominence along the track (its height over the
+    higher of the lowest points either side of it, ``scipy.signal.peak_prominences``)
+    and the curvature of a parabola fitted ``window_m`` either side, ``s`` follows, and
+    the bump's top is at most ``h exp(half_m²/2s²)`` over the base.
+
+    >>> import numpy as np
+    >>> from econdor_gcs.core.tasks import Phase, SampleLog
+    >>> x = np.linspace(0.0, 40.0, 81)
+    >>> v = 10.0 * np.exp(-((x - 20.0) ** 2 + 36.0) / 50.0)  # 6 m beside a 10-high bump
+    >>> s = SampleLog(x, x, np.full(81, 6.0), v, np.full(81, Phase.SURVEY, dtype=np.int8),
+    ...               np.zeros(81, np.int16))
+    >>> round(float(v[40]) + probe_reach(s, np.arange(81), 40, 1.0, 6.0), 1)  # top: 10
+    9.7
+    """
+    x, y = samples.x_m[run], samples.y_m[run]
+    h = sign * samples.value[run]
+    along = np.r_[0.0, np.cumsum(np.hypot(np.diff(x), np.diff(y)))]
+    near = np.abs(along - along[j]) <= window_m
+    if np.count_nonzero(near) < 5:
+        return math.inf
+    curv = 2.0 * float(np.polyfit(along[near] - along[j], h[near], 2)[0])
+    height = float(peak_prominences(h, [j])[0][0])
+    if curv >= 0.0 or height <= 0.0:
+        return math.inf
+    s2 = height / -curv
+    return height * math.expm1(min(half_m ** 2 / (2.0 * s2), 50.0))
 
 
 def _segment_distance(p: FloatArray, seg: FloatArray) -> float:
