@@ -23,8 +23,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                line_orientation, start, start_lines, model, length_m, fit_length, floor,
                gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
                band_m, level_tol, threshold_batch_m, crossings_first,
-               open_entry, orphan_crossings, probes, probe_climb, probe_m,
-               probe_prominence, probe_reach}
+               open_entry, probes, probe_climb, probe_m, probe_prominence,
+               probe_reach}
 """
 
 from __future__ import annotations
@@ -149,7 +149,6 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "threshold_batch_m": (float, 80.0, _positive),
         "crossings_first": (bool, True, None),
         "open_entry": (str, "crossing", _one_of("end", "crossing")),
-        "orphan_crossings": (bool, True, None),
         "probes": (bool, True, None),
         "probe_climb": (bool, True, None),
         "probe_m": (float, 30.0, _positive),
@@ -343,7 +342,6 @@ class AdaptiveConfig:
     threshold_batch_m: float
     crossings_first: bool
     open_entry: str
-    orphan_crossings: bool
     probes: bool
     probe_climb: bool
     probe_m: float

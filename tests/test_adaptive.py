@@ -272,6 +272,11 @@ def test_level_crossings_come_from_survey_and_transit_samples_only():
                     (x > 4.2).astype(np.int16))
     assert len(level_crossings(two, np.array([4.25]))[0]) == 0
     assert len(level_crossings(s, np.array([4.25]), max_step_m=0.1)[0]) == 0
+    # a sample exactly on the level: one crossing there (the pair arriving at it)
+    survey = SampleLog(x, x, np.zeros_like(x), value, np.full(x.size, Phase.SURVEY, np.int8),
+                       np.zeros(x.size, np.int16))
+    on = level_crossings(survey, np.array([4.0]))[0]
+    assert on.tolist() == [[4.0, 0.0]]
 
 
 def test_crossings_first_traces_a_sampled_crossing_before_anything_else():
@@ -368,41 +373,6 @@ def test_a_peak_that_cannot_reach_the_level_within_the_probe_is_not_probed():
     j = int(np.argmax(broad.value))
     top = broad.value[j] + probe_reach(broad, np.arange(len(broad)), j, 1.0, 15.0)
     assert 30.0 - 1.0 < top < 55.0
-
-
-def test_a_crossing_the_estimate_does_not_show_is_traced_from_the_crossing():
-    """orphan_crossings: the samples cross the level where the estimate has no component
-    (too few samples of it): a trace from the crossing goes first, once per place."""
-    def field(x, y):
-        return np.asarray(x, dtype=float)  # crosses 50 at x = 50 (a sample is on it)
-    s = samples_along([(0.0, 20.0), (100.0, 20.0)], field)
-    assert np.any(s.value == 50.0)
-    back = samples_along([(59.6, 22.0), (61.0, 22.0)], lambda x, y: 110.0 - np.asarray(x))
-    both = _join(s, back)
-    assert mark_crossings([], both, np.array([50.0]), band_m=3.0) == []  # the option is off
-    out = mark_crossings([], both, np.array([50.0]), band_m=3.0, orphan_max_m=400.0)
-    assert [c.entry_m.round(2).tolist() for c in out] == [[50.0, 20.0], [60.0, 22.0]]
-    c = out[0]
-    assert c.first and c.whole and c.closed and c.kind == CandidateKind.TRACE
-    # crossings within near_m of each other are one place
-    near = _join(s, samples_along([(52.0, 24.0), (48.0, 24.0)], field))
-    assert len(mark_crossings([], near, np.array([50.0]), 3.0, orphan_max_m=400.0)) == 1
-    # flown as a trace from the crossing, for at most orphan_max_m
-    picks, _ = greedy_plan([c], Footprints(uniform_map(), [c.points_m]), uniform_map().variance,
-                           mae_value(uniform_map()), [(0.0, 0.0)], [100.0])
-    (job,) = AdaptivePlanner()._batch(picks, np.array([50.0])).jobs
-    (task,) = job.tasks
-    assert isinstance(task, TraceTask) and (task.x_m, task.y_m) == (50.0, 20.0)
-    assert task.level == 50.0 and task.max_length_m == 400.0
-    # a component of the estimate through it, or a trace there already: no orphan
-    xx, yy = GRID.mesh
-    est_cands = contour_candidates(field(xx, yy), GRID, np.array([50.0]), 30.0, 4.0, whole=True)
-    marked = mark_crossings(est_cands, s, np.array([50.0]), 3.0, orphan_max_m=400.0)
-    assert len(marked) == len(est_cands) and marked[0].first
-    traced = _join(s, SampleLog(np.zeros(3), np.full(3, 50.5), np.array([19.0, 20.0, 21.0]),
-                                np.full(3, 50.0), np.full(3, Phase.TRACE, dtype=np.int8),
-                                np.zeros(3, np.int16)))
-    assert mark_crossings([], traced, np.array([50.0]), 3.0, orphan_max_m=400.0) == []
 
 
 def test_probing_climbs_to_the_peak_and_stops_there():

@@ -164,11 +164,6 @@ class AdaptiveParams:
     open_entry : {"end", "crossing"}
         Threshold mode: where a component through a sampled crossing that meets the
         area's edge is entered (:func:`mark_crossings`).
-    orphan_crossings : bool
-        Threshold mode: a sampled crossing, not yet traced, that no component of the
-        estimate passes near is traced from the crossing itself (first too, for at most
-        the area's perimeter): the estimate smooths away components it has too few
-        samples of, but the crossing is a measurement.
     probes : bool
         Threshold mode: before anything else, fly a leg across the track through every
         local extremum of the samples along a flown line that falls short of a target
@@ -219,7 +214,6 @@ class AdaptiveParams:
     threshold_batch_m: float = 80.0
     crossings_first: bool = True
     open_entry: str = "crossing"
-    orphan_crossings: bool = True
     probes: bool = True
     probe_climb: bool = True
     probe_m: float = 30.0
@@ -577,10 +571,8 @@ class AdaptivePlanner:
                 contour_candidates(context.estimate, context.grid, levels, p.piece_m,
                                    p.min_piece_m, whole=True))
             if p.crossings_first:
-                perimeter = 2.0 * (region.width_m + region.height_m)
                 cands = mark_crossings(cands, s, levels, p.band_m,
-                                       open_at_end=p.open_entry == "end",
-                                       orphan_max_m=perimeter if p.orphan_crossings else 0.0)
+                                       open_at_end=p.open_entry == "end")
             if p.probes:
                 cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
                                          2.0 * p.resolve_m,
@@ -631,8 +623,6 @@ class AdaptivePlanner:
                     # tracer does not wander the area)
                     max_len = (max(WHOLE_TRACE_FACTOR * length, WHOLE_TRACE_MIN_M) if c.whole
                                else length)
-                    if math.isfinite(c.max_length_m):
-                        max_len = c.max_length_m
                     # the estimated contour, for vehicles that fly it as waypoints
                     contour = tuple((float(x), float(y)) for x, y in path)
                     task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0,

@@ -51,8 +51,6 @@ class Candidate:
     """Where the trace starts, if not at ``points_m[0]`` (a sampled crossing of the level)."""
     first: bool = False
     """Picked before any other candidate (``crossings_first``)."""
-    max_length_m: float = math.nan
-    """A trace of a component the estimate does not show: how far it may go at most."""
 
     @property
     def length_m(self) -> float:
@@ -177,32 +175,14 @@ def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 
 
 
 def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArray,
-                   band_m: float, near_m: float = 8.0, open_at_end: bool = False,
-                   orphan_max_m: float = 0.0) -> list[Candidate]:
+                   band_m: float, near_m: float = 8.0, open_at_end: bool = False
+                   ) -> list[Candidate]:
     """Whole contour candidates through a sampled, not yet traced crossing of their level
     become ``first`` (``crossings_first``). A closed one is entered at that crossing (the
     iso-line is known to be there); one that meets the area's edge at its nearer end
     (``open_at_end``, see :func:`contour_candidates`: no flight back from the edge, but
     the estimate's ends are extrapolated and the onboard search can miss there) or at
-    the crossing.
-
-    With ``orphan_max_m > 0``, a crossing that no candidate of its level passes within
-    ``near_m`` (the estimate smooths the component away, or shows it too short to be a
-    candidate) becomes a candidate of its own: traced from the crossing, ``first``, for
-    at most ``orphan_max_m``. One per ``near_m``: crossings that close together are one
-    place.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from econdor_gcs.core.tasks import Phase, SampleLog
-    >>> x = np.arange(5.0)
-    >>> s = SampleLog(x, x, np.zeros(5), np.array([0.0, 1.0, 3.0, 4.0, 5.0]),
-    ...               np.full(5, Phase.SURVEY, dtype=np.int8), np.zeros(5, np.int16))
-    >>> out = mark_crossings([], s, np.array([2.0]), 3.0, orphan_max_m=400.0)
-    >>> [(c.entry_m.tolist(), c.first, c.max_length_m) for c in out]
-    [([1.5, 0.0], True, 400.0)]
-    """
+    the crossing."""
     pts, lvs = level_crossings(samples, levels)
     if not len(pts):
         return cands
@@ -211,7 +191,6 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
         d, _ = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]])).query(pts)
         keep = d > band_m
         pts, lvs = pts[keep], lvs[keep]
-    explained = np.zeros(len(pts), dtype=bool)
     for c in cands:
         if not c.whole or not len(pts):
             continue
@@ -219,20 +198,10 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
         if not on.any():
             continue
         d, _ = cKDTree(resample_polyline(c.points_m, 1.0)).query(pts[on])
-        explained[np.nonzero(on)[0][d <= near_m]] = True
         if d.min() <= near_m:
             if c.closed or not open_at_end:
                 c.entry_m = pts[on][int(np.argmin(d))].copy()
             c.first = True
-    if orphan_max_m > 0:
-        kept: list[FloatArray] = []
-        for p, lv in zip(pts[~explained], lvs[~explained], strict=True):
-            if any(np.hypot(*(p - q)) <= near_m for q in kept):
-                continue
-            kept.append(p)
-            cands.append(Candidate(CandidateKind.TRACE, np.vstack([p, p]), float(lv),
-                                   closed=True, whole=True, entry_m=p.copy(), first=True,
-                                   max_length_m=orphan_max_m))
     return cands
 
 
