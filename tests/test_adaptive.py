@@ -199,7 +199,7 @@ def test_adaptive_is_registered_and_configured_from_the_mission():
     planner = dfc.build_planner("adaptive", m)
     assert isinstance(planner, AdaptivePlanner)
     assert planner.params.target_levels == (55.0,)
-    assert planner.params.model == "gp" and not planner.params.fit_length  # "auto"
+    assert planner.params.model == "gp" and planner.params.fit_length  # "auto"
     with pytest.raises(ValueError, match="model"):
         AdaptivePlanner(AdaptiveParams(model="nope"))
 

@@ -39,8 +39,9 @@ through every local extremum of the samples along a flown line that falls short 
 level (``probes``: a peak beside the line, and a closed iso-line round it, lies on that
 perpendicular; see :func:`~econdor_gcs.core.candidates.extremum_probes`). The planner
 reports ``done`` when no open cell scores any more: nowhere is left where an iso-line
-could still be, under the model (by default the GP posterior with ``l = length_m``: its
-variance shrinks where samples surround a place, which the distance proxy cannot see).
+could still be, under the model (by default the GP posterior with its length scale fitted
+to the samples: its variance shrinks where samples surround a place, which the distance
+proxy cannot see, and over a smooth field's longer length more than over a plume's).
 
 Every job is an ordinary trace task (``TraceTask``) or a pair of waypoints, so the plan
 flies over MAVLink exactly like E-CONDOR's; contour pieces are traced by the vehicle's
@@ -124,8 +125,9 @@ class AdaptiveParams:
     model : {"auto", "proxy", "gp"}
         Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
         proxy when mapping the whole field (it measured best there), the GP posterior
-        with length ``length_m`` in threshold mode (its variance shrinks where samples
-        surround a place, so the planner knows when nothing is left to find).
+        in threshold mode (its variance shrinks where samples surround a place, so the
+        planner knows when nothing is left to find; with the length fitted it knows
+        that on smooth fields too).
     length_m : float
         Length of the ``proxy`` model, and of the ``gp`` model unless ``fit_length``.
     fit_length : bool
@@ -466,9 +468,7 @@ class AdaptivePlanner:
         if params.model not in ("auto", "gp", "proxy"):
             raise ValueError(f"model: must be auto, gp or proxy, got {params.model!r}")
         if params.model == "auto":
-            params = dataclasses.replace(
-                params, model="gp" if params.target_levels else "proxy",
-                fit_length=params.fit_length and not params.target_levels)
+            params = dataclasses.replace(params, model="gp" if params.target_levels else "proxy")
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
         if params.open_entry not in ("end", "crossing"):
