@@ -153,7 +153,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "probe_climb": (bool, True, None),
         "probe_m": (float, 30.0, _positive),
         "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
-        "probe_reach": (float, 0.0, _non_negative),
+        "probe_reach": (float, 2.0, _non_negative),
     },
 }
 

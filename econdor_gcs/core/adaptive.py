@@ -182,9 +182,9 @@ class AdaptiveParams:
         range. The simulated sensor is noise-free; with sensor noise it must exceed the
         noise several times over.
     probe_reach : float
-        0: probe every such extremum. Else only those a level is within this many times
-        the rise a round bump, as curved along the track as the samples there, can reach
-        on the probe (:func:`~econdor_gcs.core.candidates.probe_reach`).
+        Probe only the extrema a level is within this many times the rise of a round
+        bump, as curved along the track as the samples there, on the probe
+        (:func:`~econdor_gcs.core.candidates.probe_reach`); 0: every such extremum.
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -220,7 +220,7 @@ class AdaptiveParams:
     probe_climb: bool = True
     probe_m: float = 30.0
     probe_prominence: float = 1e-4
-    probe_reach: float = 0.0
+    probe_reach: float = 2.0
     target_levels: tuple[float, ...] = ()
 
 
