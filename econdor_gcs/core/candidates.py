@@ -13,7 +13,7 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import RegularGridInterpolator
-from scipy.signal import find_peaks, peak_prominences
+from scipy.signal import find_peaks
 from scipy.spatial import cKDTree
 
 from .contours import contour_pieces
@@ -259,14 +259,14 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
     for run in _track_runs(samples):
         v = v_all[run]
         for sign in (1.0, -1.0):
-            peaks, _ = find_peaks(sign * v, prominence=prominence * span)
-            for j in peaks.tolist():
+            peaks, props = find_peaks(sign * v, prominence=prominence * span)
+            for j, height in zip(peaks.tolist(), props["prominences"].tolist(), strict=True):
                 # a maximum below some level (sign +1), a minimum above some (sign -1)
                 short = sign * (levels - v[j]) > 0
                 if not np.any(short):
                     continue
                 if reach > 0:
-                    top = reach * probe_reach(samples, run, j, sign, 0.5 * probe_m)
+                    top = reach * probe_reach(samples, run, j, sign, height, 0.5 * probe_m)
                     if not np.any(sign * (levels[short] - v[j]) <= top):
                         continue
                 a, b = run[max(j - 2, 0)], run[min(j + 2, len(run) - 1)]
@@ -293,14 +293,14 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
 
 
 def probe_reach(samples: SampleLog, run: NDArray[np.intp], j: int, sign: float,
-                half_m: float, window_m: float = 2.0) -> float:
+                height: float, half_m: float, window_m: float = 2.0) -> float:
     """How far beyond the extremum ``run[j]`` the field can go within ``half_m`` across
     the track (``inf`` when the samples cannot say).
 
     Along a line passing at distance ``d`` beside a round Gaussian bump of width ``s``,
     the samples peak at ``h = A exp(-d²/2s²)`` over the bump's base, with curvature
-    ``-h/s²``. With ``h`` the extremum's prominence along the track (its height over the
-    higher of the lowest points either side of it, ``scipy.signal.peak_prominences``)
+    ``-h/s²``. With ``h = height``, the extremum's prominence along the track (its height
+    over the higher of the lowest points either side of it, as ``find_peaks`` gives it)
     and the curvature of a parabola fitted ``window_m`` either side, ``s`` follows, and
     the bump's top is at most ``h exp(half_m²/2s²)`` over the base.
 
@@ -310,7 +310,8 @@ def probe_reach(samples: SampleLog, run: NDArray[np.intp], j: int, sign: float,
     >>> v = 10.0 * np.exp(-((x - 20.0) ** 2 + 36.0) / 50.0)  # 6 m beside a 10-high bump
     >>> s = SampleLog(x, x, np.full(81, 6.0), v, np.full(81, Phase.SURVEY, dtype=np.int8),
     ...               np.zeros(81, np.int16))
-    >>> round(float(v[40]) + probe_reach(s, np.arange(81), 40, 1.0, 6.0), 1)  # top: 10
+    >>> h = float(v[40] - v[0])  # the prominence: over the lower end of the run
+    >>> round(float(v[40]) + probe_reach(s, np.arange(81), 40, 1.0, h, 6.0), 1)  # top: 10
     9.7
     """
     x, y = samples.x_m[run], samples.y_m[run]
@@ -320,7 +321,6 @@ def probe_reach(samples: SampleLog, run: NDArray[np.intp], j: int, sign: float,
     if np.count_nonzero(near) < 5:
         return math.inf
     curv = 2.0 * float(np.polyfit(along[near] - along[j], h[near], 2)[0])
-    height = float(peak_prominences(h, [j])[0][0])
     if curv >= 0.0 or height <= 0.0:
         return math.inf
     s2 = height / -curv
