@@ -266,7 +266,8 @@ def ideal_tracer(field: str, seed: int, recon: str, max_lines: int = 40) -> dict
     level = mid_level(mission, seed)
     xx, yy = grid.mesh
     true_grid = np.asarray(truth(xx, yy))
-    pieces = [p.points_m for p in contour_pieces(true_grid, grid, np.array([level]), 1.0)]
+    pieces = [(p.points_m, p.closed)
+              for p in contour_pieces(true_grid, grid, np.array([level]), 1.0)]
     for lines in range(max_lines + 1):
         xs = region.xmin + (np.arange(lines) + 0.5) * region.width_m / max(lines, 1)
         ys = np.arange(region.ymin + 0.5, region.ymax - 0.5 + 1e-9, 0.8)
@@ -276,11 +277,10 @@ def ideal_tracer(field: str, seed: int, recon: str, max_lines: int = 40) -> dict
             [region.xmin, region.ymin])
         left = list(pieces)
         while left:
-            gaps = [float(np.min(np.hypot(*(q - pos).T))) for q in left]
+            gaps = [float(np.min(np.hypot(*(q - pos).T))) for q, _ in left]
             k = int(np.argmin(gaps))
-            q = left.pop(k)
+            q, closed = left.pop(k)
             i = int(np.argmin(np.hypot(*(q - pos).T)))
-            closed = len(q) > 2 and np.allclose(q[0], q[-1])
             q = np.vstack([q[i:-1], q[:i + 1]]) if closed and i else q
             flown += gaps[k] + path_length(q[:, 0], q[:, 1])
             pts.append(resample_polyline(q, 0.8))
