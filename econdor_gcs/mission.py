@@ -22,7 +22,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
                line_orientation, start, start_lines, model, length_m, fit_length, floor,
                gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
-               band_m, level_tol, threshold_batch_m, crossings_first,
+               band_m, level_tol, threshold_batch_m, crossings_first, first_order,
                open_entry, probes, probe_climb, probe_m, probe_prominence,
                probe_reach}
 """
@@ -148,6 +148,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "level_tol": (float, 0.01, _range(0.0, 0.5)),
         "threshold_batch_m": (float, 80.0, _positive),
         "crossings_first": (bool, True, None),
+        "first_order": (str, "crossings", _one_of("crossings", "nearest")),
         "open_entry": (str, "crossing", _one_of("end", "crossing")),
         "probes": (bool, True, None),
         "probe_climb": (bool, True, None),
@@ -341,6 +342,7 @@ class AdaptiveConfig:
     level_tol: float
     threshold_batch_m: float
     crossings_first: bool
+    first_order: str
     open_entry: str
     probes: bool
     probe_climb: bool

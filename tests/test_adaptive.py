@@ -316,6 +316,59 @@ def test_crossings_first_traces_a_sampled_crossing_before_anything_else():
     assert not any(k.first for k in again)
 
 
+def test_traces_through_crossings_go_before_probes_even_when_a_probe_is_nearer():
+    """Of the candidates that go first, a trace through a sampled crossing (the iso-line is
+    there) is picked before a probe (it may be), whatever the distances; ``nearest`` picks
+    the nearest. With room for one only (the first pick may overrun the batch), that one is
+    the whole plan; with room for both, both are flown, in the order with less transit."""
+    ring = Candidate(CandidateKind.TRACE, np.array([[80.0, 80.0], [90.0, 80.0], [90.0, 90.0],
+                                                    [80.0, 90.0], [80.0, 80.0]]),
+                     closed=True, level=50.0, first=True)
+    probe = Candidate(CandidateKind.LEG, np.array([[5.0, 0.0], [5.0, 20.0]]), reversible=True,
+                      first=True)
+    umap = uniform_map()
+    cands = [probe, ring]
+    fp = Footprints(umap, [k.points_m for k in cands])
+    for order, head in ((True, ring), (False, probe)):
+        picks, _ = greedy_plan(cands, fp, umap.variance, mae_value(umap), [(0.0, 0.0)], [30.0],
+                               traces_before_legs=order)
+        assert [p.candidate for p in picks[0]] == [head]
+        picks, _ = greedy_plan(cands, fp, umap.variance, mae_value(umap), [(0.0, 0.0)], [400.0],
+                               traces_before_legs=order)
+        assert [p.candidate for p in picks[0]] == [probe, ring]
+
+
+def test_threshold_planner_is_not_done_while_a_sampled_crossing_is_untraced():
+    """Every cell closed (``band_m`` covers the area), but a survey leg crossed the ring
+    iso-line and no trace has flown it: the planner traces it before it says ``done``;
+    once it is traced, it is done."""
+    def field(x, y):
+        return 100.0 * np.exp(-((np.asarray(x) - 70) ** 2 + (np.asarray(y) - 30) ** 2) / 200.0)
+
+    xx, yy = GRID.mesh
+    est = field(xx, yy)
+    s = samples_along([(0.0, 30.0), (100.0, 30.0)], field)
+    params = AdaptiveParams(target_levels=(50.0,), band_m=1000.0, model="proxy", probes=False)
+    planner = AdaptivePlanner(params)
+
+    def ctx(samples: SampleLog) -> PlanContext:
+        return PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID, estimate=est,
+                           samples=samples, positions_m=[(100.0, 30.0)])
+
+    batch = planner.next_batch(ctx(s))
+    assert planner.open_cells == 0 and not batch.done
+    task = batch.jobs[0].tasks[0]
+    assert isinstance(task, TraceTask) and task.level == 50.0
+    loop = contour_candidates(est, GRID, np.array([50.0]), 30.0, 4.0, whole=True)[0].points_m
+    n = len(loop)
+    traced = SampleLog(np.r_[s.t_s, 100.0 + np.arange(n)], np.r_[s.x_m, loop[:, 0]],
+                       np.r_[s.y_m, loop[:, 1]], np.r_[s.value, np.full(n, 50.0)],
+                       np.r_[s.phase, np.full(n, Phase.TRACE)].astype(np.int8),
+                       np.r_[s.vehicle, np.zeros(n)].astype(np.int16))
+    after = planner.next_batch(ctx(traced))
+    assert after.done and not after.jobs
+
+
 def _peak(cx: float, cy: float, height: float, sigma: float = 4.0):
     def field(x, y):
         r2 = (np.asarray(x) - cx) ** 2 + (np.asarray(y) - cy) ** 2

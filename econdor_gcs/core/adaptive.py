@@ -37,11 +37,13 @@ its level that a survey or transit leg sampled and no trace has flown yet
 (``crossings_first``: the iso-line is known to be there), and a probe across the track
 through every local extremum of the samples along a flown line that falls short of a
 level (``probes``: a peak beside the line, and a closed iso-line round it, lies on that
-perpendicular; see :func:`~econdor_gcs.core.candidates.extremum_probes`). The planner
-reports ``done`` when no open cell scores any more: nowhere is left where an iso-line
-could still be, under the model (by default the GP posterior with its length scale fitted
-to the samples: its variance shrinks where samples surround a place, which the distance
-proxy cannot see, and over a smooth field's longer length more than over a plume's).
+perpendicular; see :func:`~econdor_gcs.core.candidates.extremum_probes`); crossings go
+before probes (``first_order``). The planner reports ``done`` when no open cell scores any
+more — nowhere is left where an iso-line could still be, under the model (by default the
+GP posterior with its length scale fitted to the samples: its variance shrinks where
+samples surround a place, which the distance proxy cannot see, and over a smooth field's
+longer length more than over a plume's) — and no such crossing or probe is left: the
+samples themselves still say an iso-line is, or may be, there.
 
 Every job is an ordinary trace task (``TraceTask``) or a pair of waypoints, so the plan
 flies over MAVLink exactly like E-CONDOR's; contour pieces are traced by the vehicle's
@@ -163,6 +165,11 @@ class AdaptiveParams:
         level that pass through a crossing of that level already sampled (where two
         consecutive survey or transit samples straddle it) and not yet traced: the iso-line
         is known to be there.
+    first_order : {"crossings", "nearest"}
+        Threshold mode: the order of the candidates that go first. ``crossings``: every
+        trace through a sampled crossing (nearest first) before any probe (nearest
+        first): a known iso-line removes error for sure, a probe only may find one.
+        ``nearest``: the nearest of either kind next.
     open_entry : {"end", "crossing"}
         Threshold mode: where a component through a sampled crossing that meets the
         area's edge is entered (:func:`mark_crossings`).
@@ -215,6 +222,7 @@ class AdaptiveParams:
     level_tol: float = 0.01
     threshold_batch_m: float = 80.0
     crossings_first: bool = True
+    first_order: str = "crossings"
     open_entry: str = "crossing"
     probes: bool = True
     probe_climb: bool = True
@@ -345,6 +353,7 @@ def greedy_plan(
     positions_m: Sequence[tuple[float, float]],
     budgets_m: Sequence[float],
     trace_overhead_m: float = 5.0,
+    traces_before_legs: bool = False,
 ) -> tuple[list[list[Pick]], FloatArray]:
     """Pick candidates for each vehicle by uncertainty removed per metre (module docstring).
 
@@ -363,6 +372,9 @@ def greedy_plan(
         Flight each vehicle may plan (transit included).
     trace_overhead_m : float
         Charged on top of a trace candidate's length (the onboard search).
+    traces_before_legs : bool
+        Of the candidates that go ``first``, every trace before any leg (else the
+        nearest of either kind next).
 
     Returns
     -------
@@ -382,6 +394,8 @@ def greedy_plan(
     reversible = np.array([c.reversible for c in candidates], dtype=bool)
     closed = np.array([c.closed for c in candidates], dtype=bool)
     first = np.array([c.first for c in candidates], dtype=bool)
+    rank = np.where(first & np.array([traces_before_legs and c.kind == CandidateKind.TRACE
+                                      for c in candidates], dtype=bool), 2e12, 1e12)
     has_entry = np.array([c.entry_m is not None for c in candidates], dtype=bool)
     entry = np.array([c.entry_m if c.entry_m is not None else c.points_m[0]
                       for c in candidates]).reshape(n, 2)
@@ -415,8 +429,8 @@ def greedy_plan(
         left = fleet.budgets[k] - fleet.loads[k]
         fits = (cost <= left) | (not fleet.picks[k])  # a vehicle's first pick may overrun
         score = np.where(~used & fits & (g > 0), g / np.maximum(cost, 1e-6), -np.inf)
-        # crossings first: the nearest one, before anything the greedy would pick
-        score = np.where(first & ~used & fits, 1e12 - transit, score)
+        # crossings (and probes) first: the nearest one, before anything the greedy would pick
+        score = np.where(first & ~used & fits, rank - transit, score)
         best = int(np.argmax(score))
         if not np.isfinite(score[best]):
             # nothing fits: fly the picks in a shorter order, and use what that frees
@@ -471,6 +485,8 @@ class AdaptivePlanner:
             params = dataclasses.replace(params, model="gp" if params.target_levels else "proxy")
         if params.line_orientation not in ("ns", "ew", "both"):
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
+        if params.first_order not in ("crossings", "nearest"):
+            raise ValueError(f"first_order: must be crossings or nearest, got {params.first_order!r}")
         if params.open_entry not in ("end", "crossing"):
             raise ValueError(f"open_entry: must be end or crossing, got {params.open_entry!r}")
         if params.start not in ("auto", "diagonals", "perimeter", "plan", "survey"):
@@ -565,8 +581,6 @@ class AdaptivePlanner:
 
             now = cell_value(umap.variance, np.arange(umap.x_m.size))
             self.open_cells = int(np.count_nonzero(now > 10 * eps))
-            if self.open_cells == 0:
-                return Batch([], levels_planned=len(levels), done=True)
             cands = [] if context.estimate is None or context.grid is None else (
                 contour_candidates(context.estimate, context.grid, levels, p.piece_m,
                                    p.min_piece_m, whole=True))
@@ -578,6 +592,10 @@ class AdaptivePlanner:
                                          2.0 * p.resolve_m,
                                          () if p.probe_climb else self._probed,
                                          reach=p.probe_reach)
+            # done: nowhere left where the model says an iso-line could be, and no sampled
+            # crossing or extremum left that says one is (or may be) there
+            if self.open_cells == 0 and not any(c.first for c in cands):
+                return Batch([], levels_planned=len(levels), done=True)
         else:
             amp = umap.amplitude
 
@@ -600,7 +618,8 @@ class AdaptivePlanner:
         positions = list(context.positions_m) or [(region.xmin, region.ymin)] * context.n_vehicles
         footprints = Footprints(umap, [c.points_m for c in cands])
         picks, _ = greedy_plan(cands, footprints, umap.variance, cell_value, positions,
-                               [per_vehicle] * len(positions), p.trace_overhead_m)
+                               [per_vehicle] * len(positions), p.trace_overhead_m,
+                               traces_before_legs=p.first_order == "crossings")
         self._probed += [k.candidate.points_m for route in picks for k in route
                          if k.candidate.kind == CandidateKind.LEG and k.candidate.first]
         return self._batch(picks, levels)
