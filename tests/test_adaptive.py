@@ -50,7 +50,7 @@ def uniform_map(variance: np.ndarray | None = None) -> UncertaintyMap:
 
 
 def mae_value(umap: UncertaintyMap):
-    return lambda var, cells: expected_error(umap.amplitude[cells], var, 2.0)
+    return lambda var, near, cells: expected_error(umap.amplitude[cells], var, 2.0)
 
 
 def samples_along(points: list[tuple[float, float]], field, step_m: float = 0.8) -> SampleLog:
@@ -367,6 +367,34 @@ def test_threshold_planner_is_not_done_while_a_sampled_crossing_is_untraced():
                        np.r_[s.vehicle, np.zeros(n)].astype(np.int16))
     after = planner.next_batch(ctx(traced))
     assert after.done and not after.jobs
+
+
+def _survey(xs: list[float], field) -> SampleLog:
+    pts: list[tuple[float, float]] = []
+    for i, x in enumerate(xs):
+        pts += [(x, 0.0), (x, 100.0)] if i % 2 == 0 else [(x, 100.0), (x, 0.0)]
+    return samples_along(pts, field)
+
+
+def test_threshold_coverage_floor_is_measured_in_metres_not_through_the_model():
+    """A smooth plane far below the level: the GP fits a length of ~100 m, so its variance
+    is small everywhere; still, with lines 25 m apart, places 12.5 m from every sample are
+    farther than ``explore_m`` (10 m) and the planner flies there before it is done. Lines
+    8 m apart leave nothing farther than 4 m: done."""
+    def plane(x, y):
+        return 10.0 + 0.1 * np.asarray(x) + 0.0 * np.asarray(y)
+
+    xx, yy = GRID.mesh
+    for xs, done in (([12.5, 37.5, 62.5, 87.5], False), (list(np.arange(4.0, 100.0, 8.0)), True)):
+        planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,)))
+        batch = planner.next_batch(PlanContext(
+            iteration=1, region=REGION, n_vehicles=1, grid=GRID, estimate=plane(xx, yy),
+            samples=_survey(xs, plane), positions_m=[(50.0, 50.0)]))
+        assert planner.hyper is not None and planner.hyper.length_m > 50.0
+        assert batch.done is done and (planner.open_cells == 0) is done
+        if not done:  # the first leg goes through a gap between two lines
+            (x0, _), (x1, _) = batch.jobs[0].start_m, batch.jobs[0].end_m
+            assert min(abs(x0 - x) for x in xs) > 10.0 or min(abs(x1 - x) for x in xs) > 10.0
 
 
 def _peak(cx: float, cy: float, height: float, sigma: float = 4.0):

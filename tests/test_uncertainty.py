@@ -69,17 +69,12 @@ def test_gp_variance_falls_where_samples_are_and_needs_hyperparameters():
 
 
 @pytest.mark.parametrize("model", ["proxy", "gp"])
-def test_line_variance_rises_with_distance_and_inverts(model):
+def test_line_variance_rises_with_distance(model):
     hyper = MaternHyper(0.0, 1.0, 5.0, 1e-4, 2.5) if model == "gp" else None
     d = np.linspace(0.0, 30.0, 61)
     v = line_variance(d, model, 5.0, hyper)
     assert v[0] < 0.01 and v[-1] > 0.95
     assert np.all(np.diff(v) >= -1e-12)
-    x, y, vals = diagonal_samples(lambda x, y: x)
-    umap = uncertainty_map(x, y, vals, np.zeros(GRID.shape), GRID, PLAN, model=model,
-                           hyper=hyper)
-    mid = (v > 0.05) & (v < 0.9)  # where the curve is steep enough to invert well
-    np.testing.assert_allclose(umap.equivalent_distance_m(v[mid]), d[mid], atol=0.1)
 
 
 def test_footprints_hold_the_cells_near_each_path_and_their_distances():

@@ -25,9 +25,12 @@ when mapping the whole field, one in threshold mode. Each iteration after that t
 
 **Threshold mode** (``target_levels``): only the iso-lines at those levels matter. The
 per-cell value is the straddle score ``max(1.96 sigma - min_L |mu - L|, 0)`` (Bryan et al.
-2005) and, farther than ``explore_m`` from every sample (by the model's equivalent
-distance), ``a (d_eq / explore_m - 1)``: a coverage floor, since an iso-line around a
-feature narrower than the data can show may hide there whatever the model says. Cells
+2005) and, farther than ``explore_m`` from every sample (``d``: the distance to the nearest
+sample, and to the paths planned so far), ``a (d / explore_m - 1)``: a coverage floor,
+since an iso-line around a feature narrower than the data can show may hide there whatever
+the model says (with the length fitted to a smooth field the GP's variance is small tens
+of metres from the nearest sample, so the floor is measured in metres, not through the
+model). Cells
 within ``resolve_m`` of a sample (observed) or within ``band_m`` of a sample that reads a
 target level (an iso-line already flown on) count for nothing. Candidates are the
 estimate's whole contour components at the target levels (each traced until it closes or
@@ -349,11 +352,12 @@ def greedy_plan(
     candidates: Sequence[Candidate],
     footprints: Footprints,
     variance: FloatArray,
-    cell_value: Callable[[FloatArray, NDArray[np.intp]], FloatArray],
+    cell_value: Callable[[FloatArray, FloatArray, NDArray[np.intp]], FloatArray],
     positions_m: Sequence[tuple[float, float]],
     budgets_m: Sequence[float],
     trace_overhead_m: float = 5.0,
     traces_before_legs: bool = False,
+    distance_m: FloatArray | None = None,
 ) -> tuple[list[list[Pick]], FloatArray]:
     """Pick candidates for each vehicle by uncertainty removed per metre (module docstring).
 
@@ -365,7 +369,8 @@ def greedy_plan(
     variance : ndarray
         Unit variance of the planning cells now; updated in a copy as picks are made.
     cell_value : callable
-        ``cell_value(v, cells)`` -> the value of cells ``cells`` at variances ``v``.
+        ``cell_value(v, d, cells)`` -> the value of cells ``cells`` at variances ``v`` and
+        distances ``d`` (m) from the nearest sample.
     positions_m : sequence of (x, y)
         Where each vehicle is.
     budgets_m : sequence of float
@@ -375,6 +380,10 @@ def greedy_plan(
     traces_before_legs : bool
         Of the candidates that go ``first``, every trace before any leg (else the
         nearest of either kind next).
+    distance_m : ndarray, optional
+        Distance (m) from each planning cell to the nearest sample now (``inf``: none);
+        updated, like the variance, with each pick and its transit (within the
+        footprint radius).
 
     Returns
     -------
@@ -384,6 +393,7 @@ def greedy_plan(
         The variance expected after the plan is flown.
     """
     v = variance.copy()
+    d = np.full(v.shape, np.inf) if distance_m is None else np.asarray(distance_m, float).copy()
     fleet = _Fleet([np.asarray(p, dtype=float) for p in positions_m], [0.0] * len(positions_m),
                    list(budgets_m), [[] for _ in positions_m])
     n = len(candidates)
@@ -408,7 +418,9 @@ def greedy_plan(
         cells = fp.cells
         before = v[cells]
         after = np.minimum(before, fp.line_var)
-        diff = cell_value(before, cells) - cell_value(after, cells)
+        near = d[cells]
+        diff = (cell_value(before, near, cells)
+                - cell_value(after, np.minimum(near, fp.dist_m), cells))
         return np.bincount(fp.owner, weights=diff, minlength=n).astype(float)
 
     g = gains()
@@ -455,9 +467,11 @@ def greedy_plan(
         # what this pick (and the transit to it) will observe
         sl = slice(fp.start[best], fp.start[best + 1])
         v[fp.cells[sl]] = np.minimum(v[fp.cells[sl]], fp.line_var[sl])
+        d[fp.cells[sl]] = np.minimum(d[fp.cells[sl]], fp.dist_m[sl])
         if t_m > 1.0:
             cells, dist = fp.cells_near(np.array([pos, begin]))
             v[cells] = np.minimum(v[cells], fp.umap.line_variance(dist))
+            d[cells] = np.minimum(d[cells], dist)
         g = gains()
     return fleet.picks, v
 
@@ -550,6 +564,7 @@ class AdaptivePlanner:
         umap, _ = self.uncertainty(context)
         s = context.samples
         region = context.region
+        near_m: FloatArray | None = None  # threshold mode: each cell's nearest sample (m)
         if p.target_levels:
             levels = np.asarray(p.target_levels, dtype=float)
             gap = np.min(np.abs(umap.mean[:, None] - levels[None, :]), axis=1)
@@ -573,13 +588,15 @@ class AdaptivePlanner:
             eps = 1e-3 * max(span, 1e-9)
             amp = umap.amplitude
 
-            def cell_value(var: FloatArray, cells: NDArray[np.intp]) -> FloatArray:
+            def cell_value(var: FloatArray, near: FloatArray, cells: NDArray[np.intp]
+                           ) -> FloatArray:
                 model = straddle(amp[cells], var, gap[cells], open_cells[cells])
-                far = umap.equivalent_distance_m(var) / p.explore_m - 1.0
+                far = near / p.explore_m - 1.0
                 cover = np.where(open_cells[cells], amp[cells] * np.maximum(far, 0.0), 0.0)
                 return np.maximum(model, cover)
 
-            now = cell_value(umap.variance, np.arange(umap.x_m.size))
+            near_m = dist
+            now = cell_value(umap.variance, dist, np.arange(umap.x_m.size))
             self.open_cells = int(np.count_nonzero(now > 10 * eps))
             cands = [] if context.estimate is None or context.grid is None else (
                 contour_candidates(context.estimate, context.grid, levels, p.piece_m,
@@ -599,7 +616,8 @@ class AdaptivePlanner:
         else:
             amp = umap.amplitude
 
-            def cell_value(var: FloatArray, cells: NDArray[np.intp]) -> FloatArray:
+            def cell_value(var: FloatArray, near: FloatArray, cells: NDArray[np.intp]
+                           ) -> FloatArray:
                 return expected_error(amp[cells], var, p.power)
 
             now = expected_error(amp, umap.variance, p.power)
@@ -619,7 +637,8 @@ class AdaptivePlanner:
         footprints = Footprints(umap, [c.points_m for c in cands])
         picks, _ = greedy_plan(cands, footprints, umap.variance, cell_value, positions,
                                [per_vehicle] * len(positions), p.trace_overhead_m,
-                               traces_before_legs=p.first_order == "crossings")
+                               traces_before_legs=p.first_order == "crossings",
+                               distance_m=near_m)
         self._probed += [k.candidate.points_m for route in picks for k in route
                          if k.candidate.kind == CandidateKind.LEG and k.candidate.first]
         return self._batch(picks, levels)

@@ -137,14 +137,6 @@ class UncertaintyMap:
     def line_variance(self, d_m: FloatArray) -> FloatArray:
         return line_variance(d_m, self.model, self.length_m, self.hyper)
 
-    def equivalent_distance_m(self, variance: FloatArray) -> FloatArray:
-        """The distance from a sampled line at which ``line_variance`` equals ``variance``
-        (its inverse, from a table; a measure of coverage in metres)."""
-        d = np.linspace(0.0, 60.0, 1201)
-        v = np.maximum.accumulate(self.line_variance(d))
-        keep = np.r_[True, np.diff(v) > 1e-12]
-        return np.interp(variance, v[keep], d[keep])
-
     def footprint_radius_m(self) -> float:
         """Beyond this distance a new line changes the variance by less than 3 %."""
         d = np.linspace(0.0, 6.0 * self.length_m, 600)
