@@ -155,6 +155,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "probe_m": (float, 30.0, _positive),
         "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
         "probe_reach": (float, 2.0, _non_negative),
+        "sweeps": (bool, True, None),
     },
 }
 
@@ -349,6 +350,7 @@ class AdaptiveConfig:
     probe_m: float
     probe_prominence: float
     probe_reach: float
+    sweeps: bool
 
 
 @dataclass(frozen=True)

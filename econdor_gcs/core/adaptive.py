@@ -72,6 +72,7 @@ from .candidates import (
     leg_candidates,
     line_candidates,
     mark_crossings,
+    sweep_candidates,
 )
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
@@ -232,6 +233,7 @@ class AdaptiveParams:
     probe_m: float = 30.0
     probe_prominence: float = 1e-4
     probe_reach: float = 2.0
+    sweeps: bool = True
     target_levels: tuple[float, ...] = ()
 
 
@@ -609,6 +611,9 @@ class AdaptivePlanner:
                                          2.0 * p.resolve_m,
                                          () if p.probe_climb else self._probed,
                                          reach=p.probe_reach)
+            if p.sweeps:
+                uncovered = open_cells & (dist > p.explore_m)
+                cands += sweep_candidates(umap, uncovered, region, 2.0 * p.explore_m)
             # done: nowhere left where the model says an iso-line could be, and no sampled
             # crossing or extremum left that says one is (or may be) there
             if self.open_cells == 0 and not any(c.first for c in cands):

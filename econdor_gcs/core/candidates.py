@@ -379,6 +379,47 @@ def leg_candidates(umap: UncertaintyMap, cell_value: FloatArray, region: Region,
     return out
 
 
+def sweep_candidates(umap: UncertaintyMap, uncovered: NDArray[np.bool_], region: Region,
+                     spacing_m: float, min_m: float = 5.0) -> list[Candidate]:
+    """North-south legs that sweep the uncovered cells: on the centre line of each strip
+    ``spacing_m`` wide, one leg over every run of rows in which the strip holds an
+    uncovered cell (a boustrophedon over what is left, not over the whole area).
+
+    >>> import numpy as np
+    >>> from econdor_gcs.core.geometry import Grid, Region
+    >>> from econdor_gcs.core.uncertainty import UncertaintyMap
+    >>> g = Grid.with_spacing(Region(0.0, 40.0, 0.0, 40.0), 2.0)
+    >>> xx, yy = g.mesh
+    >>> n = xx.size
+    >>> u = UncertaintyMap(xx.ravel(), yy.ravel(), np.ones(n), np.ones(n), np.zeros(n),
+    ...                    "proxy", 5.0, None, g)
+    >>> hole = ((xx > 22) & (yy > 10) & (yy < 20)).ravel()  # uncovered: x 24-40, y 12-18
+    >>> [c.points_m.tolist() for c in sweep_candidates(u, hole, g.region, 20.0)]
+    [[[30.0, 12.0], [30.0, 18.0]]]
+    """
+    g = umap.grid
+    if g is None or not np.any(uncovered):
+        return []
+    xs = umap.x_m.reshape(g.ny, g.nx)[0]
+    ys = umap.y_m.reshape(g.ny, g.nx)[:, 0]
+    mask = np.asarray(uncovered, dtype=bool).reshape(g.ny, g.nx)
+    lo_y, hi_y = region.ymin + 0.5, region.ymax - 0.5
+    out: list[Candidate] = []
+    for x in np.arange(region.xmin + 0.5 * spacing_m, region.xmax, spacing_m):
+        cols = np.abs(xs - x) <= 0.5 * spacing_m
+        need = mask[:, cols].any(axis=1)
+        edges = np.flatnonzero(np.diff(np.r_[0, need.astype(np.int8), 0]))
+        for a, b in zip(edges[::2], edges[1::2] - 1, strict=True):
+            y0, y1 = float(ys[a]), float(ys[b])
+            if y1 - y0 < min_m:
+                mid = 0.5 * (y0 + y1)
+                y0, y1 = mid - 0.5 * min_m, mid + 0.5 * min_m
+            y0, y1 = max(y0, lo_y), min(y1, hi_y)
+            out.append(Candidate(CandidateKind.LEG, np.array([[x, y0], [x, y1]]),
+                                 reversible=True))
+    return out
+
+
 def line_candidates(region: Region, spacing_m: float, orientation: str = "ns") -> list[Candidate]:
     """Full-width lines every ``spacing_m``, 0.5 m inside the area: north-south (``"ns"``),
     east-west (``"ew"``) or both.
