@@ -24,7 +24,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
                band_m, level_tol, threshold_batch_m, crossings_first, first_order,
                open_entry, probes, probe_climb, probe_m, probe_prominence,
-               probe_reach}
+               probe_reach, sweeps}
 """
 
 from __future__ import annotations

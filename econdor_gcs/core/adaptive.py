@@ -30,11 +30,11 @@ sample, and to the paths planned so far), ``a (d / explore_m - 1)``: a coverage 
 since an iso-line around a feature narrower than the data can show may hide there whatever
 the model says (with the length fitted to a smooth field the GP's variance is small tens
 of metres from the nearest sample, so the floor is measured in metres, not through the
-model). Cells
-within ``resolve_m`` of a sample (observed) or within ``band_m`` of a sample that reads a
-target level (an iso-line already flown on) count for nothing. Candidates are the
-estimate's whole contour components at the target levels (each traced until it closes or
-meets the area's edge on both sides) plus the exploration legs and lines. Two kinds go
+model). Cells within ``resolve_m`` of a sample (observed) or within ``band_m`` of a sample
+that reads a target level (an iso-line already flown on) count for nothing. Candidates are
+the estimate's whole contour components at the target levels (each traced until it closes
+or meets the area's edge on both sides) plus the exploration legs and lines, and sweeps
+over what the floor still scores (``sweeps``). Two kinds go
 before anything the greedy would pick (nearest first): a component through a crossing of
 its level that a survey or transit leg sampled and no trace has flown yet
 (``crossings_first``: the iso-line is known to be there), and a probe across the track
@@ -196,6 +196,10 @@ class AdaptiveParams:
         Probe only the extrema a level is within this many times the rise of a round
         bump, as curved along the track as the samples there, on the probe
         (:func:`~econdor_gcs.core.candidates.probe_reach`); 0: every such extremum.
+    sweeps : bool
+        Threshold mode: offer north-south legs over what is still farther than
+        ``explore_m`` from every sample, on the centre lines of strips ``2 explore_m``
+        wide (:func:`~econdor_gcs.core.candidates.sweep_candidates`).
     target_levels : tuple of float
         Threshold mode when not empty.
     """
