@@ -397,6 +397,28 @@ def test_threshold_coverage_floor_is_measured_in_metres_not_through_the_model():
             assert min(abs(x0 - x) for x in xs) > 10.0 or min(abs(x1 - x) for x in xs) > 10.0
 
 
+def test_threshold_planner_is_done_when_no_flight_would_lower_what_is_left(monkeypatch):
+    """Open cells are left, but the greedy finds no candidate that would lower their score
+    (at the area's edge the model can know more than a pass 0.5 m inside adds): the
+    planner says ``done`` instead of planning nothing until the run stalls."""
+    from econdor_gcs.core import adaptive
+
+    def plane(x, y):
+        return 10.0 + 0.1 * np.asarray(x) + 0.0 * np.asarray(y)
+
+    xx, yy = GRID.mesh
+    ctx = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID,
+                      estimate=plane(xx, yy), samples=_survey([50.0], plane),
+                      positions_m=[(50.0, 100.0)])
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,)))
+    batch = planner.next_batch(ctx)
+    assert planner.open_cells > 0 and batch.jobs and not batch.done
+    monkeypatch.setattr(adaptive, "greedy_plan",
+                        lambda cands, fp, var, *a, **k: ([[]], var))
+    batch = planner.next_batch(ctx)
+    assert planner.open_cells > 0 and not batch.jobs and batch.done
+
+
 def _peak(cx: float, cy: float, height: float, sigma: float = 4.0):
     def field(x, y):
         r2 = (np.asarray(x) - cx) ** 2 + (np.asarray(y) - cy) ** 2

@@ -46,7 +46,9 @@ more — nowhere is left where an iso-line could still be, under the model (by d
 GP posterior with its length scale fitted to the samples: its variance shrinks where
 samples surround a place, which the distance proxy cannot see, and over a smooth field's
 longer length more than over a plume's) — and no such crossing or probe is left: the
-samples themselves still say an iso-line is, or may be, there.
+samples themselves still say an iso-line is, or may be, there. It is done, too, when open
+cells are left that no candidate would improve (at the area's edge the model can know more
+than a pass 0.5 m inside would add): planning nothing would only stall the run.
 
 Every job is an ordinary trace task (``TraceTask``) or a pair of waypoints, so the plan
 flies over MAVLink exactly like E-CONDOR's; contour pieces are traced by the vehicle's
@@ -650,6 +652,11 @@ class AdaptivePlanner:
                                distance_m=near_m)
         self._probed += [k.candidate.points_m for route in picks for k in route
                          if k.candidate.kind == CandidateKind.LEG and k.candidate.first]
+        if p.target_levels and not any(picks) and per_vehicle > 0:
+            # Open cells are left, but no flight on offer would lower their score (at the
+            # area's edge, say, where the model already knows more than a pass 0.5 m
+            # inside would add): nothing left to do is done, not a stall.
+            return Batch([], levels_planned=len(levels), done=True)
         return self._batch(picks, levels)
 
     def _batch(self, picks: list[list[Pick]], levels: FloatArray) -> Batch:
