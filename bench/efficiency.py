@@ -314,7 +314,9 @@ def scan_survey(args: tuple[str, int, float, str, str | None, list[float], bool]
     out["to_iso50"] = r["flight_m"] if r else math.nan
     if threshold:
         out["ideal"] = ideal_tracer(field, seed, recon)
-        out["ideal_line"] = ideal_tracer(field, seed, recon, min_lines=1)
+        # the fewest lines >= 1 are the fewest lines when those are >= 1 already
+        out["ideal_line"] = (out["ideal"] if out["ideal"]["lines"] >= 1 else
+                             ideal_tracer(field, seed, recon, min_lines=1))
     for n in LADDER:  # the whole ladder within the budget: the survey's curve in the figures
         if n <= max_lines:
             scan.get(n)
