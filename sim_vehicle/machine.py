@@ -79,7 +79,7 @@ STATE = np.dtype([
     ("filter_alpha", _F), ("filter_beta", _F), ("gradient_window", _I), ("min_spread_m", _F),
     ("boundary_margin_m", _F), ("lost_offset_m", _F), ("lost_time_s", _F),
     ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
-    ("budget_factor", _F),
+    ("budget_factor", _F), ("edge_skip_m", _F),
     # control
     ("pc", _I), ("status", _I), ("await_value", _I), ("cmd_vx", _F), ("cmd_vy", _F),
     ("cmd_phase", _I), ("odo_before", _F), ("area_guard", _I),
@@ -104,7 +104,7 @@ STATE = np.dtype([
     ("turn_k", _I), ("turn_n", _I), ("ux", _F), ("uy", _F), ("heading_before", _F),
     ("leg_status", _I), ("win_start", _I), ("win_len", _I),
     # trace orchestration
-    ("heading0", _F), ("reacquired", _I),
+    ("heading0", _F), ("reacquired", _I), ("back_edge_m", _F),
 ])
 """One task's state (parameters, program counter, loop locals)."""
 
@@ -913,6 +913,9 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             s.grad_mag0 = g0
             s.ticks_left = _tick_budget(s, b)
             s.heading0 = _heading_from_gradient(s.f_gx, s.f_gy, 1.0)
+            # how far the other sense of tracing runs before it leaves the area
+            s.back_edge_m = _edge_ahead_m(b, fv, fr, fc, s.f_x, s.f_y,
+                                          -math.cos(s.heading0), -math.sin(s.heading0))
             s.reacquired = 0
             _call_leg(s, s.heading0, 1.0)
             continue
@@ -924,7 +927,7 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
                 _call_search(s, s.level, b.x_m, b.y_m, s.reacquire_radius_m,
                              PC_TR_AFTER_REACQUIRE)
                 continue
-            if status == BOUNDARY and s.side > 0:
+            if status == BOUNDARY and s.side > 0 and s.back_edge_m > s.edge_skip_m:
                 n_events = _emit(events, n_events, EV_BOUNDARY_OTHER, n_out)
                 _call_fly_to(s, b, s.start_x, s.start_y, _TRANSIT, 0.5, s.transit_speed_mps,
                              PC_TR_AFTER_RETURN)

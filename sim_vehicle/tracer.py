@@ -125,6 +125,10 @@ class TracerParams:
     budget_factor
         Trace tick budget: this many region perimeters (plus ``max_length_m``) at
         half the cruise speed.
+    edge_skip_m
+        An iso-line found this close to the area's edge, along its other sense of tracing,
+        is traced one way only: at the far edge the trace ends instead of flying back to
+        the start for the few metres left on the near side.
     """
 
     speed_mps: float = 8.0
@@ -150,6 +154,7 @@ class TracerParams:
     max_reacquire: int = 2
     min_loop_radius_m: float = 3.0
     budget_factor: float = 4.0
+    edge_skip_m: float = 4.0
 
 
 # ----------------------------------------------------------------------------- the machine

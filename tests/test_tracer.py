@@ -232,6 +232,33 @@ def test_wavy_open_contour(noise_std: float) -> None:
     assert outcome.traced_m == pytest.approx(true_len, rel=0.1)
 
 
+@pytest.mark.parametrize("x0, back", [(2.0, False), (98.0, True), (50.0, True)],
+                         ids=["tail-end", "head-end", "middle"])
+def test_open_contour_entered_at_the_edge_is_not_flown_back(x0: float, back: bool) -> None:
+    """The wavy line of the test above: the tracer heads east first (higher values on its
+    left). Entered 2 m from the west edge, it traces to the east edge and ends there: the
+    few metres west of the start are not worth the flight back across (``edge_skip_m``).
+    Entered at the east end or in the middle, it flies back to the entry and traces the
+    other way. The whole line is traced every time."""
+    def field(x, y):
+        return 5.0 * np.sin(x / 10.0) + 0.5 * y
+
+    y0 = 50.0 - 10.0 * math.sin(x0 / 10.0)
+    body = SimBody(field, REGION, x0, y0 + 2.0)
+    events: list[str] = []
+    samples, outcome = drain(trace_contour(body, TraceTask(25.0, x0, y0 + 2.0, 10.0, 0.0, 0),
+                                           on_event=events.append))
+    assert outcome.status == "boundary"
+    trace = np.array([(s.x_m, s.y_m) for s in samples if s.phase == Phase.TRACE])
+    assert trace[:, 0].min() < 3.0 and trace[:, 0].max() > 98.0
+    assert ("boundary reached, tracing other direction" in events) == back
+    # measured: 132 m flown from the west end (231 m before edge_skip_m), 133 m from the
+    # east end, 183 m from the middle, for 121-123 m traced
+    flown_back = outcome.flown_m - outcome.traced_m
+    assert (flown_back > 40.0) == (x0 == 50.0)
+    assert flown_back < 15.0 or x0 == 50.0
+
+
 @pytest.mark.parametrize(
     "field, level, status, where",
     [
