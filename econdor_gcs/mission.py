@@ -149,7 +149,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "threshold_batch_m": (float, 80.0, _positive),
         "crossings_first": (bool, True, None),
         "first_order": (str, "crossings", _one_of("crossings", "nearest")),
-        "open_entry": (str, "crossing", _one_of("end", "crossing")),
+        "open_entry": (str, "auto", _one_of("auto", "end", "crossing")),
         "probes": (bool, True, None),
         "probe_climb": (bool, True, None),
         "probe_m": (float, 30.0, _positive),

@@ -546,6 +546,48 @@ def test_a_whole_piece_at_the_edge_is_entered_at_an_end_or_at_its_crossing():
     assert picks[0][0].path_m[0].tolist() == pytest.approx([40.0, 98.0])  # the nearer end
 
 
+def test_open_entry_auto_enters_at_a_known_end_or_at_the_crossing_nearest_the_head():
+    """``open_entry: auto`` on the iso-line x = 40 of the field x: the tracer heads south
+    first (higher values on its left), so the south end is the head.
+
+    - One crossing in the middle: entered there, with the flight back from the south
+      edge counted (``detour_m``), and listed so it ends at the north end, where the
+      vehicle finishes.
+    - Two crossings: the one nearer the head (the shorter flight back).
+    - A crossing 3 m from the head end: entered at that end, no flight back.
+    - ... unless a trace or search was flown there already: then at the crossing."""
+    xx, _ = GRID.mesh
+    est = xx.astype(float)
+
+    def field(x, y):
+        return np.asarray(x, dtype=float)
+
+    def entered(samples: SampleLog):
+        (c,) = contour_candidates(est, GRID, np.array([40.0]), 30.0, 4.0, whole=True)
+        assert c.points_m[-1, 1] < c.points_m[0, 1]  # the head is the south end
+        (c,) = mark_crossings([c], samples, np.array([40.0]), band_m=3.0, end_m=6.0)
+        assert c.first and not c.reversible
+        return c
+
+    middle = samples_along([(0.0, 60.0), (100.0, 60.0)], field)
+    c = entered(middle)
+    assert c.entry_m.tolist() == pytest.approx([40.0, 60.0])
+    assert c.detour_m == pytest.approx(58.0, abs=0.5)
+    assert c.points_m[-1].tolist() == pytest.approx([40.0, 98.0])
+    south = samples_along([(0.0, 20.0), (100.0, 20.0)], field)
+    c = entered(_join(middle, south))
+    assert c.entry_m.tolist() == pytest.approx([40.0, 20.0])
+    assert c.detour_m == pytest.approx(18.0, abs=0.5)
+    at_end = samples_along([(0.0, 5.0), (100.0, 5.0)], field)
+    c = entered(_join(middle, at_end))
+    assert c.entry_m is None and c.detour_m == 0.0
+    assert c.points_m[0].tolist() == pytest.approx([40.0, 2.0])
+    tried = samples_along([(40.5, 0.5), (40.5, 1.5)], field)
+    tried.phase[:] = Phase.SEARCH
+    c = entered(_join(middle, at_end, tried))
+    assert c.entry_m.tolist() == pytest.approx([40.0, 5.0])  # the crossing nearest the head
+
+
 def test_threshold_mode_plans_its_own_batch_size():
     ctx = after_diagonals(0, [(0.0, 100.0)], 5000.0)
     planned = {}

@@ -93,6 +93,9 @@ WHOLE_TRACE_FACTOR = 2.0
 """A whole-component trace stops after this multiple of the estimated component's length."""
 WHOLE_TRACE_MIN_M = 60.0
 """... and never before this length (the estimate's component can be far too short)."""
+OPEN_END_M = 6.0
+"""``open_entry: auto``: an end of a component at the edge is entered when a sampled
+crossing lies this close to it (and nothing was traced or searched this close)."""
 
 
 @dataclass(frozen=True)
@@ -176,9 +179,14 @@ class AdaptiveParams:
         trace through a sampled crossing (nearest first) before any probe (nearest
         first): a known iso-line removes error for sure, a probe only may find one.
         ``nearest``: the nearest of either kind next.
-    open_entry : {"end", "crossing"}
+    open_entry : {"auto", "end", "crossing"}
         Threshold mode: where a component through a sampled crossing that meets the
-        area's edge is entered (:func:`mark_crossings`).
+        area's edge is entered (:func:`mark_crossings`). ``auto``: at an end with a
+        sampled crossing within ``OPEN_END_M`` (no flight back: the onboard tracer ends
+        a trace begun at the edge at the far edge), else at the crossing nearest the end
+        the tracer heads for (the shortest flight back to the entry, counted in the
+        cost); ``crossing``: at the crossing nearest the estimate; ``end``: at its
+        nearer end.
     probes : bool
         Threshold mode: before anything else, fly a leg across the track through every
         local extremum of the samples along a flown line that falls short of a target
@@ -233,7 +241,7 @@ class AdaptiveParams:
     threshold_batch_m: float = 80.0
     crossings_first: bool = True
     first_order: str = "crossings"
-    open_entry: str = "crossing"
+    open_entry: str = "auto"
     probes: bool = True
     probe_climb: bool = True
     probe_m: float = 30.0
@@ -406,8 +414,8 @@ def greedy_plan(
                    list(budgets_m), [[] for _ in positions_m])
     n = len(candidates)
     lengths = np.array([c.length_m for c in candidates])
-    overhead = np.array([trace_overhead_m if c.kind == CandidateKind.TRACE else 0.0
-                         for c in candidates])
+    overhead = np.array([(trace_overhead_m if c.kind == CandidateKind.TRACE else 0.0)
+                         + c.detour_m for c in candidates])
     ends = np.array([[*c.points_m[0], *c.points_m[-1]] for c in candidates]).reshape(n, 4)
     reversible = np.array([c.reversible for c in candidates], dtype=bool)
     closed = np.array([c.closed for c in candidates], dtype=bool)
@@ -509,8 +517,9 @@ class AdaptivePlanner:
             raise ValueError(f"line_orientation: must be ns, ew or both, got {params.line_orientation!r}")
         if params.first_order not in ("crossings", "nearest"):
             raise ValueError(f"first_order: must be crossings or nearest, got {params.first_order!r}")
-        if params.open_entry not in ("end", "crossing"):
-            raise ValueError(f"open_entry: must be end or crossing, got {params.open_entry!r}")
+        if params.open_entry not in ("auto", "end", "crossing"):
+            raise ValueError(f"open_entry: must be auto, end or crossing, "
+                             f"got {params.open_entry!r}")
         if params.start not in ("auto", "diagonals", "perimeter", "plan", "survey"):
             raise ValueError(f"start: must be auto, diagonals, perimeter, plan or survey, "
                              f"got {params.start!r}")
@@ -611,7 +620,8 @@ class AdaptivePlanner:
                                    p.min_piece_m, whole=True))
             if p.crossings_first:
                 cands = mark_crossings(cands, s, levels, p.band_m,
-                                       open_at_end=p.open_entry == "end")
+                                       open_at_end=p.open_entry == "end",
+                                       end_m=OPEN_END_M if p.open_entry == "auto" else 0.0)
             if p.probes:
                 cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
                                          2.0 * p.resolve_m,

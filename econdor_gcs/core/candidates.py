@@ -51,6 +51,10 @@ class Candidate:
     """Where the trace starts, if not at ``points_m[0]`` (a sampled crossing of the level)."""
     first: bool = False
     """Picked before any other candidate (``crossings_first``)."""
+    detour_m: float = 0.0
+    """Flight beyond ``length_m`` and the transit to the start: a component that meets the
+    area's edge, entered at a crossing in its middle, is traced to one edge, flown back
+    to the entry, and traced to the other."""
 
     @property
     def length_m(self) -> float:
@@ -175,20 +179,31 @@ def level_crossings(samples: SampleLog, levels: FloatArray, max_step_m: float = 
 
 
 def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArray,
-                   band_m: float, near_m: float = 8.0, open_at_end: bool = False
-                   ) -> list[Candidate]:
+                   band_m: float, near_m: float = 8.0, open_at_end: bool = False,
+                   end_m: float = 0.0) -> list[Candidate]:
     """Whole contour candidates through a sampled, not yet traced crossing of their level
     become ``first`` (``crossings_first``). A closed one is entered at that crossing (the
-    iso-line is known to be there); one that meets the area's edge at its nearer end
-    (``open_at_end``, see :func:`contour_candidates`: no flight back from the edge, but
-    the estimate's ends are extrapolated and the onboard search can miss there) or at
-    the crossing."""
+    iso-line is known to be there). One that meets the area's edge is entered:
+
+    - with ``open_at_end``, at its nearer end (see :func:`contour_candidates`: no flight
+      back from the edge, but the estimate's ends are extrapolated and the onboard search
+      can miss there);
+    - with ``end_m > 0``, at an end with a sampled crossing within ``end_m`` (the
+      iso-line is known to reach that end) and no trace or search flown within
+      ``end_m`` (not tried there before); where neither end has one, at the crossing
+      nearest the end the tracer heads for first (``points_m[-1]``), which is the
+      shortest flight back to the entry (``detour_m``), and the piece is listed from the
+      end where the vehicle then finishes;
+    - otherwise at the crossing nearest the piece.
+    """
     pts, lvs = level_crossings(samples, levels)
     if not len(pts):
         return cands
     traced = np.isin(samples.phase, (Phase.TRACE, Phase.SEARCH))
+    tried = None
     if traced.any():
-        d, _ = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]])).query(pts)
+        tried = cKDTree(np.column_stack([samples.x_m[traced], samples.y_m[traced]]))
+        d, _ = tried.query(pts)
         keep = d > band_m
         pts, lvs = pts[keep], lvs[keep]
     for c in cands:
@@ -198,11 +213,39 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
         if not on.any():
             continue
         d, _ = cKDTree(resample_polyline(c.points_m, 1.0)).query(pts[on])
-        if d.min() <= near_m:
-            if c.closed or not open_at_end:
-                c.entry_m = pts[on][int(np.argmin(d))].copy()
-            c.first = True
+        if d.min() > near_m:
+            continue
+        c.first = True
+        if c.closed or (not open_at_end and end_m <= 0.0):
+            c.entry_m = pts[on][int(np.argmin(d))].copy()
+        elif end_m > 0.0:
+            _choose_open_entry(c, pts[on][d <= near_m], end_m, tried)
     return cands
+
+
+def _choose_open_entry(c: Candidate, crossings: FloatArray, end_m: float,
+                       tried: cKDTree | None) -> None:
+    """Enter a whole piece that meets the edge (``points_m`` in the tracer's sense) at an
+    end known to be on the iso-line and not tried before, else at the crossing nearest
+    the end the tracer heads for (:func:`mark_crossings`)."""
+    def on_line(p: FloatArray) -> bool:
+        near = float(np.min(np.hypot(crossings[:, 0] - p[0], crossings[:, 1] - p[1])))
+        return near <= end_m and (tried is None or float(tried.query(p)[0]) > end_m)
+
+    known = on_line(c.points_m[0]), on_line(c.points_m[-1])
+    if all(known):
+        return  # either end, the nearer one (reversible)
+    c.reversible = False
+    if known[1]:
+        c.points_m = c.points_m[::-1].copy()  # from the known end
+    if any(known):
+        return
+    head = c.points_m[-1]
+    k = int(np.argmin(np.hypot(crossings[:, 0] - head[0], crossings[:, 1] - head[1])))
+    c.entry_m = crossings[k].copy()
+    c.detour_m = float(np.hypot(*(head - c.entry_m)))
+    # traced to the head's edge, back to the entry, on to the other edge: it ends there
+    c.points_m = c.points_m[::-1].copy()
 
 
 def _track_runs(samples: SampleLog, max_step_m: float = 2.0) -> list[NDArray[np.intp]]:
