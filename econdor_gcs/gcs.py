@@ -66,7 +66,6 @@ import math
 import threading
 import time
 from collections.abc import Callable, Coroutine, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -78,9 +77,7 @@ from .core.tasks import (
     Phase,
     SampleLog,
     Task,
-    TaskOutcome,
     TaskStyle,
-    TraceReport,
     TraceTask,
 )
 from .errors import (
@@ -99,7 +96,7 @@ from .link.mission import (
     fence_items,
     plan_mission,
 )
-from .link.reports import PhaseTrack, phase_change, trace_report
+from .link.reports import phase_change, trace_report
 from .link.router import (
     AIRBORNE_ALT_M,
     Router,
@@ -111,6 +108,15 @@ from .mission import Mission
 from .mission_files import write_wpl
 from .recovery import SampleRecovery
 from .signing import SigningKey
+from .telemetry import (
+    LATE,
+    SAMPLE_BATCH,
+    Flight,
+    StatusAssembler,
+    VehicleState,
+    VehicleStatus,
+    build_report,
+)
 
 if TYPE_CHECKING:
     from .fleet import VehicleKind
@@ -126,10 +132,6 @@ __all__ = [
 T = TypeVar("T")
 log = logging.getLogger(__name__)
 
-SAMPLE_BATCH = 512
-"""Raw samples buffered per vehicle before they are converted to local metres anyway."""
-LATE = -2
-"""Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
 UPLOAD_ATTEMPTS = 3
 """Uploads of one mission to a vehicle that says no transfer is running (MAV_MISSION_RESULT
 INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
@@ -148,130 +150,6 @@ cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
-
-
-class StatusAssembler:
-    """Joins STATUSTEXT chunks (MAVLink 2 ``id`` / ``chunk_seq``) into whole texts, for
-    people (the live display); nothing the station accounts for reads them.
-
-    A text with ``id == 0`` is complete on its own; a chunked one is complete with a chunk
-    shorter than 50 bytes (or an empty terminator). Pending chunks of one id are dropped
-    when a new chunk sequence for that id starts at 0.
-    """
-
-    def __init__(self) -> None:
-        self._parts: dict[tuple[int, int], list[str]] = {}
-
-    def add(self, sysid: int, text: str | bytes, text_id: int = 0, chunk_seq: int = 0,
-            raw_len: int | None = None) -> str | None:
-        if isinstance(text, bytes | bytearray):
-            raw = bytes(text)
-            text = raw.decode("utf-8", "replace")
-        else:
-            raw = text.encode("utf-8")
-        text = text.rstrip("\x00")
-        full = len(raw.rstrip(b"\x00")) >= 50 if raw_len is None else raw_len >= 50
-        if text_id == 0:
-            return text
-        key = (sysid, text_id)
-        if chunk_seq == 0:
-            self._parts[key] = []
-        parts = self._parts.setdefault(key, [])
-        parts.append(text)
-        if full:
-            return None
-        del self._parts[key]
-        return "".join(parts)
-
-
-@dataclass
-class Flight:
-    """What one vehicle did for one mission, as seen from the ground.
-
-    ``task_seqs[k]`` is the ``(first, last)`` mission seq of task ``k`` (default: one item
-    per task from ``first_seq``); ``style`` how its contour pieces were given (trace items,
-    or waypoint polylines of the estimated contours).
-    """
-
-    index: int
-    sysid: int
-    tasks: list[Task]
-    first_seq: int = 2              # mission seq of the first task (0 home, 1 takeoff)
-    task_seqs: list[tuple[int, int]] = field(default_factory=list)
-    style: TaskStyle = TaskStyle.TRACE
-    start_xy: tuple[float, float] = (0.0, 0.0)
-    start_ms: int | None = None
-    rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
-    row_seqs: list[int] = field(default_factory=list)
-    """Mission item of each row (-1 outside items, :data:`LATE` for a sample that arrived
-    after later ones: attributed at the end, by time)."""
-    pieces: dict[int, TraceReport] = field(default_factory=dict)
-    item_flown_m: dict[int, float] = field(default_factory=dict)
-    last_ms: int | None = None
-    done: bool = False
-    landed: bool = False
-    reached: set[int] = field(default_factory=set)
-    """Mission items the vehicle reported reached."""
-
-    def __post_init__(self) -> None:
-        if not self.task_seqs:
-            self.task_seqs = [(self.first_seq + k, self.first_seq + k)
-                              for k in range(len(self.tasks))]
-        if len(self.task_seqs) != len(self.tasks):
-            raise ValueError(f"{len(self.tasks)} tasks but {len(self.task_seqs)} item ranges")
-
-    @property
-    def last_seq(self) -> int:
-        return self.task_seqs[-1][1] if self.task_seqs else -1
-
-    def task_at(self, seq: int) -> Task | None:
-        """The task mission item ``seq`` belongs to (None for home, takeoff, speed)."""
-        for task, (first, last) in zip(self.tasks, self.task_seqs, strict=True):
-            if first <= seq <= last:
-                return task
-        return None
-
-
-def build_report(flight: Flight) -> FlightReport:
-    """One :class:`FlightReport` from what was collected during ``flight``."""
-    rows = flight.rows
-    if rows:
-        a = np.asarray(rows, dtype=float)
-        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
-                        a[:, 4].astype(np.int8),
-                        np.full(len(rows), flight.index, dtype=np.int16))
-        xy = np.vstack([np.asarray(flight.start_xy)[None, :], a[:, 1:3]])
-        flown = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
-        end = (float(a[-1, 1]), float(a[-1, 2]))
-    else:
-        log = SampleLog()
-        flown = 0.0
-        end = flight.start_xy
-    outcomes: list[TaskOutcome] = []
-    flown_on = flight.item_flown_m
-    for task, (first, last) in zip(flight.tasks, flight.task_seqs, strict=True):
-        item_m = sum(flown_on.get(seq, 0.0) for seq in range(first, last + 1))
-        reached = flight.done or last in flight.reached
-        if isinstance(task, TraceTask) and flight.style == TaskStyle.WAYPOINTS:
-            # the estimated contour, flown as waypoints: along it from the first waypoint on
-            along_m = sum(flown_on.get(seq, 0.0) for seq in range(first + 1, last + 1))
-            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
-            outcomes.append(TaskOutcome(task, status, item_m, along_m if reached else 0.0))
-        elif isinstance(task, TraceTask):
-            rep = flight.pieces.get(task.piece_id)
-            if rep is None:
-                outcomes.append(TaskOutcome(task, OutcomeStatus.UNREPORTED, item_m, 0.0))
-            else:
-                outcomes.append(TaskOutcome(task, rep.status, rep.flown_m, rep.traced_m))
-        else:
-            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
-            outcomes.append(TaskOutcome(task, status, item_m))
-    traced = float(sum(o.traced_m for o in outcomes))
-    sim_s = 0.0
-    if flight.start_ms is not None and flight.last_ms is not None:
-        sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
-    return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
-                        outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
 
 
 def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
@@ -365,93 +243,6 @@ class Station:
 
 # --------------------------------------------------------------------------------------------
 # the executor
-
-
-@dataclass
-class VehicleState:
-    """Ground-side bookkeeping of one vehicle across flights (for the live display too)."""
-
-    index: int
-    sysid: int
-    current_seq: int | None = None
-    items: list[MissionItemSpec] = field(default_factory=list)
-    item_phases: dict[int, Phase] = field(default_factory=dict)
-    """The phase each item of the uploaded mission implies (for vehicles that report none)."""
-    item_phase: Phase = Phase.TRANSIT
-    """The phase the current mission item implies."""
-    style: TaskStyle | None = None
-    """How this vehicle gets contour pieces: trace items until it refuses one (None: it has
-    not been given any yet)."""
-    tasks_flown: dict[str, int] = field(
-        default_factory=lambda: {"trace": 0, "waypoints": 0, "legs": 0})
-    """Tasks flown to an outcome (since this station started): contour pieces as ``trace``
-    items or as ``waypoints`` polylines, and plain waypoint ``legs`` (initiation, survey)."""
-    phases: PhaseTrack = field(default_factory=PhaseTrack)
-    last_text: str = ""
-    """The vehicle's last STATUSTEXT, for people."""
-    last_xy: tuple[float, float] | None = None
-    flown_m: float = 0.0            # the whole run
-    samples: int = 0                # the whole run
-    flight: Flight | None = None
-    stray: list[tuple[float, float, float, float, int]] = field(default_factory=list)
-    status: str = "idle"
-    raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
-    """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
-    seen_ms: list[int] = field(default_factory=list)
-    """Sorted times of every sample received (a resent one that is already here is a
-    duplicate); with ``_seen`` for the lookups."""
-    _seen: set[int] = field(default_factory=set)
-    newest_ms: int = -1
-    synced_ms: int = -1
-    """Every sample up to this time is here (the vehicle's count says so)."""
-    duplicates: int = 0
-    recovered: int = 0
-    """Samples that came only after a resend request."""
-    recovering: bool = False
-    lost: str | None = None
-    """Why the vehicle was given up (None while it serves)."""
-    item_since: float = 0.0
-    """Wall time the current mission item began (for the item time limit)."""
-    item_since_ms: int = 0
-    """The vehicle's own (sim) time when the current mission item began."""
-    vehicle_samples: int | None = None
-    """How many samples the vehicle says it took (its count at the last recovery)."""
-    missing: int = 0
-    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost)."""
-
-    def count_seen(self, first_ms: int, last_ms: int) -> int:
-        return bisect.bisect_right(self.seen_ms, last_ms) - \
-            bisect.bisect_left(self.seen_ms, first_ms)
-
-
-@dataclass(frozen=True)
-class VehicleStatus:
-    """One vehicle as the ground station sees it at one moment (:meth:`MavlinkExecutor.status_rows`)."""
-
-    sysid: int
-    index: int
-    x_m: float | None
-    """Local ENU position (m); ``None`` before the first position report."""
-    y_m: float | None
-    alt_rel_m: float
-    heading_deg: float | None
-    """Course over ground, degrees from north (``None`` until the vehicle has moved)."""
-    flight_time_s: float
-    """Vehicle (sim) time spent airborne over the whole run."""
-    armed: bool
-    lost: bool
-    item: int
-    """Current mission item (0 before a mission)."""
-    items: int
-    """Mission items after home (takeoff + tasks)."""
-    phase: Phase
-    flown_m: float
-    samples: int
-    status: str
-    """The executor's word: idle, uploading, arming, flying, holding, returning, landed, lost,
-    ..."""
-    message: str = ""
-    """The vehicle's last STATUSTEXT (for people)."""
 
 
 #: Wall-clock rates asked of the periodic (display) streams; samples are not affected.

@@ -26,9 +26,9 @@ from .core.tasks import (
 )
 
 if TYPE_CHECKING:
-    from .gcs import VehicleState
     from .link.router import Router
     from .mission import Mission
+    from .telemetry import VehicleState
 
 __all__ = ["SampleRecovery"]
 
