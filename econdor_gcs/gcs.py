@@ -57,7 +57,6 @@ Conventions and choices (see also DESIGN.md §4):
 from __future__ import annotations
 
 import asyncio
-import bisect
 import contextlib
 import dataclasses
 import json
@@ -69,12 +68,9 @@ from collections.abc import Callable, Coroutine, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-import numpy as np
-
 from .core.tasks import (
     FlightReport,
     OutcomeStatus,
-    Phase,
     SampleLog,
     Task,
     TaskStyle,
@@ -87,8 +83,8 @@ from .errors import (
     RunError,
     VehicleTimeout,
 )
-from .link.autopilots import AutopilotKind, start_mission
-from .link.codec import MAVLinkMessage, mavlink
+from .link.autopilots import start_mission
+from .link.codec import mavlink
 from .link.mission import (
     MAV_CMD_WAYPOINT_USER_1,
     MissionItemSpec,
@@ -96,11 +92,9 @@ from .link.mission import (
     fence_items,
     plan_mission,
 )
-from .link.reports import phase_change, trace_report
 from .link.router import (
     AIRBORNE_ALT_M,
     Router,
-    Sample,
     VehicleLost,
 )
 from .link.tlog import TlogWriter
@@ -108,11 +102,12 @@ from .mission import Mission
 from .mission_files import write_wpl
 from .recovery import SampleRecovery
 from .signing import SigningKey
+from .telemetry import LATE as LATE
+from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
 from .telemetry import (
-    LATE,
-    SAMPLE_BATCH,
     Flight,
     StatusAssembler,
+    Telemetry,
     VehicleState,
     VehicleStatus,
     build_report,
@@ -297,8 +292,10 @@ class MavlinkExecutor(SampleRecovery):
         owns all this state): the waits wake on it instead of polling."""
         self.altitude_m = mission.vehicles.altitude_m
         self.home = (0.0, 0.0)
-        self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(self.sysids)}
-        self.assembler = StatusAssembler()
+        self.telemetry = Telemetry(self.router, self.origin, self.sysids, self._changed,
+                                   self.home)
+        """Each vehicle's state, kept from what it sends (the router's callbacks)."""
+        self.vehicles = self.telemetry.vehicles
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
         self.iteration = 0
         self.sim_s = 0.0
@@ -307,132 +304,18 @@ class MavlinkExecutor(SampleRecovery):
         self.losses: list[dict[str, Any]] = []
         """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
         its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
-        self.report_errors = 0
-        """Malformed PHASE / TRACE reports received (logged, then ignored)."""
         self._abort = threading.Event()
         """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
-        self.router.add_sample_handler(self._on_sample)
-        self.router.add_message_handler(self._on_message)
+        self.router.add_sample_handler(self.telemetry.on_sample)
+        self.router.add_message_handler(self.telemetry.on_message)
         self.router.add_event_handler(self._on_event)
 
+    @property
+    def report_errors(self) -> int:
+        """Malformed PHASE / TRACE reports received (logged, then ignored)."""
+        return self.telemetry.report_errors
+
     # -- callbacks (on the station's loop thread) -----------------------------------------------
-    def _on_sample(self, s: Sample) -> None:
-        v = self.vehicles.get(s.sysid)
-        if v is None:
-            return
-        seq = v.current_seq if v.current_seq is not None else -1
-        self._changed.set()
-        t = s.time_boot_ms
-        if t in v._seen:
-            v.duplicates += 1  # a resend of a sample that had arrived
-            return
-        v._seen.add(t)
-        if t > v.newest_ms:
-            v.newest_ms = t
-            v.seen_ms.append(t)
-        else:  # a resent sample: its item and phase are settled at the end, by time
-            bisect.insort(v.seen_ms, t)
-            seq = LATE
-        if v.recovering:
-            v.recovered += 1
-        phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
-        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
-                      seq))
-        v.samples += 1
-        f = v.flight
-        if f is not None:
-            if f.start_ms is None:
-                f.start_ms = s.time_boot_ms
-            f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
-        if len(v.raw) >= SAMPLE_BATCH:
-            self._convert(v)
-
-    def _convert(self, v: VehicleState) -> None:
-        """Convert ``v``'s raw samples to local rows in one vectorised pymap3d call.
-
-        Everything that changes ``v.flight`` calls this first, so one batch always belongs
-        to one flight (or to none: stray samples)."""
-        raw, v.raw = v.raw, []
-        if not raw:
-            return
-        a = np.asarray(raw, dtype=float)
-        x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
-        f = v.flight
-        seqs = a[:, 5].astype(np.int64)
-        live = seqs != LATE  # the live display's odometer follows the samples in order
-        if live.any():
-            xs, ys = x[live], y[live]
-            start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
-            v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
-                                               np.diff(ys, prepend=start[1]))))
-            v.last_xy = (float(xs[-1]), float(ys[-1]))
-        rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
-                        a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
-        if f is not None:
-            f.rows.extend(rows)
-            f.row_seqs.extend(seqs.tolist())
-        else:
-            v.stray.extend(rows)
-
-    def _convert_all(self) -> None:
-        for v in self.vehicles.values():
-            self._convert(v)
-
-    def _on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
-        v = self.vehicles.get(sysid)
-        if v is None:
-            return
-        self._changed.set()
-        kind = msg.get_type()
-        f = v.flight
-        if kind == "MISSION_CURRENT":
-            if (f is not None and f.tasks and v.status == "flying" and msg.seq == f.last_seq
-                    and getattr(msg, "mission_state", 0) == mavlink.MISSION_STATE_COMPLETE):
-                f.done = True  # in case the MISSION_ITEM_REACHED was lost
-                v.status = "holding"
-            if msg.seq != v.current_seq:
-                v.current_seq = msg.seq
-                v.item_since = time.monotonic()
-                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
-                v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
-        elif kind == "MISSION_ITEM_REACHED":
-            if f is not None:
-                f.reached.add(msg.seq)
-            if f is not None and f.tasks and msg.seq == f.last_seq:
-                f.done = True
-                v.status = "holding"
-        elif kind == "NAMED_VALUE_INT":
-            change = self._decode(phase_change, msg)
-            if change is not None:
-                v.phases.add(*change)
-        elif kind == "DEBUG_FLOAT_ARRAY":
-            rep = self._decode(trace_report, msg)
-            if rep is not None and f is not None:
-                f.pieces[rep.piece_id] = rep
-        elif kind == "EXTENDED_SYS_STATE":
-            if (f is not None and not f.tasks and v.status == "returning"
-                    and msg.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND):
-                f.landed = True
-                v.status = "landed"
-        elif kind == "STATUSTEXT":
-            raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
-                msg.text.encode("utf-8", "replace")
-            text = self.assembler.add(sysid, raw, getattr(msg, "id", 0),
-                                      getattr(msg, "chunk_seq", 0))
-            if text is not None:
-                v.last_text = text
-
-    def _decode(self, decode: Callable[[MAVLinkMessage], T | None], msg: MAVLinkMessage
-                ) -> T | None:
-        """A report from ``msg``; a malformed one is logged and counted, then ignored (its
-        piece shows as unreported)."""
-        try:
-            return decode(msg)
-        except ProtocolError as exc:
-            self.report_errors += 1
-            log.warning("%s", exc)
-            return None
-
     def _on_event(self, event: object) -> None:
         self._changed.set()
         if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
@@ -515,20 +398,13 @@ class MavlinkExecutor(SampleRecovery):
             with contextlib.suppress(LinkError):
                 await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
 
-    def _position(self, sysid: int) -> tuple[float, float]:
-        link = self.router.vehicles.get(sysid)
-        if link is None or link.lat_deg is None or link.lon_deg is None:
-            return self.home
-        x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
-        return x, y
-
     def _owned(self, fn: Callable[[], T]) -> T:
         """``fn()`` on the thread that owns the vehicle state (the station's loop)."""
         run_sync = getattr(self.station, "run_sync", None)
         return run_sync(fn) if run_sync is not None else fn()
 
     def positions(self) -> list[tuple[float, float]]:
-        return self._owned(lambda: [self._position(s) for s in self.sysids])
+        return self._owned(lambda: [self.telemetry.position(s) for s in self.sysids])
 
     def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         if len(plans) != self.n_vehicles:
@@ -556,78 +432,14 @@ class MavlinkExecutor(SampleRecovery):
     # -- the flights ----------------------------------------------------------------------------
     def _begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
                ) -> Flight:
-        self._convert(v)  # samples so far belong to the previous state
-        link = self.router.vehicles[v.sysid]
-        # where it hovers now (the in-process vehicles also start from rest after braking)
-        start = self._position(v.sysid)
-        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
-                   task_seqs=list(plan.task_seqs) if plan else [],
-                   style=plan.style if plan else TaskStyle.TRACE)
-        f.rows.extend(v.stray)  # nothing is ever dropped
-        f.row_seqs.extend([LATE] * len(v.stray))
-        v.stray.clear()
-        v.flight = f
-        return f
+        return self.telemetry.begin(v, tasks, plan)
 
     def _end(self, v: VehicleState) -> FlightReport:
-        self._convert(v)
-        f = v.flight
-        v.flight = None
-        if f is None:
-            return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self._position(v.sysid),
-                                0.0)
-        self._settle(v, f)
-        report = build_report(f)
-        for o in report.outcomes:
-            if o.status != OutcomeStatus.UNREPORTED:
-                way = f.style.value if isinstance(o.task, TraceTask) else "legs"
-                v.tasks_flown[way] += 1
-        return report
-
-    def _settle(self, v: VehicleState, f: Flight) -> None:
-        """Put a flight's samples in time order (resent ones arrive late), give each the
-        phase the vehicle reported for its time, and each late one the mission item of the
-        sample before it; then the distance flown per item, along the ordered path."""
-        if not f.rows:
-            return
-        order = sorted(range(len(f.rows)), key=lambda i: f.rows[i][0])
-        rows = [f.rows[i] for i in order]
-        seqs = [f.row_seqs[i] if i < len(f.row_seqs) else LATE for i in order]
-        if v.phases.known:
-            rows = [(t, x, y, val, int(v.phases.at(round(t * 1000.0))))
-                    for t, x, y, val, _ in rows]
-        prev = -1
-        for k, s in enumerate(seqs):
-            if s == LATE:
-                seqs[k] = prev
-            prev = seqs[k]
-        f.rows, f.row_seqs = rows, seqs
-        xy = np.vstack([np.asarray(f.start_xy)[None, :], np.asarray(rows)[:, 1:3]])
-        steps = np.hypot(*np.diff(xy, axis=0).T)
-        f.item_flown_m = {}
-        for s, step in zip(seqs, steps.tolist(), strict=True):
-            if s >= 0:
-                f.item_flown_m[s] = f.item_flown_m.get(s, 0.0) + step
+        return self.telemetry.end(v)
 
     def pending_samples(self) -> SampleLog:
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
-        return self._owned(self._pending_samples)
-
-    def _pending_samples(self) -> SampleLog:
-        logs = []
-        self._convert_all()
-        for v in self.vehicles.values():
-            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
-            v.stray.clear()
-            if v.flight is not None:
-                v.flight.rows.clear()
-                v.flight.row_seqs.clear()
-            if rows:
-                a = np.asarray(rows, dtype=float)
-                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
-                                      a[:, 4].astype(np.int8),
-                                      np.full(len(rows), v.index, dtype=np.int16)))
-        return SampleLog.concat(logs)
+        return self._owned(self.telemetry.pending_samples)
 
     def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
                       tasks: Sequence[Task], round_no: int = 0) -> None:
@@ -808,7 +620,7 @@ class MavlinkExecutor(SampleRecovery):
         """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
         during the flight left unfinished, are flown by the others (in further rounds)."""
         self._check_lost()
-        reports = {v.index: self._end_idle(v) for v in self.vehicles.values()}
+        reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
         plans = self._reassign([list(p) for p in plans], [])
         for round_no in range(len(self.sysids)):
             if self._abort.is_set():
@@ -907,11 +719,6 @@ class MavlinkExecutor(SampleRecovery):
         await self._recover([v for v in flying if v.lost is None])
         return flying
 
-    def _end_idle(self, v: VehicleState) -> FlightReport:
-        self._convert(v)
-        x, y = v.last_xy if v.last_xy is not None else self._position(v.sysid)
-        return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], x, y, 0.0)
-
     async def _finish(self) -> list[FlightReport]:
         self._check_lost()
         t0 = time.monotonic()
@@ -960,11 +767,11 @@ class MavlinkExecutor(SampleRecovery):
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
         await self._recover(going)
-        reports = [self._end(v) if v in going else self._end_idle(v)
+        reports = [self._end(v) if v in going else self.telemetry.end_idle(v)
                    for v in self.vehicles.values()]
         for r, v in zip(reports, self.vehicles.values(), strict=True):
             if v in going:
-                r.end_x_m, r.end_y_m = self._position(v.sysid)
+                r.end_x_m, r.end_y_m = self.telemetry.position(v.sysid)
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
         return reports
 
@@ -976,32 +783,7 @@ class MavlinkExecutor(SampleRecovery):
         return self._owned(self._status_rows)
 
     def _status_rows(self) -> list[VehicleStatus]:
-        rows = []
-        self._convert_all()
-        for v in self.vehicles.values():
-            link = self.router.vehicles.get(v.sysid)
-            x_m = y_m = None
-            if link is not None and link.lat_deg is not None and link.lon_deg is not None:
-                x_m, y_m, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
-            rows.append(VehicleStatus(
-                sysid=v.sysid,
-                index=v.index,
-                x_m=x_m,
-                y_m=y_m,
-                alt_rel_m=(link.rel_alt_m or 0.0) if link else 0.0,
-                heading_deg=link.heading_deg if link else None,
-                flight_time_s=link.airborne_s if link else 0.0,
-                armed=bool(link.armed) if link else False,
-                lost=v.lost is not None or (bool(link.lost) if link else False),
-                item=v.current_seq if v.current_seq is not None else 0,
-                items=len(v.items) - 1 if v.items else 0,
-                phase=self._phase_now(v),
-                flown_m=v.flown_m,
-                samples=v.samples,
-                status=v.status,
-                message=v.last_text,
-            ))
-        return rows
+        return self.telemetry.status_rows()
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
                       ) -> list[dict[str, Any]]:
@@ -1010,18 +792,4 @@ class MavlinkExecutor(SampleRecovery):
         given contour pieces (``trace`` items, ``waypoints`` polylines, or None if it was
         given none), and ``tasks_flown``: how many tasks it flew to an outcome each way
         (:attr:`VehicleState.tasks_flown`)."""
-        out = []
-        for i, (sysid, v) in enumerate(self.vehicles.items()):
-            link = self.router.vehicles.get(sysid)
-            out.append({
-                "sysid": sysid,
-                "autopilot": AutopilotKind.of(link.autopilot).value if link else None,
-                "started_as": str(started[i]) if started else None,
-                "mode": v.style.value if v.style else None,
-                "tasks_flown": dict(v.tasks_flown),
-            })
-        return out
-
-    @staticmethod
-    def _phase_now(v: VehicleState) -> Phase:
-        return v.phases.latest if v.phases.known else v.item_phase
+        return self.telemetry.fleet_summary(started)

@@ -1,12 +1,17 @@
-"""Ground-side records of the vehicles: what the station knows of each, from what it sends.
+"""What the ground station knows of each vehicle, from what the vehicle sends.
 
-Used by :class:`~.gcs.MavlinkExecutor` (and re-exported by :mod:`econdor_gcs.gcs`):
+Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
+:mod:`econdor_gcs.gcs`):
 
+:class:`Telemetry`
+    The router's sample and message callbacks, on the station's loop thread (which alone
+    owns the vehicle state): samples buffered raw per vehicle and converted to local metres
+    in batches of :data:`SAMPLE_BATCH`, mission progress, phases, trace reports and texts,
+    and each flight's samples settled into a :class:`~.core.tasks.FlightReport`.
 :class:`VehicleState`
-    One vehicle's bookkeeping across flights, owned by the station's loop thread.
+    One vehicle's bookkeeping across flights.
 :class:`Flight` and :func:`build_report`
-    What one vehicle did for one mission, and the :class:`~.core.tasks.FlightReport` made
-    of it.
+    What one vehicle did for one mission, and the report made of it.
 :class:`VehicleStatus`
     One vehicle as the live display sees it at one moment.
 :class:`StatusAssembler`
@@ -15,11 +20,17 @@ Used by :class:`~.gcs.MavlinkExecutor` (and re-exported by :mod:`econdor_gcs.gcs
 
 from __future__ import annotations
 
+import asyncio
 import bisect
+import logging
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
+from .core.geodesy import Origin
 from .core.tasks import (
     FlightReport,
     OutcomeStatus,
@@ -31,16 +42,27 @@ from .core.tasks import (
     TraceReport,
     TraceTask,
 )
-from .link.mission import MissionItemSpec
-from .link.reports import PhaseTrack
+from .errors import ProtocolError
+from .link.autopilots import AutopilotKind
+from .link.codec import MAVLinkMessage, mavlink
+from .link.mission import MissionItemSpec, MissionPlan
+from .link.reports import PhaseTrack, phase_change, trace_report
+from .link.router import Router, Sample
+
+if TYPE_CHECKING:
+    from .fleet import VehicleKind
 
 __all__ = [
     "Flight",
     "StatusAssembler",
+    "Telemetry",
     "VehicleState",
     "VehicleStatus",
     "build_report",
 ]
+
+T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
@@ -264,3 +286,296 @@ class VehicleStatus:
     ..."""
     message: str = ""
     """The vehicle's last STATUSTEXT (for people)."""
+
+
+# --------------------------------------------------------------------------------------------
+# what the vehicles send
+
+
+class Telemetry:
+    """Keeps every vehicle's :class:`VehicleState` from what it sends: the router's sample
+    and message callbacks, the conversion of samples to local metres, and the per-flight
+    bookkeeping that ends in a :class:`~.core.tasks.FlightReport` (a part of
+    :class:`~.gcs.MavlinkExecutor`).
+
+    Everything here runs on the station's loop thread, which alone owns the vehicle state;
+    the executor hands other threads' questions to that thread.
+
+    Parameters
+    ----------
+    router:
+        The station's router: its per-vehicle links give positions and vehicle times.
+    origin:
+        The mission's origin; samples and positions are local ENU metres of it.
+    sysids:
+        System ids, in vehicle-index order.
+    changed:
+        Set by every sample and message from a vehicle: the executor's waits wake on it.
+    home:
+        The position of a vehicle that has reported none.
+    """
+
+    def __init__(self, router: Router, origin: Origin, sysids: Sequence[int],
+                 changed: asyncio.Event, home: tuple[float, float] = (0.0, 0.0)) -> None:
+        self.router = router
+        self.origin = origin
+        self.changed = changed
+        self.home = home
+        self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(sysids)}
+        self.assembler = StatusAssembler()
+        self.report_errors = 0
+        """Malformed PHASE / TRACE reports received (logged, then ignored)."""
+
+    # -- callbacks (the router's, on the station's loop thread) ---------------------------------
+    def on_sample(self, s: Sample) -> None:
+        v = self.vehicles.get(s.sysid)
+        if v is None:
+            return
+        seq = v.current_seq if v.current_seq is not None else -1
+        self.changed.set()
+        t = s.time_boot_ms
+        if t in v._seen:
+            v.duplicates += 1  # a resend of a sample that had arrived
+            return
+        v._seen.add(t)
+        if t > v.newest_ms:
+            v.newest_ms = t
+            v.seen_ms.append(t)
+        else:  # a resent sample: its item and phase are settled at the end, by time
+            bisect.insort(v.seen_ms, t)
+            seq = LATE
+        if v.recovering:
+            v.recovered += 1
+        phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
+                      seq))
+        v.samples += 1
+        f = v.flight
+        if f is not None:
+            if f.start_ms is None:
+                f.start_ms = s.time_boot_ms
+            f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
+        if len(v.raw) >= SAMPLE_BATCH:
+            self._convert(v)
+
+    def _convert(self, v: VehicleState) -> None:
+        """Convert ``v``'s raw samples to local rows in one vectorised pymap3d call.
+
+        Everything that changes ``v.flight`` calls this first, so one batch always belongs
+        to one flight (or to none: stray samples)."""
+        raw, v.raw = v.raw, []
+        if not raw:
+            return
+        a = np.asarray(raw, dtype=float)
+        x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
+        f = v.flight
+        seqs = a[:, 5].astype(np.int64)
+        live = seqs != LATE  # the live display's odometer follows the samples in order
+        if live.any():
+            xs, ys = x[live], y[live]
+            start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
+            v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
+                                               np.diff(ys, prepend=start[1]))))
+            v.last_xy = (float(xs[-1]), float(ys[-1]))
+        rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
+                        a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        if f is not None:
+            f.rows.extend(rows)
+            f.row_seqs.extend(seqs.tolist())
+        else:
+            v.stray.extend(rows)
+
+    def _convert_all(self) -> None:
+        for v in self.vehicles.values():
+            self._convert(v)
+
+    def on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return
+        self.changed.set()
+        kind = msg.get_type()
+        f = v.flight
+        if kind == "MISSION_CURRENT":
+            if (f is not None and f.tasks and v.status == "flying" and msg.seq == f.last_seq
+                    and getattr(msg, "mission_state", 0) == mavlink.MISSION_STATE_COMPLETE):
+                f.done = True  # in case the MISSION_ITEM_REACHED was lost
+                v.status = "holding"
+            if msg.seq != v.current_seq:
+                v.current_seq = msg.seq
+                v.item_since = time.monotonic()
+                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
+                v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
+        elif kind == "MISSION_ITEM_REACHED":
+            if f is not None:
+                f.reached.add(msg.seq)
+            if f is not None and f.tasks and msg.seq == f.last_seq:
+                f.done = True
+                v.status = "holding"
+        elif kind == "NAMED_VALUE_INT":
+            change = self._decode(phase_change, msg)
+            if change is not None:
+                v.phases.add(*change)
+        elif kind == "DEBUG_FLOAT_ARRAY":
+            rep = self._decode(trace_report, msg)
+            if rep is not None and f is not None:
+                f.pieces[rep.piece_id] = rep
+        elif kind == "EXTENDED_SYS_STATE":
+            if (f is not None and not f.tasks and v.status == "returning"
+                    and msg.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND):
+                f.landed = True
+                v.status = "landed"
+        elif kind == "STATUSTEXT":
+            raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
+                msg.text.encode("utf-8", "replace")
+            text = self.assembler.add(sysid, raw, getattr(msg, "id", 0),
+                                      getattr(msg, "chunk_seq", 0))
+            if text is not None:
+                v.last_text = text
+
+    def _decode(self, decode: Callable[[MAVLinkMessage], T | None], msg: MAVLinkMessage
+                ) -> T | None:
+        """A report from ``msg``; a malformed one is logged and counted, then ignored (its
+        piece shows as unreported)."""
+        try:
+            return decode(msg)
+        except ProtocolError as exc:
+            self.report_errors += 1
+            log.warning("%s", exc)
+            return None
+
+    # -- positions and flights ------------------------------------------------------------------
+    def position(self, sysid: int) -> tuple[float, float]:
+        link = self.router.vehicles.get(sysid)
+        if link is None or link.lat_deg is None or link.lon_deg is None:
+            return self.home
+        x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
+        return x, y
+
+    def begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
+              ) -> Flight:
+        self._convert(v)  # samples so far belong to the previous state
+        link = self.router.vehicles[v.sysid]
+        # where it hovers now (the in-process vehicles also start from rest after braking)
+        start = self.position(v.sysid)
+        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
+                   task_seqs=list(plan.task_seqs) if plan else [],
+                   style=plan.style if plan else TaskStyle.TRACE)
+        f.rows.extend(v.stray)  # nothing is ever dropped
+        f.row_seqs.extend([LATE] * len(v.stray))
+        v.stray.clear()
+        v.flight = f
+        return f
+
+    def end(self, v: VehicleState) -> FlightReport:
+        self._convert(v)
+        f = v.flight
+        v.flight = None
+        if f is None:
+            return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self.position(v.sysid),
+                                0.0)
+        self._settle(v, f)
+        report = build_report(f)
+        for o in report.outcomes:
+            if o.status != OutcomeStatus.UNREPORTED:
+                way = f.style.value if isinstance(o.task, TraceTask) else "legs"
+                v.tasks_flown[way] += 1
+        return report
+
+    def _settle(self, v: VehicleState, f: Flight) -> None:
+        """Put a flight's samples in time order (resent ones arrive late), give each the
+        phase the vehicle reported for its time, and each late one the mission item of the
+        sample before it; then the distance flown per item, along the ordered path."""
+        if not f.rows:
+            return
+        order = sorted(range(len(f.rows)), key=lambda i: f.rows[i][0])
+        rows = [f.rows[i] for i in order]
+        seqs = [f.row_seqs[i] if i < len(f.row_seqs) else LATE for i in order]
+        if v.phases.known:
+            rows = [(t, x, y, val, int(v.phases.at(round(t * 1000.0))))
+                    for t, x, y, val, _ in rows]
+        prev = -1
+        for k, s in enumerate(seqs):
+            if s == LATE:
+                seqs[k] = prev
+            prev = seqs[k]
+        f.rows, f.row_seqs = rows, seqs
+        xy = np.vstack([np.asarray(f.start_xy)[None, :], np.asarray(rows)[:, 1:3]])
+        steps = np.hypot(*np.diff(xy, axis=0).T)
+        f.item_flown_m = {}
+        for s, step in zip(seqs, steps.tolist(), strict=True):
+            if s >= 0:
+                f.item_flown_m[s] = f.item_flown_m.get(s, 0.0) + step
+
+    def end_idle(self, v: VehicleState) -> FlightReport:
+        self._convert(v)
+        x, y = v.last_xy if v.last_xy is not None else self.position(v.sysid)
+        return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], x, y, 0.0)
+
+    def pending_samples(self) -> SampleLog:
+        """Take out every sample received but not yet in a report (the stray ones and the
+        rows of the flights in progress): :meth:`~.gcs.MavlinkExecutor.pending_samples`."""
+        logs = []
+        self._convert_all()
+        for v in self.vehicles.values():
+            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+            v.stray.clear()
+            if v.flight is not None:
+                v.flight.rows.clear()
+                v.flight.row_seqs.clear()
+            if rows:
+                a = np.asarray(rows, dtype=float)
+                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
+                                      a[:, 4].astype(np.int8),
+                                      np.full(len(rows), v.index, dtype=np.int16)))
+        return SampleLog.concat(logs)
+
+    # -- snapshots for the displays and the summary -------------------------------------------
+    def status_rows(self) -> list[VehicleStatus]:
+        """The rows of :meth:`~.gcs.MavlinkExecutor.status_rows` (made here, on the
+        station's loop thread)."""
+        rows = []
+        self._convert_all()
+        for v in self.vehicles.values():
+            link = self.router.vehicles.get(v.sysid)
+            x_m = y_m = None
+            if link is not None and link.lat_deg is not None and link.lon_deg is not None:
+                x_m, y_m, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
+            rows.append(VehicleStatus(
+                sysid=v.sysid,
+                index=v.index,
+                x_m=x_m,
+                y_m=y_m,
+                alt_rel_m=(link.rel_alt_m or 0.0) if link else 0.0,
+                heading_deg=link.heading_deg if link else None,
+                flight_time_s=link.airborne_s if link else 0.0,
+                armed=bool(link.armed) if link else False,
+                lost=v.lost is not None or (bool(link.lost) if link else False),
+                item=v.current_seq if v.current_seq is not None else 0,
+                items=len(v.items) - 1 if v.items else 0,
+                phase=self._phase_now(v),
+                flown_m=v.flown_m,
+                samples=v.samples,
+                status=v.status,
+                message=v.last_text,
+            ))
+        return rows
+
+    def fleet_summary(self, started: Sequence[VehicleKind] | None = None
+                      ) -> list[dict[str, Any]]:
+        """The rows of :meth:`~.gcs.MavlinkExecutor.fleet_summary`."""
+        out = []
+        for i, (sysid, v) in enumerate(self.vehicles.items()):
+            link = self.router.vehicles.get(sysid)
+            out.append({
+                "sysid": sysid,
+                "autopilot": AutopilotKind.of(link.autopilot).value if link else None,
+                "started_as": str(started[i]) if started else None,
+                "mode": v.style.value if v.style else None,
+                "tasks_flown": dict(v.tasks_flown),
+            })
+        return out
+
+    @staticmethod
+    def _phase_now(v: VehicleState) -> Phase:
+        return v.phases.latest if v.phases.known else v.item_phase
