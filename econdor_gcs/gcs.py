@@ -70,7 +70,6 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from .core.tasks import (
     FlightReport,
-    OutcomeStatus,
     SampleLog,
     Task,
     TaskStyle,
@@ -98,6 +97,11 @@ from .link.router import (
     VehicleLost,
 )
 from .link.tlog import TlogWriter
+from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
+from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
+from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
+from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
+from .losses import VehicleLosses
 from .mission import Mission
 from .mission_files import write_wpl
 from .recovery import SampleRecovery
@@ -134,15 +138,6 @@ RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_M
 """MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
-LOSS_SILENCE_S = 5.0
-"""A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
-DESCENT_RATE_MPS = 1.0
-"""Slowest descent we expect of a vehicle landing (PX4 lands at 0.7-1.5 m/s)."""
-ITEM_TIME_FACTOR = 3.0
-ITEM_TIME_MARGIN_S = 60.0
-"""A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
-cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
-
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
 
@@ -301,14 +296,19 @@ class MavlinkExecutor(SampleRecovery):
         self.sim_s = 0.0
         self.fences_refused: list[int] = []
         """Vehicles that refused the geofence upload (they fly without one)."""
-        self.losses: list[dict[str, Any]] = []
-        """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
-        its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
+        self.vehicle_losses = VehicleLosses(self.router, self.mission, self.vehicles,
+                                            self.sysids, iteration=lambda: self.iteration)
+        """Vehicles given up: silence, time limits, and where their work goes."""
         self._abort = threading.Event()
         """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
         self.router.add_sample_handler(self.telemetry.on_sample)
         self.router.add_message_handler(self.telemetry.on_message)
         self.router.add_event_handler(self._on_event)
+
+    @property
+    def losses(self) -> list[dict[str, Any]]:
+        """Every vehicle given up (:attr:`.losses.VehicleLosses.records`)."""
+        return self.vehicle_losses.records
 
     @property
     def report_errors(self) -> int:
@@ -319,21 +319,8 @@ class MavlinkExecutor(SampleRecovery):
     def _on_event(self, event: object) -> None:
         self._changed.set()
         if isinstance(event, VehicleLost) and event.sysid in self.vehicles:
-            self._mark_lost(self.vehicles[event.sysid],
-                            f"no heartbeat for {event.silent_s:.0f} s")
-
-    def _mark_lost(self, v: VehicleState, reason: str) -> None:
-        """Give ``v`` up: it gets no more work; its unfinished pieces go to the others."""
-        if v.lost is not None:
-            return
-        where = ""
-        if v.flight is not None and v.current_seq is not None:
-            where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
-        v.lost = reason + where
-        v.status = "lost"
-        log.warning("vehicle %d lost: %s", v.sysid, v.lost)
-        self.losses.append({"sysid": v.sysid, "reason": v.lost, "iteration": self.iteration,
-                            "reassigned": []})
+            self.vehicle_losses.mark_lost(self.vehicles[event.sysid],
+                                          f"no heartbeat for {event.silent_s:.0f} s")
 
     # -- Executor protocol ----------------------------------------------------------------------
     def wait_ready(self) -> None:
@@ -540,10 +527,7 @@ class MavlinkExecutor(SampleRecovery):
             raise
 
     def _check_lost(self) -> None:
-        """Fail only when no vehicle is left; a single loss is handled."""
-        if self.vehicles and all(v.lost is not None for v in self.vehicles.values()):
-            raise VehicleTimeout("every vehicle lost: " + "; ".join(
-                f"vehicle {v.sysid} lost: {v.lost}" for v in self.vehicles.values()))
+        self.vehicle_losses.check_lost()
 
     async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
                      on_tick: Callable[[], object] | None = None,
@@ -561,67 +545,22 @@ class MavlinkExecutor(SampleRecovery):
             with contextlib.suppress(TimeoutError):  # a tick: look again
                 await asyncio.wait_for(self._changed.wait(), tick_s)
 
-    async def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]) -> None:
-        """Run a step with ``v``; if it fails because ``v`` went silent, ``v`` is lost and
-        the run goes on. Any other failure (a refusal from a vehicle that answers) stands."""
-        try:
-            await coro
-        except LinkError as exc:
-            link = self.router.vehicles.get(v.sysid)
-            silent = time.monotonic() - link.last_heartbeat_mono if link else math.inf
-            if v.lost is None and silent <= LOSS_SILENCE_S:
-                raise
-            self._mark_lost(v, f"{exc} (silent for {silent:.0f} s)")
+    def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]
+                  ) -> Coroutine[Any, Any, None]:
+        return self.vehicle_losses.tolerant(v, coro)
 
     def _item_limit_s(self, v: VehicleState) -> float:
-        """Sim seconds the current mission item may take (module constants)."""
-        f, seq = v.flight, v.current_seq
-        speed = self.mission.vehicles.speed_mps
-        region = self.mission.region
-        length = 2 * (region.width_m + region.height_m)  # to anywhere in the area
-        if f is not None and not f.tasks:  # home, then down
-            return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S + \
-                2 * self.altitude_m / DESCENT_RATE_MPS
-        task = f.task_at(seq) if f is not None and seq is not None else None
-        if isinstance(task, TraceTask) and f is not None and f.style == TaskStyle.TRACE:
-            # the search, then the trace (up to its limit; a closed one fits the area)
-            length += 2 * math.pi * task.search_radius_m + (
-                task.max_length_m if task.max_length_m > 0 else 4 * length)
-        return ITEM_TIME_FACTOR * length / speed + ITEM_TIME_MARGIN_S
+        return self.vehicle_losses.item_limit_s(v)
 
     def _check_progress(self, flying: list[VehicleState]) -> None:
-        """A vehicle whose current item takes longer than its limit is lost. The limit is
-        in the vehicle's own sim time (a vehicle slowed by a busy machine is not late); a
-        vehicle whose clock stops while it heartbeats is caught by wall time (10x)."""
-        now = time.monotonic()
-        for v in flying:
-            f = v.flight
-            if v.lost is not None or f is None or f.done or f.landed:
-                continue  # a vehicle that finished (or landed) is not late any more
-            limit_s = self._item_limit_s(v)
-            sim_ms = (self.router.vehicles[v.sysid].time_boot_ms or 0) - v.item_since_ms
-            wall_s = now - v.item_since
-            if sim_ms > 1000 * limit_s or wall_s > 10 * limit_s / self.mission.vehicles.speedup:
-                self._mark_lost(v, f"mission item {v.current_seq} not finished within "
-                                   f"{limit_s:.0f} s of its time")
-                self._spawn(self.router.return_to_launch(v.sysid), v)
-
-    def _spawn(self, coro: Coroutine[Any, Any, Any], v: VehicleState) -> None:
-        """Send a command to a vehicle given up, without waiting (it may not answer)."""
-        task = asyncio.ensure_future(coro)
-
-        def done(t: asyncio.Future[Any]) -> None:
-            if not t.cancelled() and t.exception() is not None:
-                log.warning("vehicle %d (lost): %r", v.sysid, t.exception())
-
-        task.add_done_callback(done)
+        self.vehicle_losses.check_progress(flying)
 
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
         during the flight left unfinished, are flown by the others (in further rounds)."""
         self._check_lost()
         reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
-        plans = self._reassign([list(p) for p in plans], [])
+        plans = self.vehicle_losses.reassign([list(p) for p in plans], [], self.positions)
         for round_no in range(len(self.sysids)):
             if self._abort.is_set():
                 break
@@ -630,55 +569,18 @@ class MavlinkExecutor(SampleRecovery):
             for v in flown:
                 r = self._end(v)
                 if v.lost is not None:
-                    left = self._unfinished(r)
+                    left = self.vehicle_losses.unfinished(r)
                     if left:
                         leftover.append((v.sysid, left))
                     r.outcomes = [o for o in r.outcomes if o.task not in left]
                 reports[v.index] = r if round_no == 0 else _merge(reports[v.index], r)
             if not leftover:
                 break
-            plans = self._reassign([[] for _ in self.sysids], leftover)
+            plans = self.vehicle_losses.reassign([[] for _ in self.sysids], leftover,
+                                                 self.positions)
         out = [reports[v.index] for v in self.vehicles.values()]
         self.sim_s += max((r.sim_s for r in out), default=0.0)
         return out
-
-    @staticmethod
-    def _unfinished(report: FlightReport) -> list[Task]:
-        """The tasks of a flight without an outcome (a lost vehicle did not finish them)."""
-        return [o.task for o in report.outcomes if o.status == OutcomeStatus.UNREPORTED]
-
-    def _reassign(self, plans: list[list[Task]],
-                  extra: list[tuple[int, list[Task]]]) -> list[list[Task]]:
-        """Give the plans of lost vehicles, and the ``extra`` (sysid, tasks) they left
-        unfinished, to the vehicles still in service: each batch to the least loaded one,
-        nearest its first task first."""
-        live = [i for i, s in enumerate(self.sysids) if self.vehicles[s].lost is None]
-        if not live:
-            self._check_lost()
-            return plans
-        batches = list(extra)
-        for i, s in enumerate(self.sysids):
-            if self.vehicles[s].lost is not None and plans[i]:
-                batches.append((s, plans[i]))
-                plans[i] = []
-        positions = self.positions()
-        load = {i: len(plans[i]) for i in live}
-        for source, tasks in batches:
-            # split a lost vehicle's tasks over the vehicles left, in order
-            step = max(1, math.ceil(len(tasks) / len(live)))
-            for batch in (tasks[k:k + step] for k in range(0, len(tasks), step)):
-                first = batch[0]
-                i = min(live, key=lambda j: (load[j], math.dist(positions[j],
-                                                                (first.x_m, first.y_m))))
-                plans[i] = plans[i] + batch
-                load[i] += len(batch)
-                pieces = [t.piece_id for t in batch if isinstance(t, TraceTask)]
-                loss = next(x for x in reversed(self.losses) if x["sysid"] == source)
-                loss["reassigned"].append({"iteration": self.iteration, "to": self.sysids[i],
-                                           "tasks": len(batch), "pieces": pieces})
-                log.warning("vehicle %d (lost): %d tasks (pieces %s) go to vehicle %d",
-                            source, len(batch), pieces, self.sysids[i])
-        return plans
 
     async def _round(self, plans: list[list[Task]], iteration: int, round_no: int
                      ) -> list[VehicleState]:
