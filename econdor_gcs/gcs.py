@@ -58,8 +58,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
-import json
 import logging
 import math
 import threading
@@ -72,24 +70,17 @@ from .core.tasks import (
     FlightReport,
     SampleLog,
     Task,
-    TaskStyle,
-    TraceTask,
 )
 from .errors import (
     LinkError,
-    MissionRejected,
     ProtocolError,
-    RunError,
     VehicleTimeout,
 )
 from .link.autopilots import start_mission
 from .link.codec import mavlink
 from .link.mission import (
-    MAV_CMD_WAYPOINT_USER_1,
-    MissionItemSpec,
     MissionPlan,
     fence_items,
-    plan_mission,
 )
 from .link.router import (
     AIRBORNE_ALT_M,
@@ -103,7 +94,6 @@ from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
 from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
 from .losses import VehicleLosses
 from .mission import Mission
-from .mission_files import write_wpl
 from .recovery import SampleRecovery
 from .signing import SigningKey
 from .telemetry import LATE as LATE
@@ -116,6 +106,10 @@ from .telemetry import (
     VehicleStatus,
     build_report,
 )
+from .vehicle_missions import RESTART_RESULTS as RESTART_RESULTS
+from .vehicle_missions import UPLOAD_ATTEMPTS as UPLOAD_ATTEMPTS
+from .vehicle_missions import VehicleMissions
+from .vehicle_missions import mission_items_json as mission_items_json
 
 if TYPE_CHECKING:
     from .fleet import VehicleKind
@@ -131,13 +125,9 @@ __all__ = [
 T = TypeVar("T")
 log = logging.getLogger(__name__)
 
-UPLOAD_ATTEMPTS = 3
-"""Uploads of one mission to a vehicle that says no transfer is running (MAV_MISSION_RESULT
-INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
-RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR})
-"""MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
+
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
 
@@ -148,10 +138,6 @@ def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
                         flown_m=a.flown_m + b.flown_m, traced_m=a.traced_m + b.traced_m,
                         outcomes=a.outcomes + b.outcomes, end_x_m=b.end_x_m, end_y_m=b.end_y_m,
                         sim_s=a.sim_s + b.sim_s)
-
-
-def mission_items_json(items: Sequence[MissionItemSpec]) -> str:
-    return json.dumps([dataclasses.asdict(it) for it in items], indent=1) + "\n"
 
 
 # --------------------------------------------------------------------------------------------
@@ -294,16 +280,24 @@ class MavlinkExecutor(SampleRecovery):
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
         self.iteration = 0
         self.sim_s = 0.0
-        self.fences_refused: list[int] = []
-        """Vehicles that refused the geofence upload (they fly without one)."""
         self.vehicle_losses = VehicleLosses(self.router, self.mission, self.vehicles,
                                             self.sysids, iteration=lambda: self.iteration)
         """Vehicles given up: silence, time limits, and where their work goes."""
+        self.vehicle_missions = VehicleMissions(
+            self.router, self.telemetry, self.vehicle_losses, self.mission,
+            missions_dir=missions_dir, timeout_s=timeout_s, tolerance_m=tolerance_m,
+            home=self.home)
+        """Each vehicle's missions: planned, saved, uploaded (and the geofence)."""
         self._abort = threading.Event()
         """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
         self.router.add_sample_handler(self.telemetry.on_sample)
         self.router.add_message_handler(self.telemetry.on_message)
         self.router.add_event_handler(self._on_event)
+
+    @property
+    def fences_refused(self) -> list[int]:
+        """Vehicles that refused the geofence upload (they fly without one)."""
+        return self.vehicle_missions.fences_refused
 
     @property
     def losses(self) -> list[dict[str, Any]]:
@@ -355,21 +349,8 @@ class MavlinkExecutor(SampleRecovery):
             v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
         fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
-        await self._all([self._tolerant(v, self._upload_fence(v, fence))
+        await self._all([self._tolerant(v, self.vehicle_missions.upload_fence(v, fence))
                          for v in self.vehicles.values()])
-
-    async def _upload_fence(self, v: VehicleState, fence: list[MissionItemSpec]) -> None:
-        """The area plus :data:`FENCE_MARGIN_M` as the vehicle's inclusion fence (mission
-        type FENCE): an autopilot that enforces fences keeps the vehicle inside."""
-        try:
-            await asyncio.wait_for(self.router.upload_mission(
-                v.sysid, fence, mission_type=mavlink.MAV_MISSION_TYPE_FENCE), self.timeout_s)
-        except TimeoutError:
-            raise VehicleTimeout(f"vehicle {v.sysid}: fence upload did not finish within "
-                                 f"{self.timeout_s:g} s") from None
-        except ProtocolError as exc:  # a vehicle without fences flies without one
-            log.warning("vehicle %d refused the fence: %s", v.sysid, exc)
-            self.fences_refused.append(v.sysid)
 
     async def _slow_streams(self, sysid: int) -> None:
         """Ask for the display-only streams at a few Hz of *wall* time.
@@ -428,80 +409,9 @@ class MavlinkExecutor(SampleRecovery):
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
         return self._owned(self.telemetry.pending_samples)
 
-    def _save_mission(self, iteration: int, sysid: int, items: list[MissionItemSpec],
-                      tasks: Sequence[Task], round_no: int = 0) -> None:
-        """``iter{NN}_v{sysid}.json`` (items), ``.waypoints`` (QGC WPL) and ``.tasks.json``
-        (the tasks, with the estimated contours, for ``econdor export --iteration``)."""
-        if self.missions_dir is None:
-            return
-        from .plans import write_tasks
-
-        self.missions_dir.mkdir(parents=True, exist_ok=True)
-        # a second round (pieces of a lost vehicle) in the same iteration gets its own file
-        suffix = f"_r{round_no}" if round_no else ""
-        stem = self.missions_dir / f"iter{iteration:02d}_v{sysid}{suffix}"
-        try:
-            stem.with_suffix(".json").write_text(mission_items_json(items), encoding="utf-8")
-            write_wpl(stem.with_suffix(".waypoints"), items)
-            write_tasks(stem.with_suffix(".tasks.json"), tasks)
-        except OSError as exc:
-            raise RunError(f"cannot save the mission of vehicle {sysid} in {stem.parent}: "
-                           f"{exc.strerror or exc}") from exc
-
-    async def _plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
-                               round_no: int) -> None:
-        """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
-        refused a trace item (the flight begins first: a failed upload leaves its tasks
-        unfinished, for the others).
-
-        A vehicle's refusal is its MISSION_ACK to the refused item; when that ACK is lost we
-        send the item again and a vehicle with no transfer running answers INVALID_SEQUENCE
-        (ERROR: it gave up waiting). Either starts the upload again, up to
-        :data:`UPLOAD_ATTEMPTS` times."""
-        style = v.style or TaskStyle.TRACE
-        f: Flight | None = None
-        attempts = 0
-        while True:
-            attempts += 1
-            plan = plan_mission(self.origin, tasks, self.altitude_m, style=style,
-                                tolerance_m=self.tolerance_m, home=self.home,
-                                speed_mps=self.mission.vehicles.speed_mps, end="none")
-            self._save_mission(iteration, v.sysid, plan.items, tasks, round_no)
-            if f is None:
-                f = self._begin(v, tasks, plan)
-            else:
-                f.task_seqs, f.style = list(plan.task_seqs), plan.style
-            v.item_phases = dict(plan.item_phases)
-            try:
-                await self._upload(v, plan.items)
-            except MissionRejected as exc:
-                refused_trace = (exc.result == mavlink.MAV_MISSION_UNSUPPORTED
-                                 and exc.command == MAV_CMD_WAYPOINT_USER_1)
-                if exc.result in RESTART_RESULTS and attempts < UPLOAD_ATTEMPTS:
-                    log.warning("vehicle %d: %s; uploading the mission again", v.sysid, exc)
-                    continue
-                if not (refused_trace and style == TaskStyle.TRACE):
-                    raise
-                log.info("vehicle %d refused a contour item: its pieces go as waypoints",
-                         v.sysid)
-                style = v.style = TaskStyle.WAYPOINTS
-                attempts = 0
-                continue
-            if any(isinstance(t, TraceTask) for t in tasks):
-                v.style = style
-            return
-
-    async def _upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
-        v.status = "uploading"
-        try:
-            await asyncio.wait_for(self.router.upload_mission(v.sysid, items), self.timeout_s)
-        except TimeoutError:
-            self._check_lost()  # a vehicle that went silent says so
-            raise VehicleTimeout(f"vehicle {v.sysid}: mission upload did not finish within "
-                                 f"{self.timeout_s:g} s") from None
-        v.items = items
-        v.current_seq = None
-        v.status = "uploaded"
+    def _plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
+                         round_no: int) -> Coroutine[Any, Any, None]:
+        return self.vehicle_missions.plan_and_upload(v, tasks, iteration, round_no)
 
     async def _disarm(self, v: VehicleState) -> None:
         await self.router.disarm(v.sysid)

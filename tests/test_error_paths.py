@@ -13,10 +13,11 @@ import pytest
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Waypoint
 from econdor_gcs.errors import RunError
-from econdor_gcs.gcs import MavlinkExecutor, Station
+from econdor_gcs.gcs import Station
 from econdor_gcs.link.mission import build_mission
 from econdor_gcs.run import _write_partial
 from econdor_gcs.rundir import RunDir
+from econdor_gcs.vehicle_missions import VehicleMissions
 from sim_vehicle.transport import UdpTransport, parse_endpoint
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
@@ -61,7 +62,7 @@ def test_a_mission_that_cannot_be_saved_fails_the_run(tmp_path: Path) -> None:
     (missions / "iter01_v2.waypoints").mkdir()  # the WPL copy cannot be written
     fake = SimpleNamespace(missions_dir=missions)
     with pytest.raises(RunError, match=r"cannot save the mission of vehicle 2 in .*missions"):
-        MavlinkExecutor._save_mission(fake, 1, 2, items, [Waypoint(10.0, 20.0)])  # type: ignore[arg-type]
+        VehicleMissions.save_mission(fake, 1, 2, items, [Waypoint(10.0, 20.0)])  # type: ignore[arg-type]
 
 
 def test_station_close_reports_a_router_that_fails_to_close(

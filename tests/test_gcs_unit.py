@@ -454,7 +454,7 @@ def _scripted_uploads(ex: Any, answers: list[int | None]) -> list[list[int]]:
             raise MissionRejected(f"vehicle {v.sysid} rejected mission item 3", result, 3,
                                   items[3].command)
 
-    ex._upload = upload
+    ex.vehicle_missions.upload = upload
     return sent
 
 
