@@ -23,6 +23,13 @@ Pieces, from the bottom up:
     ``MISSION_ITEM_REACHED`` for its last task item.
     After each flight it makes sure every sample the vehicles took is here
     (:class:`~.recovery.SampleRecovery`).
+    The executor runs the flights (upload, start, wait, recover, rounds for the work of lost
+    vehicles, the way home) with its parts, all on the station's loop thread:
+    :class:`~.telemetry.Telemetry` (what the vehicles send: the router's callbacks, sample
+    conversion, flight reports, status rows), :class:`~.vehicle_missions.VehicleMissions`
+    (each vehicle's missions planned, saved and uploaded, and its geofence) and
+    :class:`~.losses.VehicleLosses` (vehicles given up, item time limits, and where their
+    work goes).
 :mod:`econdor_gcs.run`
     The ``econdor run`` command on top of them: run directory, simulated fleet (or
     ``--connect``), live display, results, figures, and one-line errors that still leave a
@@ -114,6 +121,8 @@ from .vehicle_missions import mission_items_json as mission_items_json
 if TYPE_CHECKING:
     from .fleet import VehicleKind
 
+# What moved to .telemetry, .losses and .vehicle_missions stays importable from here (the
+# "X as X" imports above re-export it).
 __all__ = [
     "MavlinkExecutor",
     "Station",
@@ -400,9 +409,11 @@ class MavlinkExecutor(SampleRecovery):
     # -- the flights ----------------------------------------------------------------------------
     def _begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
                ) -> Flight:
+        """Begin ``v``'s flight of ``tasks`` (:meth:`.telemetry.Telemetry.begin`)."""
         return self.telemetry.begin(v, tasks, plan)
 
     def _end(self, v: VehicleState) -> FlightReport:
+        """End ``v``'s flight: its report (:meth:`.telemetry.Telemetry.end`)."""
         return self.telemetry.end(v)
 
     def pending_samples(self) -> SampleLog:
@@ -411,6 +422,7 @@ class MavlinkExecutor(SampleRecovery):
 
     def _plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
                          round_no: int) -> Coroutine[Any, Any, None]:
+        """:meth:`.vehicle_missions.VehicleMissions.plan_and_upload`."""
         return self.vehicle_missions.plan_and_upload(v, tasks, iteration, round_no)
 
     async def _disarm(self, v: VehicleState) -> None:
@@ -437,6 +449,7 @@ class MavlinkExecutor(SampleRecovery):
             raise
 
     def _check_lost(self) -> None:
+        """Fail when no vehicle is left (:meth:`.losses.VehicleLosses.check_lost`)."""
         self.vehicle_losses.check_lost()
 
     async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
@@ -457,12 +470,16 @@ class MavlinkExecutor(SampleRecovery):
 
     def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]
                   ) -> Coroutine[Any, Any, None]:
+        """Run a step with ``v``; ``v`` silent: lost, and the run goes on
+        (:meth:`.losses.VehicleLosses.tolerant`)."""
         return self.vehicle_losses.tolerant(v, coro)
 
     def _item_limit_s(self, v: VehicleState) -> float:
+        """:meth:`.losses.VehicleLosses.item_limit_s`."""
         return self.vehicle_losses.item_limit_s(v)
 
     def _check_progress(self, flying: list[VehicleState]) -> None:
+        """Give up the vehicles late on their items (:meth:`.losses.VehicleLosses.check_progress`)."""
         self.vehicle_losses.check_progress(flying)
 
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
@@ -595,6 +612,7 @@ class MavlinkExecutor(SampleRecovery):
         return self._owned(self._status_rows)
 
     def _status_rows(self) -> list[VehicleStatus]:
+        """:meth:`.telemetry.Telemetry.status_rows`, for :meth:`status_rows`."""
         return self.telemetry.status_rows()
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
