@@ -73,27 +73,12 @@ from collections.abc import Callable, Coroutine, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from .core.tasks import (
-    FlightReport,
-    SampleLog,
-    Task,
-)
-from .errors import (
-    LinkError,
-    ProtocolError,
-    VehicleTimeout,
-)
+from .core.tasks import FlightReport, SampleLog, Task
+from .errors import LinkError, ProtocolError, VehicleTimeout
 from .link.autopilots import start_mission
 from .link.codec import mavlink
-from .link.mission import (
-    MissionPlan,
-    fence_items,
-)
-from .link.router import (
-    AIRBORNE_ALT_M,
-    Router,
-    VehicleLost,
-)
+from .link.mission import MissionPlan, fence_items
+from .link.router import AIRBORNE_ALT_M, Router, VehicleLost
 from .link.tlog import TlogWriter
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
