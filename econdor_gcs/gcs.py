@@ -25,7 +25,7 @@ Pieces, from the bottom up:
     (:class:`~.recovery.SampleRecovery`).
     The executor runs the flights (upload, start, wait, recover, rounds for the work of lost
     vehicles, the way home) with its parts, all on the station's loop thread:
-    :class:`~.telemetry.Telemetry` (what the vehicles send: the router's callbacks, sample
+    :class:`~.telemetry.StationTelemetry` (what the vehicles send: the router's callbacks, sample
     conversion, flight reports, status rows), :class:`~.vehicle_missions.VehicleMissions`
     (each vehicle's missions planned, saved and uploaded, and its geofence) and
     :class:`~.losses.VehicleLosses` (vehicles given up, item time limits, and where their
@@ -92,8 +92,8 @@ from .telemetry import LATE as LATE
 from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
 from .telemetry import (
     Flight,
+    StationTelemetry,
     StatusAssembler,
-    Telemetry,
     VehicleState,
     VehicleStatus,
     build_report,
@@ -267,7 +267,7 @@ class MavlinkExecutor(SampleRecovery):
         owns all this state): the waits wake on it instead of polling."""
         self.altitude_m = mission.vehicles.altitude_m
         self.home = (0.0, 0.0)
-        self.telemetry = Telemetry(self.router, self.origin, self.sysids, self._changed,
+        self.telemetry = StationTelemetry(self.router, self.origin, self.sysids, self._changed,
                                    self.home)
         """Each vehicle's state, kept from what it sends (the router's callbacks)."""
         self.vehicles = self.telemetry.vehicles
@@ -394,11 +394,11 @@ class MavlinkExecutor(SampleRecovery):
     # -- the flights ----------------------------------------------------------------------------
     def _begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
                ) -> Flight:
-        """Begin ``v``'s flight of ``tasks`` (:meth:`.telemetry.Telemetry.begin`)."""
+        """Begin ``v``'s flight of ``tasks`` (:meth:`.telemetry.StationTelemetry.begin`)."""
         return self.telemetry.begin(v, tasks, plan)
 
     def _end(self, v: VehicleState) -> FlightReport:
-        """End ``v``'s flight: its report (:meth:`.telemetry.Telemetry.end`)."""
+        """End ``v``'s flight: its report (:meth:`.telemetry.StationTelemetry.end`)."""
         return self.telemetry.end(v)
 
     def pending_samples(self) -> SampleLog:
@@ -597,7 +597,7 @@ class MavlinkExecutor(SampleRecovery):
         return self._owned(self._status_rows)
 
     def _status_rows(self) -> list[VehicleStatus]:
-        """:meth:`.telemetry.Telemetry.status_rows`, for :meth:`status_rows`."""
+        """:meth:`.telemetry.StationTelemetry.status_rows`, for :meth:`status_rows`."""
         return self.telemetry.status_rows()
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None

@@ -3,7 +3,7 @@
 Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
 :mod:`econdor_gcs.gcs`):
 
-:class:`Telemetry`
+:class:`StationTelemetry`
     The router's sample and message callbacks, on the station's loop thread (which alone
     owns the vehicle state): samples buffered raw per vehicle and converted to local metres
     in batches of :data:`SAMPLE_BATCH`, mission progress, phases, trace reports and texts,
@@ -55,7 +55,7 @@ if TYPE_CHECKING:
 __all__ = [
     "Flight",
     "StatusAssembler",
-    "Telemetry",
+    "StationTelemetry",
     "VehicleState",
     "VehicleStatus",
     "build_report",
@@ -292,7 +292,7 @@ class VehicleStatus:
 # what the vehicles send
 
 
-class Telemetry:
+class StationTelemetry:
     """Keeps every vehicle's :class:`VehicleState` from what it sends: the router's sample
     and message callbacks, the conversion of samples to local metres, and the per-flight
     bookkeeping that ends in a :class:`~.core.tasks.FlightReport` (a part of

@@ -30,7 +30,7 @@ from .link.router import Router
 from .losses import VehicleLosses
 from .mission import Mission
 from .mission_files import write_wpl
-from .telemetry import Flight, Telemetry, VehicleState
+from .telemetry import Flight, StationTelemetry, VehicleState
 
 __all__ = ["VehicleMissions", "mission_items_json"]
 
@@ -67,7 +67,7 @@ class VehicleMissions:
         Item 0 of the missions (local metres).
     """
 
-    def __init__(self, router: Router, telemetry: Telemetry, losses: VehicleLosses,
+    def __init__(self, router: Router, telemetry: StationTelemetry, losses: VehicleLosses,
                  mission: Mission, *, missions_dir: Path | None, timeout_s: float,
                  tolerance_m: float, home: tuple[float, float]) -> None:
         self.router = router
