@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from econdor_gcs import dfc
 from econdor_gcs.core.adaptive import (
@@ -27,11 +28,17 @@ from econdor_gcs.core.candidates import (
     line_candidates,
     mark_crossings,
     probe_reach,
+    sweep_candidates,
 )
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.planners import PlanContext
 from econdor_gcs.core.tasks import Phase, SampleLog, TraceTask, Waypoint
-from econdor_gcs.core.uncertainty import Footprints, UncertaintyMap, expected_error
+from econdor_gcs.core.uncertainty import (
+    Footprints,
+    UncertaintyMap,
+    expected_error,
+    resample_polyline,
+)
 from econdor_gcs.mission import load_mission
 from econdor_lab.inprocess import InProcessExecutor
 
@@ -586,6 +593,19 @@ def test_open_entry_auto_enters_at_a_known_end_or_at_the_crossing_nearest_the_he
     tried.phase[:] = Phase.SEARCH
     c = entered(_join(middle, at_end, tried))
     assert c.entry_m.tolist() == pytest.approx([40.0, 5.0])  # the crossing nearest the head
+
+
+@pytest.mark.parametrize("spacing_m, covered", [(18.0, True), (20.0, False)])
+def test_sweeps_strips_narrower_than_twice_explore_m_reach_the_corners(spacing_m, covered):
+    """Swept over the whole area, strips 2 x ``explore_m`` (20 m) wide leave the corner
+    cells 10.01 m from the nearest leg (the legs stay 0.5 m inside the area), so they stay
+    open for ever; the planner's strips are a planning cell narrower (18 m)."""
+    u = uniform_map()
+    everything = np.ones(u.x_m.size, dtype=bool)
+    legs = sweep_candidates(u, everything, REGION, spacing_m)
+    flown = np.vstack([resample_polyline(c.points_m, 0.25) for c in legs])
+    d, _ = cKDTree(flown).query(np.column_stack([u.x_m, u.y_m]))
+    assert (d.max() <= 10.0) == covered
 
 
 def test_threshold_mode_plans_its_own_batch_size():

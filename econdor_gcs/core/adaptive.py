@@ -209,7 +209,7 @@ class AdaptiveParams:
     sweeps : bool
         Threshold mode: offer north-south legs over what is still farther than
         ``explore_m`` from every sample, on the centre lines of strips ``2 explore_m``
-        wide (:func:`~econdor_gcs.core.candidates.sweep_candidates`).
+        wide less one planning cell (:func:`~econdor_gcs.core.candidates.sweep_candidates`).
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -629,7 +629,10 @@ class AdaptivePlanner:
                                          reach=p.probe_reach)
             if p.sweeps:
                 uncovered = open_cells & (dist > p.explore_m)
-                cands += sweep_candidates(umap, uncovered, region, 2.0 * p.explore_m)
+                # a planning cell narrower than 2 x explore_m: with legs 0.5 m inside
+                # the area, strips exactly that wide leave their corner cells 10.01 m away
+                cands += sweep_candidates(umap, uncovered, region,
+                                          2.0 * p.explore_m - p.plan_spacing_m)
             # done: nowhere left where the model says an iso-line could be, and no sampled
             # crossing or extremum left that says one is (or may be) there
             if self.open_cells == 0 and not any(c.first for c in cands):
