@@ -192,8 +192,8 @@ def mark_crossings(cands: list[Candidate], samples: SampleLog, levels: FloatArra
       iso-line is known to reach that end) and no trace or search flown within
       ``end_m`` (not tried there before); where neither end has one, at the crossing
       nearest the end the tracer heads for first (``points_m[-1]``), which is the
-      shortest flight back to the entry (``detour_m``), and the piece is listed from the
-      end where the vehicle then finishes;
+      shortest flight back to the entry (``detour_m``), and the piece is listed so that
+      it ends where the vehicle then finishes (the other end);
     - otherwise at the crossing nearest the piece.
     """
     pts, lvs = level_crossings(samples, levels)
