@@ -25,8 +25,8 @@ Pieces, from the bottom up:
     (:class:`~.recovery.SampleRecovery`).
     The executor runs the flights (upload, start, wait, recover, rounds for the work of lost
     vehicles, the way home) with its parts, all on the station's loop thread:
-    :class:`~.telemetry.StationTelemetry` (what the vehicles send: the router's callbacks, sample
-    conversion, flight reports, status rows), :class:`~.vehicle_missions.VehicleMissions`
+    :class:`~.telemetry.StationTelemetry` (what the vehicles send: the router's callbacks,
+    sample conversion, flight reports, status rows), :class:`~.vehicle_missions.VehicleMissions`
     (each vehicle's missions planned, saved and uploaded, and its geofence) and
     :class:`~.losses.VehicleLosses` (vehicles given up, item time limits, and where their
     work goes).
@@ -267,8 +267,8 @@ class MavlinkExecutor(SampleRecovery):
         owns all this state): the waits wake on it instead of polling."""
         self.altitude_m = mission.vehicles.altitude_m
         self.home = (0.0, 0.0)
-        self.telemetry = StationTelemetry(self.router, self.origin, self.sysids, self._changed,
-                                   self.home)
+        self.telemetry = StationTelemetry(self.router, self.origin, self.sysids,
+                                          self._changed, self.home)
         """Each vehicle's state, kept from what it sends (the router's callbacks)."""
         self.vehicles = self.telemetry.vehicles
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
