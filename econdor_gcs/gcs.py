@@ -459,10 +459,6 @@ class MavlinkExecutor(SampleRecovery):
         (:meth:`.losses.VehicleLosses.tolerant`)."""
         return self.vehicle_losses.tolerant(v, coro)
 
-    def _item_limit_s(self, v: VehicleState) -> float:
-        """:meth:`.losses.VehicleLosses.item_limit_s`."""
-        return self.vehicle_losses.item_limit_s(v)
-
     def _check_progress(self, flying: list[VehicleState]) -> None:
         """Give up the vehicles late on their items (:meth:`.losses.VehicleLosses.check_progress`)."""
         self.vehicle_losses.check_progress(flying)

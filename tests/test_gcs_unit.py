@@ -378,7 +378,7 @@ def test_a_vehicle_that_never_finishes_its_item_is_lost() -> None:
     ex._begin(v, [tr])
     router.vehicles[1].time_boot_ms = 5000
     router.handlers["message"](1, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
-    limit_s = ex._item_limit_s(v)
+    limit_s = ex.vehicle_losses.item_limit_s(v)
     region = m.region
     expected = 3 * (2 * (region.width_m + region.height_m) + 2 * math.pi * 10 + 300) / \
         m.vehicles.speed_mps + 60
