@@ -17,6 +17,7 @@ from econdor_gcs.core.adaptive import (
     AdaptivePlanner,
     greedy_plan,
     perimeter_batch,
+    sweep_spacing_m,
 )
 from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.candidates import (
@@ -595,17 +596,20 @@ def test_open_entry_auto_enters_at_a_known_end_or_at_the_crossing_nearest_the_he
     assert c.entry_m.tolist() == pytest.approx([40.0, 5.0])  # the crossing nearest the head
 
 
-@pytest.mark.parametrize("spacing_m, covered", [(18.0, True), (20.0, False)])
-def test_sweeps_strips_narrower_than_twice_explore_m_reach_the_corners(spacing_m, covered):
+@pytest.mark.parametrize("planner", [True, False], ids=["planner-spacing", "2-explore_m"])
+def test_sweeps_strips_narrower_than_twice_explore_m_reach_the_corners(planner):
     """Swept over the whole area, strips 2 x ``explore_m`` (20 m) wide leave the corner
     cells 10.01 m from the nearest leg (the legs stay 0.5 m inside the area), so they stay
-    open for ever; the planner's strips are a planning cell narrower (18 m)."""
+    open for ever; the planner's strips (:func:`sweep_spacing_m`) reach every cell."""
+    p = AdaptiveParams(target_levels=(1.0,))
+    spacing_m = sweep_spacing_m(p) if planner else 2.0 * p.explore_m
+    covered = planner
     u = uniform_map()
     everything = np.ones(u.x_m.size, dtype=bool)
     legs = sweep_candidates(u, everything, REGION, spacing_m)
     flown = np.vstack([resample_polyline(c.points_m, 0.25) for c in legs])
     d, _ = cKDTree(flown).query(np.column_stack([u.x_m, u.y_m]))
-    assert (d.max() <= 10.0) == covered
+    assert (d.max() <= p.explore_m) == covered
 
 
 def test_threshold_mode_plans_its_own_batch_size():

@@ -254,6 +254,17 @@ class AdaptiveParams:
 # -- starts ----------------------------------------------------------------------------------
 
 
+def sweep_spacing_m(params: AdaptiveParams) -> float:
+    """Distance between sweep legs: a planning cell less than 2 x ``explore_m``. With legs
+    0.5 m inside the area, strips exactly 2 x ``explore_m`` wide leave their corner cells
+    just over ``explore_m`` from every leg, open for ever.
+
+    >>> sweep_spacing_m(AdaptiveParams())
+    18.0
+    """
+    return 2.0 * params.explore_m - params.plan_spacing_m
+
+
 def survey_start_batch(region: Region, lines: int) -> Batch:
     """``lines`` north-south lines at the centres of ``lines`` equal strips.
 
@@ -629,10 +640,7 @@ class AdaptivePlanner:
                                          reach=p.probe_reach)
             if p.sweeps:
                 uncovered = open_cells & (dist > p.explore_m)
-                # a planning cell narrower than 2 x explore_m: with legs 0.5 m inside
-                # the area, strips exactly that wide leave their corner cells 10.01 m away
-                cands += sweep_candidates(umap, uncovered, region,
-                                          2.0 * p.explore_m - p.plan_spacing_m)
+                cands += sweep_candidates(umap, uncovered, region, sweep_spacing_m(p))
             # done: nowhere left where the model says an iso-line could be, and no sampled
             # crossing or extremum left that says one is (or may be) there
             if self.open_cells == 0 and not any(c.first for c in cands):
