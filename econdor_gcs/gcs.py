@@ -21,15 +21,14 @@ Pieces, from the bottom up:
     a vehicle that refused trace items), the vehicle started the autopilot's way
     (:func:`~.link.autopilots.start_mission`), and its samples collected until it reports
     ``MISSION_ITEM_REACHED`` for its last task item.
-    After each flight it makes sure every sample the vehicles took is here
-    (:class:`~.recovery.SampleRecovery`).
     The executor runs the flights (upload, start, wait, recover, rounds for the work of lost
     vehicles, the way home) with its parts, all on the station's loop thread:
     :class:`~.telemetry.StationTelemetry` (what the vehicles send: the router's callbacks,
     sample conversion, flight reports, status rows), :class:`~.vehicle_missions.VehicleMissions`
-    (each vehicle's missions planned, saved and uploaded, and its geofence) and
+    (each vehicle's missions planned, saved and uploaded, and its geofence),
     :class:`~.losses.VehicleLosses` (vehicles given up, item time limits, and where their
-    work goes).
+    work goes) and :class:`~.recovery.SampleRecovery` (after each flight, every sample the
+    vehicles took brought in).
 :mod:`econdor_gcs.run`
     The ``econdor run`` command on top of them: run directory, simulated fleet (or
     ``--connect``), live display, results, figures, and one-line errors that still leave a
@@ -84,7 +83,7 @@ from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
 from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
 from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
-from .losses import VehicleLosses
+from .losses import VehicleLosses, run_all
 from .mission import Mission
 from .recovery import SampleRecovery
 from .signing import SigningKey
@@ -223,7 +222,7 @@ STREAM_WALL_HZ = {
 }
 
 
-class MavlinkExecutor(SampleRecovery):
+class MavlinkExecutor:
     """Flies the DFC's per-vehicle task lists on MAVLink vehicles (the :class:`Executor`
     protocol; the drop-in twin of :class:`econdor_lab.inprocess.InProcessExecutor`).
 
@@ -284,6 +283,10 @@ class MavlinkExecutor(SampleRecovery):
         """Each vehicle's missions: planned, saved, uploaded (and the geofence)."""
         self._abort = threading.Event()
         """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
+        self.recovery = SampleRecovery(self.router, self.mission, self.vehicles, self.timings,
+                                       self.vehicle_losses, self._until,
+                                       lambda: self.aborted)
+        """Every sample a vehicle took brought in after each flight (resends)."""
         self.router.add_sample_handler(self.telemetry.on_sample)
         self.router.add_message_handler(self.telemetry.on_message)
         self.router.add_event_handler(self._on_event)
@@ -343,7 +346,7 @@ class MavlinkExecutor(SampleRecovery):
             v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
         fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
-        await self._all([self._tolerant(v, self.vehicle_missions.upload_fence(v, fence))
+        await run_all([self.vehicle_losses.tolerant(v, self.vehicle_missions.upload_fence(v, fence))
                          for v in self.vehicles.values()])
 
     async def _slow_streams(self, sysid: int) -> None:
@@ -387,6 +390,11 @@ class MavlinkExecutor(SampleRecovery):
         """Whether :meth:`abort_flight` was called."""
         return self._abort.is_set()
 
+    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
+        """Per vehicle: samples taken, received, recovered, duplicates, missing
+        (:meth:`.recovery.SampleRecovery.sample_accounting`; for summary.json)."""
+        return self.recovery.sample_accounting()
+
     def finish(self) -> list[FlightReport]:
         """RTL every airborne vehicle; wait until each has landed and disarmed."""
         return self.station.call(self._finish())
@@ -421,22 +429,6 @@ class MavlinkExecutor(SampleRecovery):
         await start_mission(self.router, v.sysid, 1, self.timeout_s)
         v.status = "flying"
 
-    @staticmethod
-    async def _all(coros: list[Coroutine[Any, Any, None]]) -> None:
-        """Run concurrently; on the first failure cancel the rest and raise it."""
-        tasks = [asyncio.ensure_future(c) for c in coros]
-        try:
-            await asyncio.gather(*tasks)
-        except BaseException:
-            for t in tasks:
-                t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            raise
-
-    def _check_lost(self) -> None:
-        """Fail when no vehicle is left (:meth:`.losses.VehicleLosses.check_lost`)."""
-        self.vehicle_losses.check_lost()
-
     async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
                      on_tick: Callable[[], object] | None = None,
                      deadline: float | None = None) -> bool:
@@ -453,12 +445,6 @@ class MavlinkExecutor(SampleRecovery):
             with contextlib.suppress(TimeoutError):  # a tick: look again
                 await asyncio.wait_for(self._changed.wait(), tick_s)
 
-    def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]
-                  ) -> Coroutine[Any, Any, None]:
-        """Run a step with ``v``; ``v`` silent: lost, and the run goes on
-        (:meth:`.losses.VehicleLosses.tolerant`)."""
-        return self.vehicle_losses.tolerant(v, coro)
-
     def _check_progress(self, flying: list[VehicleState]) -> None:
         """Give up the vehicles late on their items (:meth:`.losses.VehicleLosses.check_progress`)."""
         self.vehicle_losses.check_progress(flying)
@@ -466,7 +452,7 @@ class MavlinkExecutor(SampleRecovery):
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
         during the flight left unfinished, are flown by the others (in further rounds)."""
-        self._check_lost()
+        self.vehicle_losses.check_lost()
         reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
         plans = self.vehicle_losses.reassign([list(p) for p in plans], [], self.positions)
         for round_no in range(len(self.sysids)):
@@ -501,19 +487,19 @@ class MavlinkExecutor(SampleRecovery):
             if not tasks or v.lost is not None:
                 continue
             flying.append(v)
-            jobs.append(self._tolerant(v, self._plan_and_upload(v, tasks, iteration,
+            jobs.append(self.vehicle_losses.tolerant(v, self._plan_and_upload(v, tasks, iteration,
                                                                  round_no)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
-        await self._all(jobs)
-        await self._all([self._tolerant(v, self._start(v)) for v in flying if v.lost is None])
+        await run_all(jobs)
+        await run_all([self.vehicle_losses.tolerant(v, self._start(v)) for v in flying if v.lost is None])
         t1 = time.monotonic()
         for v in flying:
             v.item_since = t1
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += t1 - t0
         def tick() -> None:
-            self._check_lost()
+            self.vehicle_losses.check_lost()
             self._check_progress(flying)
 
         await self._until(lambda: self._abort.is_set() or all(
@@ -524,13 +510,13 @@ class MavlinkExecutor(SampleRecovery):
                     and not v.flight.done]
             log.warning("operator stop: vehicles %s leave their missions and return to launch",
                         [v.sysid for v in busy])
-            await self._all([self._tolerant(v, self._return(v)) for v in busy])
+            await run_all([self.vehicle_losses.tolerant(v, self._return(v)) for v in busy])
         self.timings["flight_s"] += time.monotonic() - t1
-        await self._recover([v for v in flying if v.lost is None])
+        await self.recovery.recover([v for v in flying if v.lost is None])
         return flying
 
     async def _finish(self) -> list[FlightReport]:
-        self._check_lost()
+        self.vehicle_losses.check_lost()
         t0 = time.monotonic()
         going: list[VehicleState] = []
         for v in self.vehicles.values():
@@ -541,13 +527,13 @@ class MavlinkExecutor(SampleRecovery):
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
-                        await self._tolerant(v, self._disarm(v))
+                        await self.vehicle_losses.tolerant(v, self._disarm(v))
                 continue
             self._begin(v, [])
             going.append(v)
         for v in going:
             v.status = "returning"
-            await self._tolerant(v, self._return(v))
+            await self.vehicle_losses.tolerant(v, self._return(v))
             # the way home has the time limit of an item anywhere in the area
             v.item_since = time.monotonic()
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
@@ -565,7 +551,7 @@ class MavlinkExecutor(SampleRecovery):
                        for v in going)
 
         def tick() -> None:
-            self._check_lost()
+            self.vehicle_losses.check_lost()
             self._check_progress(going)
 
         await self._until(all_down, on_tick=tick)
@@ -576,7 +562,7 @@ class MavlinkExecutor(SampleRecovery):
         for v in going:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
-        await self._recover(going)
+        await self.recovery.recover(going)
         reports = [self._end(v) if v in going else self.telemetry.end_idle(v)
                    for v in self.vehicles.values()]
         for r, v in zip(reports, self.vehicles.values(), strict=True):

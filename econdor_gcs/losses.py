@@ -24,7 +24,7 @@ from .link.router import Router
 from .mission import Mission
 from .telemetry import VehicleState
 
-__all__ = ["VehicleLosses"]
+__all__ = ["VehicleLosses", "run_all"]
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +32,19 @@ LOSS_SILENCE_S = 5.0
 """A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
 DESCENT_RATE_MPS = 1.0
 """Slowest descent we expect of a vehicle landing (PX4 lands at 0.7-1.5 m/s)."""
+async def run_all(coros: list[Coroutine[Any, Any, None]]) -> None:
+    """Run the steps concurrently; on the first failure cancel the rest and raise it (wrap
+    each in :meth:`VehicleLosses.tolerant` for a vehicle's silence not to count)."""
+    tasks = [asyncio.ensure_future(c) for c in coros]
+    try:
+        await asyncio.gather(*tasks)
+    except BaseException:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        raise
+
+
 ITEM_TIME_FACTOR = 3.0
 ITEM_TIME_MARGIN_S = 60.0
 """A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over

@@ -2,9 +2,10 @@
 vehicle how many samples it took in the flight's time range, asks again for every gap in what
 arrived, and waits for the resends, until all are in or rounds stop bringing any.
 
-:class:`SampleRecovery` is a part of :class:`~.gcs.MavlinkExecutor` (a mixin): it reads the
-executor's router, mission, vehicles and timings, and waits with its helpers, on the
-station's loop thread like the rest of the executor.
+:class:`SampleRecovery` is a part of :class:`~.gcs.MavlinkExecutor`: it shares the
+executor's router, mission, vehicle states and timings, gives up vehicles through its
+:class:`~.losses.VehicleLosses` and waits with the executor's ``until`` (which wakes on
+whatever the vehicles send), on the station's loop thread like the rest of the executor.
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ import bisect
 import functools
 import logging
 import time
-from collections.abc import Callable, Coroutine, Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Awaitable, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 from .core.tasks import (
     SAMPLE_COUNT_COMMAND,
@@ -24,9 +25,11 @@ from .core.tasks import (
     TaskStyle,
     TraceTask,
 )
+from .losses import run_all
 
 if TYPE_CHECKING:
     from .link.router import Router
+    from .losses import VehicleLosses
     from .mission import Mission
     from .telemetry import VehicleState
 
@@ -49,33 +52,50 @@ def _all_in(keys: Sequence[int], mapping: dict[int, Any]) -> bool:
     return all(k in mapping for k in keys)
 
 
+class Until(Protocol):
+    """The executor's wait: until ``cond()`` holds (woken by whatever the vehicles send),
+    False at ``deadline``."""
+
+    def __call__(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
+                 on_tick: Callable[[], object] | None = None,
+                 deadline: float | None = None) -> Awaitable[bool]: ...
+
+
 class SampleRecovery:
-    """The sample recovery of :class:`~.gcs.MavlinkExecutor` (mixed into it)."""
+    """The sample recovery of a :class:`~.gcs.MavlinkExecutor`.
 
-    router: Router
-    mission: Mission
-    vehicles: dict[int, VehicleState]
-    timings: dict[str, float]
+    Parameters
+    ----------
+    router, mission, vehicles, timings
+        The executor's: the link, the mission (sample rate), each vehicle's state (what
+        arrived), and its timings (``recovery_s`` is added up here).
+    losses
+        Gives up a vehicle that falls silent while it is asked (the run goes on with the
+        others) and fails when none is left.
+    until
+        The executor's wait.
+    aborted
+        Whether the operator stopped the flight (then only the items a vehicle got past
+        have a TRACE report to ask for).
+    """
 
-    if TYPE_CHECKING:  # the executor's own, used here
-        async def _all(self, coros: list[Coroutine[Any, Any, None]]) -> None: ...
+    def __init__(self, router: Router, mission: Mission, vehicles: dict[int, VehicleState],
+                 timings: dict[str, float], losses: VehicleLosses, until: Until,
+                 aborted: Callable[[], bool]) -> None:
+        self.router = router
+        self.mission = mission
+        self.vehicles = vehicles
+        self.timings = timings
+        self.losses = losses
+        self._until = until
+        self._aborted = aborted
 
-        async def _tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]
-                            ) -> None: ...
-
-        async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
-                         on_tick: Callable[[], object] | None = None,
-                         deadline: float | None = None) -> bool: ...
-
-        def _check_lost(self) -> None: ...
-
-        @property
-        def aborted(self) -> bool: ...
-
-    async def _recover(self, vs: list[VehicleState]) -> None:
+    async def recover(self, vs: list[VehicleState]) -> None:
+        """Bring in every sample the vehicles ``vs`` took since their last recovery (and
+        the TRACE reports of their flight), as far as rounds of resends can."""
         t0 = time.monotonic()
-        await self._all([self._tolerant(v, self._recover_one(v)) for v in vs
-                         if v.lost is None])
+        await run_all([self.losses.tolerant(v, self._recover_one(v)) for v in vs
+                    if v.lost is None])
         self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
             time.monotonic() - t0
 
@@ -137,7 +157,7 @@ class SampleRecovery:
         n = have = 0
         stalled, best = 0, -1
         for round_no in range(RECOVERY_ROUNDS):
-            self._check_lost()
+            self.losses.check_lost()
             n = await self._count(v, first, last)
             have = v.count_seen(first, last)
             if have >= n:
@@ -166,7 +186,7 @@ class SampleRecovery:
         # after an operator's stop only the items the vehicle got past have a report
         current = v.current_seq if v.current_seq is not None else 0
         due = [t for t, (_, last) in zip(f.tasks, f.task_seqs, strict=True)
-               if not self.aborted or last < current or last in f.reached]
+               if not self._aborted() or last < current or last in f.reached]
         for _ in range(RECOVERY_ROUNDS):
             missing = [t.piece_id for t in due
                        if isinstance(t, TraceTask) and t.piece_id not in f.pieces]

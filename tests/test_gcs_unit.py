@@ -287,11 +287,11 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     router.handlers["event"](VehicleLost(2, 21.0))
     assert ex.vehicles[2].lost == "no heartbeat for 21 s"
     assert ex.losses[0]["sysid"] == 2
-    ex._check_lost()
+    ex.vehicle_losses.check_lost()
     router.handlers["event"](VehicleLost(1, 6.0))
     with pytest.raises(VehicleTimeout, match="every vehicle lost: vehicle 1 lost: no heartbeat "
                                              "for 6 s; vehicle 2 lost: no heartbeat for 21 s"):
-        ex._check_lost()
+        ex.vehicle_losses.check_lost()
 
 
 def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
