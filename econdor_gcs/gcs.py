@@ -76,7 +76,7 @@ from .core.tasks import FlightReport, SampleLog, Task
 from .errors import LinkError, ProtocolError, VehicleTimeout
 from .link.autopilots import start_mission
 from .link.codec import mavlink
-from .link.mission import MissionPlan, fence_items
+from .link.mission import fence_items
 from .link.router import AIRBORNE_ALT_M, Router, VehicleLost
 from .link.tlog import TlogWriter
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
@@ -89,8 +89,8 @@ from .recovery import SampleRecovery
 from .signing import SigningKey
 from .telemetry import LATE as LATE
 from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
+from .telemetry import Flight as Flight
 from .telemetry import (
-    Flight,
     StationTelemetry,
     StatusAssembler,
     VehicleState,
@@ -346,8 +346,9 @@ class MavlinkExecutor:
             v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
         fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
-        await run_all([self.vehicle_losses.tolerant(v, self.vehicle_missions.upload_fence(v, fence))
-                         for v in self.vehicles.values()])
+        losses = self.vehicle_losses
+        await run_all([losses.tolerant(v, self.vehicle_missions.upload_fence(v, fence))
+                       for v in self.vehicles.values()])
 
     async def _slow_streams(self, sysid: int) -> None:
         """Ask for the display-only streams at a few Hz of *wall* time.
@@ -400,23 +401,9 @@ class MavlinkExecutor:
         return self.station.call(self._finish())
 
     # -- the flights ----------------------------------------------------------------------------
-    def _begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
-               ) -> Flight:
-        """Begin ``v``'s flight of ``tasks`` (:meth:`.telemetry.StationTelemetry.begin`)."""
-        return self.telemetry.begin(v, tasks, plan)
-
-    def _end(self, v: VehicleState) -> FlightReport:
-        """End ``v``'s flight: its report (:meth:`.telemetry.StationTelemetry.end`)."""
-        return self.telemetry.end(v)
-
     def pending_samples(self) -> SampleLog:
         """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
         return self._owned(self.telemetry.pending_samples)
-
-    def _plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
-                         round_no: int) -> Coroutine[Any, Any, None]:
-        """:meth:`.vehicle_missions.VehicleMissions.plan_and_upload`."""
-        return self.vehicle_missions.plan_and_upload(v, tasks, iteration, round_no)
 
     async def _disarm(self, v: VehicleState) -> None:
         await self.router.disarm(v.sysid)
@@ -445,10 +432,6 @@ class MavlinkExecutor:
             with contextlib.suppress(TimeoutError):  # a tick: look again
                 await asyncio.wait_for(self._changed.wait(), tick_s)
 
-    def _check_progress(self, flying: list[VehicleState]) -> None:
-        """Give up the vehicles late on their items (:meth:`.losses.VehicleLosses.check_progress`)."""
-        self.vehicle_losses.check_progress(flying)
-
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
         """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
         during the flight left unfinished, are flown by the others (in further rounds)."""
@@ -461,7 +444,7 @@ class MavlinkExecutor:
             flown = await self._round(plans, iteration, round_no)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
-                r = self._end(v)
+                r = self.telemetry.end(v)
                 if v.lost is not None:
                     left = self.vehicle_losses.unfinished(r)
                     if left:
@@ -487,12 +470,13 @@ class MavlinkExecutor:
             if not tasks or v.lost is not None:
                 continue
             flying.append(v)
-            jobs.append(self.vehicle_losses.tolerant(v, self._plan_and_upload(v, tasks, iteration,
-                                                                 round_no)))
+            jobs.append(self.vehicle_losses.tolerant(
+                v, self.vehicle_missions.plan_and_upload(v, tasks, iteration, round_no)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await run_all(jobs)
-        await run_all([self.vehicle_losses.tolerant(v, self._start(v)) for v in flying if v.lost is None])
+        await run_all([self.vehicle_losses.tolerant(v, self._start(v)) for v in flying
+                       if v.lost is None])
         t1 = time.monotonic()
         for v in flying:
             v.item_since = t1
@@ -500,7 +484,7 @@ class MavlinkExecutor:
         self.timings["protocol_s"] += t1 - t0
         def tick() -> None:
             self.vehicle_losses.check_lost()
-            self._check_progress(flying)
+            self.vehicle_losses.check_progress(flying)
 
         await self._until(lambda: self._abort.is_set() or all(
             v.lost is not None or (v.flight is not None and v.flight.done) for v in flying),
@@ -529,7 +513,7 @@ class MavlinkExecutor:
                     with contextlib.suppress(ProtocolError):
                         await self.vehicle_losses.tolerant(v, self._disarm(v))
                 continue
-            self._begin(v, [])
+            self.telemetry.begin(v, [])
             going.append(v)
         for v in going:
             v.status = "returning"
@@ -552,7 +536,7 @@ class MavlinkExecutor:
 
         def tick() -> None:
             self.vehicle_losses.check_lost()
-            self._check_progress(going)
+            self.vehicle_losses.check_progress(going)
 
         await self._until(all_down, on_tick=tick)
         # the heartbeat (1 Hz) confirms the disarm; a vehicle that never says so is left be
@@ -563,7 +547,7 @@ class MavlinkExecutor:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
         await self.recovery.recover(going)
-        reports = [self._end(v) if v in going else self.telemetry.end_idle(v)
+        reports = [self.telemetry.end(v) if v in going else self.telemetry.end_idle(v)
                    for v in self.vehicles.values()]
         for r, v in zip(reports, self.vehicles.values(), strict=True):
             if v in going:

@@ -251,7 +251,7 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     items = build_mission(m.origin, [tr], 30.0, end="none")
     v = ex.vehicles[2]
     v.items = items
-    f = ex._begin(v, [tr])
+    f = ex.telemetry.begin(v, [tr])
     v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
     on_msg(2, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
@@ -272,7 +272,7 @@ def test_executor_collects_samples_phases_and_outcomes() -> None:
     assert not f.done
     on_msg(2, mavlink.MAVLink_mission_item_reached_message(2))
     assert f.done
-    r = ex._end(v)
+    r = ex.telemetry.end(v)
     assert r.vehicle == 1
     # in time order; the late one has the phase reported for its time
     assert list(r.samples.phase) == [Phase.SEARCH, Phase.SEARCH, Phase.TRACE]
@@ -307,7 +307,7 @@ def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
     assert plan.task_seqs == [(2, 2), (3, 5)]
     v = ex.vehicles[1]
     v.items, v.item_phases = plan.items, dict(plan.item_phases)
-    f = ex._begin(v, tasks, plan)
+    f = ex.telemetry.begin(v, tasks, plan)
     v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
     for seq, ms, x, y in ((2, 1000, 5.0, 0.0), (3, 1100, 10.0, 0.0), (4, 1200, 20.0, 0.0),
@@ -316,7 +316,7 @@ def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
         on_sample(_sample(m.origin, 1, ms, x, y, 1.0))
         on_msg(1, mavlink.MAVLink_mission_item_reached_message(seq))
     assert f.done
-    r = ex._end(v)
+    r = ex.telemetry.end(v)
     assert list(r.samples.phase) == [Phase.TRANSIT, Phase.TRANSIT, Phase.TRACE, Phase.TRACE]
     assert [o.status for o in r.outcomes] == ["reached", "reached"]
     # flown along the contour: the legs to items 4 and 5 (10 m each)
@@ -330,7 +330,7 @@ def test_returning_vehicle_has_landed_when_its_state_says_so() -> None:
     router = FakeRouter()
     ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
     v = ex.vehicles[1]
-    f = ex._begin(v, [])
+    f = ex.telemetry.begin(v, [])
     on_msg = router.handlers["message"]
     on_msg(1, mavlink.MAVLink_statustext_message(6, b"landed, disarmed", 0, 0))
     assert not f.landed  # words are not state
@@ -347,7 +347,7 @@ def test_mission_complete_state_ends_a_flight_without_item_reached() -> None:
     ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
     v = ex.vehicles[1]
     v.items = build_mission(m.origin, [Waypoint(1, 1), Waypoint(2, 2)], 30.0, end="none")
-    f = ex._begin(v, [Waypoint(1, 1), Waypoint(2, 2)])
+    f = ex.telemetry.begin(v, [Waypoint(1, 1), Waypoint(2, 2)])
     on_msg = router.handlers["message"]
     # a stale "complete" before our MISSION_START was accepted does not count
     on_msg(1, mavlink.MAVLink_mission_current_message(3, 4, mavlink.MISSION_STATE_COMPLETE, 0))
@@ -375,7 +375,7 @@ def test_a_vehicle_that_never_finishes_its_item_is_lost() -> None:
     tr = TraceTask(50.0, 10.0, 10.0, 10.0, 300.0, 1000)
     v = ex.vehicles[1]
     v.items = build_mission(m.origin, [tr], 30.0, end="none")
-    ex._begin(v, [tr])
+    ex.telemetry.begin(v, [tr])
     router.vehicles[1].time_boot_ms = 5000
     router.handlers["message"](1, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
     limit_s = ex.vehicle_losses.item_limit_s(v)
@@ -386,10 +386,10 @@ def test_a_vehicle_that_never_finishes_its_item_is_lost() -> None:
 
     async def main() -> None:
         router.vehicles[1].time_boot_ms = 5000 + int(1000 * limit_s) - 100
-        ex._check_progress([v])
+        ex.vehicle_losses.check_progress([v])
         assert v.lost is None
         router.vehicles[1].time_boot_ms = 5000 + int(1000 * limit_s) + 100
-        ex._check_progress([v])
+        ex.vehicle_losses.check_progress([v])
         await asyncio.sleep(0)
         await asyncio.sleep(0)
 
@@ -434,11 +434,11 @@ def test_a_landed_vehicle_is_not_late_while_the_others_come_home() -> None:
     router = FakeRouter()
     ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
     v = ex.vehicles[1]
-    f = ex._begin(v, [])
+    f = ex.telemetry.begin(v, [])
     v.item_since_ms = 0
     f.landed = True
     router.vehicles[1].time_boot_ms = 10**7  # hours of its time later
-    ex._check_progress([v])
+    ex.vehicle_losses.check_progress([v])
     assert v.lost is None
 
 
@@ -469,7 +469,7 @@ def test_a_lost_refusal_of_a_contour_item_restarts_the_upload() -> None:
                                   mavlink.MAV_MISSION_ERROR, None])
     route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
     v = ex.vehicles[1]
-    asyncio.run(ex._plan_and_upload(
+    asyncio.run(ex.vehicle_missions.plan_and_upload(
         v, [TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route)], 1, 0))
     trace, wp = mavlink.MAV_CMD_WAYPOINT_USER_1, mavlink.MAV_CMD_NAV_WAYPOINT
     assert [trace in c for c in sent] == [True, True, False, False]
@@ -483,5 +483,5 @@ def test_an_upload_refused_again_and_again_fails() -> None:
     ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
     sent = _scripted_uploads(ex, [mavlink.MAV_MISSION_INVALID_SEQUENCE] * 5)
     with pytest.raises(MissionRejected, match="rejected mission item 3"):
-        asyncio.run(ex._plan_and_upload(ex.vehicles[1], [Waypoint(5.0, 0.0)] * 3, 1, 0))
+        asyncio.run(ex.vehicle_missions.plan_and_upload(ex.vehicles[1], [Waypoint(5.0, 0.0)] * 3, 1, 0))
     assert len(sent) == UPLOAD_ATTEMPTS
