@@ -32,6 +32,12 @@ LOSS_SILENCE_S = 5.0
 """A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
 DESCENT_RATE_MPS = 1.0
 """Slowest descent we expect of a vehicle landing (PX4 lands at 0.7-1.5 m/s)."""
+ITEM_TIME_FACTOR = 3.0
+ITEM_TIME_MARGIN_S = 60.0
+"""A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
+cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
+
+
 async def run_all(coros: list[Coroutine[Any, Any, None]]) -> None:
     """Run the steps concurrently; on the first failure cancel the rest and raise it (wrap
     each in :meth:`VehicleLosses.tolerant` for a vehicle's silence not to count)."""
@@ -43,12 +49,6 @@ async def run_all(coros: list[Coroutine[Any, Any, None]]) -> None:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         raise
-
-
-ITEM_TIME_FACTOR = 3.0
-ITEM_TIME_MARGIN_S = 60.0
-"""A mission item must finish within ITEM_TIME_FACTOR x its planned flight time (length over
-cruise speed) + ITEM_TIME_MARGIN_S of sim time, or the vehicle is lost."""
 
 
 class VehicleLosses:

@@ -95,7 +95,7 @@ class SampleRecovery:
         the TRACE reports of their flight), as far as rounds of resends can."""
         t0 = time.monotonic()
         await run_all([self.losses.tolerant(v, self._recover_one(v)) for v in vs
-                    if v.lost is None])
+                       if v.lost is None])
         self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
             time.monotonic() - t0
 
