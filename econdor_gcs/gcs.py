@@ -89,7 +89,6 @@ from .recovery import SampleRecovery
 from .signing import SigningKey
 from .telemetry import LATE as LATE
 from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
-from .telemetry import Flight as Flight
 from .telemetry import (
     StationTelemetry,
     StatusAssembler,

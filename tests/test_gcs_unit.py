@@ -24,7 +24,6 @@ from econdor_gcs.core.tasks import (
 from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.gcs import (
     UPLOAD_ATTEMPTS,
-    Flight,
     MavlinkExecutor,
     StatusAssembler,
     build_report,
@@ -35,6 +34,7 @@ from econdor_gcs.link.mission import build_mission, plan_mission
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost
 from econdor_gcs.mission import parse_mission
+from econdor_gcs.telemetry import Flight
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 
