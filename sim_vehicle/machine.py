@@ -79,7 +79,7 @@ STATE = np.dtype([
     ("filter_alpha", _F), ("filter_beta", _F), ("gradient_window", _I), ("min_spread_m", _F),
     ("boundary_margin_m", _F), ("lost_offset_m", _F), ("lost_time_s", _F),
     ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
-    ("budget_factor", _F), ("edge_skip_m", _F),
+    ("budget_factor", _F), ("edge_skip_m", _F), ("recover_speed_mps", _F), ("recover_m", _F),
     # control
     ("pc", _I), ("status", _I), ("await_value", _I), ("cmd_vx", _F), ("cmd_vy", _F),
     ("cmd_phase", _I), ("odo_before", _F), ("area_guard", _I),
@@ -105,6 +105,7 @@ STATE = np.dtype([
     ("leg_status", _I), ("win_start", _I), ("win_len", _I),
     # trace orchestration
     ("heading0", _F), ("reacquired", _I), ("back_edge_m", _F),
+    ("has_good", _I), ("good_x", _F), ("good_y", _F), ("slow_until_m", _F), ("lost_at_m", _F),
 ])
 """One task's state (parameters, program counter, loop locals)."""
 
@@ -136,6 +137,11 @@ FENCE_STUCK_S = 2.0
 """A fly-to held at the fence this long (command and speed near zero) gives up."""
 PROBE_BLOCKED_M = 0.1
 """A probe leg ends this close to the area boundary (or the fence margin) ahead."""
+REACQUIRE_RESET_M = 40.0
+"""A lost trace that held the iso-line this far since its last loss gets ``max_reacquire``
+attempts afresh."""
+GOOD_OFFSET_M = 1.0
+"""A trace sample within this lateral offset of the level is where a lost trace resumes."""
 FENCE_EPISODE_GAP_S = 1.0
 """Fence limiting after this long without any counts as a new breach attempt."""
 
@@ -160,6 +166,7 @@ PC_TR_AFTER_REACQUIRE = 34
 PC_TR_AFTER_RETURN = 35
 PC_TR_END = 36
 PC_FT_END = 37
+PC_TR_AFTER_BACKUP = 38
 
 # phases (econdor_gcs.core.tasks.Phase)
 _TRANSIT, _SEARCH, _TRACE = 0, 1, 2
@@ -876,6 +883,8 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             s.heading_before = _heading(b)
             if k_need > 1e-9:
                 v_target = min(v_target, math.sqrt(0.7 * lat_accel / k_need))
+            if s.traced_m < s.slow_until_m:
+                v_target = min(v_target, s.recover_speed_mps)
             edge = _edge_ahead_m(b, fv, fr, fc, b.x_m, b.y_m, ux, uy)
             v_target = min(v_target, math.sqrt(2.0 * 0.5 * b.max_accel_mps2
                                                * max(edge - s.boundary_margin_m, 0.0)) + 0.5)
@@ -917,13 +926,27 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             s.back_edge_m = _edge_ahead_m(b, fv, fr, fc, s.f_x, s.f_y,
                                           -math.cos(s.heading0), -math.sin(s.heading0))
             s.reacquired = 0
+            s.has_good = 0
+            s.slow_until_m = 0.0
+            s.lost_at_m = 0.0
             _call_leg(s, s.heading0, 1.0)
             continue
         if pc == PC_TR_AFTER_LEG:
             status = s.leg_status
+            if status == LOST and s.recover_m > 0.0 and (
+                    s.traced_m - s.lost_at_m > REACQUIRE_RESET_M):
+                s.reacquired = 0  # held the iso-line long enough since the last loss
+            if status == LOST:
+                s.lost_at_m = s.traced_m
             if status == LOST and s.reacquired < s.max_reacquire:
                 s.reacquired += 1
                 n_events = _emit(events, n_events, EV_LOST_SEARCHING, n_out)
+                if s.recover_m > 0.0 and s.has_good and (
+                        math.hypot(b.x_m - s.good_x, b.y_m - s.good_y) > 1.0):
+                    # back to where the iso-line was last held, and on from there slowly
+                    _call_fly_to(s, b, s.good_x, s.good_y, _SEARCH, 0.5, s.search_speed_mps,
+                                 PC_TR_AFTER_BACKUP)
+                    continue
                 _call_search(s, s.level, b.x_m, b.y_m, s.reacquire_radius_m,
                              PC_TR_AFTER_REACQUIRE)
                 continue
@@ -935,9 +958,15 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             s.status = status
             s.pc = PC_TR_END
             continue
+        if pc == PC_TR_AFTER_BACKUP:
+            _call_search(s, s.level, s.good_x, s.good_y, s.reacquire_radius_m,
+                         PC_TR_AFTER_REACQUIRE)
+            continue
         if pc == PC_TR_AFTER_REACQUIRE:
             if s.found:
                 n_events = _emit(events, n_events, EV_REACQUIRED, n_out)
+                if s.recover_m > 0.0:
+                    s.slow_until_m = s.traced_m + s.recover_m
                 _call_leg(s, _heading_from_gradient(s.f_gx, s.f_gy, s.side), s.side)
                 continue
             s.status = LOST
@@ -945,6 +974,8 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             continue
         if pc == PC_TR_AFTER_RETURN:
             s.away_max = 0.0
+            s.has_good = 0
+            s.slow_until_m = 0.0
             _call_leg(s, s.heading0 + math.pi, -1.0)
             continue
         if pc == PC_TR_END:
@@ -1014,6 +1045,8 @@ def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarr
     resid = d_meas - d_pred
     s.d_f = d_pred + s.filter_alpha * resid
     s.dd_f += s.filter_beta / dt * resid
+    if abs(d_meas) < GOOD_OFFSET_M:
+        s.has_good, s.good_x, s.good_y = 1, x, y
     # --- termination checks
     if s.max_length_m > 0.0 and s.traced_m >= s.max_length_m:
         _leg_end(s, LENGTH_LIMIT)

@@ -21,7 +21,10 @@ Trace
     re-estimated from a plane fit over the recent trace samples whenever they are
     spread enough across the track. Loop closure, the region boundary (then the
     vehicle returns to the entry point and traces the other way), the length limit,
-    loss of the contour (local re-search) and a hard tick budget end the trace.
+    loss of the contour and a hard tick budget end the trace. A lost contour (a bend
+    too sharp for the cruise speed, a saddle where the gradient vanishes) is searched
+    for again where the trace last held it, and the next ``recover_m`` are traced at
+    ``recover_speed_mps``; ``max_reacquire`` losses in a row end the trace.
 
 The logic itself is the compiled state machine of :mod:`sim_vehicle.machine` (one
 implementation for the MAVLink vehicle and the in-process studies). This module is its
@@ -118,7 +121,9 @@ class TracerParams:
     reacquire_radius_m
         Radius of the local search used to reacquire a lost contour.
     max_reacquire
-        Maximum number of reacquisition attempts per task.
+        Maximum number of reacquisition attempts in a row (a trace that held the
+        contour for 40 m since its last loss gets them afresh; with ``recover_m = 0``
+        per task).
     min_loop_radius_m
         A full turn of the heading within ``2 pi`` times this path length (without the
         loop closing) is taken as orbiting off the contour, i.e. the contour is lost.
@@ -129,6 +134,13 @@ class TracerParams:
         An iso-line found this close to the area's edge, along its other sense of tracing,
         is traced one way only: at the far edge the trace ends instead of flying back to
         the start for the few metres left on the near side.
+    recover_speed_mps
+        Speed of the trace after a lost contour was found again.
+    recover_m
+        How far the trace goes on at ``recover_speed_mps``. The search for a lost contour
+        starts where the trace last held it (within 1 m). 0: the search starts where the
+        vehicle is, the trace goes on at cruise speed and ``max_reacquire`` counts per
+        task (the tracer before 2026-12).
     """
 
     speed_mps: float = 8.0
@@ -155,6 +167,8 @@ class TracerParams:
     min_loop_radius_m: float = 3.0
     budget_factor: float = 4.0
     edge_skip_m: float = 4.0
+    recover_speed_mps: float = 2.0
+    recover_m: float = 20.0
 
 
 # ----------------------------------------------------------------------------- the machine
