@@ -140,7 +140,7 @@ class TracerParams:
         How far the trace goes on at ``recover_speed_mps``. The search for a lost contour
         starts where the trace last held it (within 1 m). 0: the search starts where the
         vehicle is, the trace goes on at cruise speed and ``max_reacquire`` counts per
-        task (the tracer before 2026-12).
+        task (as the tracer did before this parameter).
     """
 
     speed_mps: float = 8.0

@@ -366,11 +366,11 @@ def test_one_compiled_signature_for_every_kind_of_use() -> None:
 def test_a_contour_lost_at_a_saddle_is_taken_up_where_it_was_last_held(
         recover_m: float, status: str) -> None:
     """Paper field, seed 0, at the middle of its range: coming down from the north the
-    iso-line turns west within 3 m of a saddle, far too sharp for 8 m/s. The tracer
-    overshoots into the saddle and loses it. Searching where it is finds the other branch
-    and loses it again; going back to where the iso-line was last held and on slowly
-    follows it to the west edge, then traces the other way from the entry to the north
-    edge. Without that recovery (``recover_m = 0``) the trace ends lost after ~70 m."""
+    iso-line turns west beside a saddle, far more sharply than 8 m/s allows. The tracer
+    overshoots into the saddle and loses it. Going back to where the iso-line was last
+    held and on slowly follows it to the west edge, then traces the other way from the
+    entry to the north edge. Searching where the vehicle is instead (``recover_m = 0``,
+    the tracer before) ends the trace lost after ~70 m."""
     from econdor_gcs.dfc import isoline_levels
     from econdor_gcs.mission import parse_mission
 
@@ -387,8 +387,7 @@ def test_a_contour_lost_at_a_saddle_is_taken_up_where_it_was_last_held(
     if recover_m == 0.0:
         assert outcome.traced_m < 80.0
         return
-    # measured: 135 m traced for 218 m flown; the true iso-line runs 44 m from (50, 80.5)
-    # to the saddle and 40 m on to the west edge
+    # measured: 135 m traced for 218 m flown (70 m traced, then lost, without the recovery)
     assert outcome.traced_m > 120.0
     assert traced[:, 0].min() < 2.0  # reached the west edge ...
     assert traced[:, 1].max() > 95.0  # ... and the north edge, the other way
