@@ -933,23 +933,22 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             continue
         if pc == PC_TR_AFTER_LEG:
             status = s.leg_status
-            if status == LOST and s.recover_m > 0.0 and (
-                    s.traced_m - s.lost_at_m > REACQUIRE_RESET_M):
-                s.reacquired = 0  # held the iso-line long enough since the last loss
             if status == LOST:
+                if s.recover_m > 0.0 and s.traced_m - s.lost_at_m > REACQUIRE_RESET_M:
+                    s.reacquired = 0  # held the iso-line long enough since the last loss
                 s.lost_at_m = s.traced_m
-            if status == LOST and s.reacquired < s.max_reacquire:
-                s.reacquired += 1
-                n_events = _emit(events, n_events, EV_LOST_SEARCHING, n_out)
-                if s.recover_m > 0.0 and s.has_good and (
-                        math.hypot(b.x_m - s.good_x, b.y_m - s.good_y) > 1.0):
-                    # back to where the iso-line was last held, and on from there slowly
-                    _call_fly_to(s, b, s.good_x, s.good_y, _SEARCH, 0.5, s.search_speed_mps,
-                                 PC_TR_AFTER_BACKUP)
+                if s.reacquired < s.max_reacquire:
+                    s.reacquired += 1
+                    n_events = _emit(events, n_events, EV_LOST_SEARCHING, n_out)
+                    if s.recover_m > 0.0 and s.has_good and (
+                            math.hypot(b.x_m - s.good_x, b.y_m - s.good_y) > 1.0):
+                        # back to where the iso-line was last held, and on from there slowly
+                        _call_fly_to(s, b, s.good_x, s.good_y, _SEARCH, 0.5,
+                                     s.search_speed_mps, PC_TR_AFTER_BACKUP)
+                        continue
+                    _call_search(s, s.level, b.x_m, b.y_m, s.reacquire_radius_m,
+                                 PC_TR_AFTER_REACQUIRE)
                     continue
-                _call_search(s, s.level, b.x_m, b.y_m, s.reacquire_radius_m,
-                             PC_TR_AFTER_REACQUIRE)
-                continue
             if status == BOUNDARY and s.side > 0 and s.back_edge_m > s.edge_skip_m:
                 n_events = _emit(events, n_events, EV_BOUNDARY_OTHER, n_out)
                 _call_fly_to(s, b, s.start_x, s.start_y, _TRANSIT, 0.5, s.transit_speed_mps,

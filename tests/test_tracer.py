@@ -389,7 +389,10 @@ def test_a_contour_lost_at_a_saddle_is_taken_up_where_it_was_last_held(
         return
     # measured: 135 m traced for 218 m flown (70 m traced, then lost, without the recovery)
     assert outcome.traced_m > 120.0
-    assert traced[:, 0].min() < 2.0  # reached the west edge ...
+    # reached the west edge on the branch it was on (y ~ 40 there), not the other branch
+    # of the saddle, which meets that edge at y ~ 18 ...
+    west = traced[traced[:, 0] < 2.0]
+    assert len(west) > 0 and west[:, 1].min() > 38.0 and west[:, 1].max() < 44.0
     assert traced[:, 1].max() > 95.0  # ... and the north edge, the other way
     # on the iso-line, not wandering: 90 % of the traced samples within 1 % of the range
     span = float(np.ptp(truth(xx, yy)))
