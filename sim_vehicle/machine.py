@@ -141,7 +141,8 @@ REACQUIRE_RESET_M = 40.0
 """A lost trace that held the iso-line this far since its last loss gets ``max_reacquire``
 attempts afresh."""
 GOOD_OFFSET_M = 1.0
-"""A trace sample within this lateral offset of the level is where a lost trace resumes."""
+"""A trace sample within this lateral offset of the level is where a lost trace resumes
+(searched for where the vehicle is when it is already within this distance of it)."""
 FENCE_EPISODE_GAP_S = 1.0
 """Fence limiting after this long without any counts as a new breach attempt."""
 
@@ -941,7 +942,7 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
                     s.reacquired += 1
                     n_events = _emit(events, n_events, EV_LOST_SEARCHING, n_out)
                     if s.recover_m > 0.0 and s.has_good and (
-                            math.hypot(b.x_m - s.good_x, b.y_m - s.good_y) > 1.0):
+                            math.hypot(b.x_m - s.good_x, b.y_m - s.good_y) > GOOD_OFFSET_M):
                         # back to where the iso-line was last held, and on from there slowly
                         _call_fly_to(s, b, s.good_x, s.good_y, _SEARCH, 0.5,
                                      s.search_speed_mps, PC_TR_AFTER_BACKUP)

@@ -6,11 +6,10 @@ The reference (``tests/data/regression.npz``) was recorded by
 when a trace begun at the area's edge stopped flying back to its start for the few
 metres on the near side (``TracerParams.edge_skip_m``), and again when a lost contour came
 to be taken up where the trace last held it (``TracerParams.recover_m``): four whole
-in-process runs of the paper
-setting (``missions/paper.yaml``: authors' field, one vehicle, diagonals then 8
-iterations, econdor planner), paper seeds 0, 1, 2 and a plume field (seed 3, the plume of
-``bench/efficiency.py``). For each it holds every sample of iterations 0 and 1 and the
-MAE after every iteration.
+in-process runs of the paper setting (``missions/paper.yaml``: authors' field, one
+vehicle, diagonals then 8 iterations, econdor planner), paper seeds 0, 1, 2 and a plume
+field (seed 3, the plume of ``bench/efficiency.py``). For each it holds every sample of
+iterations 0 and 1 and the MAE after every iteration.
 
 What is pinned, and why these tolerances
 ----------------------------------------
