@@ -771,12 +771,15 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             v = min(max(s.approach_gain_hz * pred_m, s.v_min), s.v_search)
             return _command(s, v * ux, v * uy, _SEARCH), n_events
         if pc == PC_SR_SPIRAL_START:
-            # expanding Archimedean spiral around the start point
-            s.pitch = s.spiral_spacing_m / (2.0 * math.pi)
+            # expanding Archimedean spiral around the start point, one turn from
+            # r = step out to r = 2 step, ...; the step never more than half the search
+            # radius, so a disc narrower than two spiral spacings still gets a turn
+            r = s.sr_radius
+            step = min(s.spiral_spacing_m, 0.5 * r)
+            s.pitch = step / (2.0 * math.pi)
             s.phi0 = math.atan2(b.y_m - s.sr_cy, b.x_m - s.sr_cx)
             s.theta = 2.0 * math.pi
-            r = s.sr_radius
-            s.sp_max = int((math.pi * r**2 / s.spiral_spacing_m + 4.0 * r + 50.0)
+            s.sp_max = int((math.pi * r**2 / step + 4.0 * r + 50.0)
                            / (0.5 * s.v_min) / b.dt_s) + 100
             s.sp_k = 0
             s.pc = PC_SR_SPIRAL

@@ -10,7 +10,8 @@ Search
     across its arrival direction, fits a plane to its recent samples and flies down
     (or up) the estimated gradient toward the level, slowing as the predicted
     distance shrinks. If that fails (flat field, wrong way, left the search disc) it
-    flies an Archimedean spiral around the start point out to ``search_radius_m``.
+    flies an Archimedean spiral around the start point out to ``search_radius_m``, its
+    turns ``spiral_spacing_m`` apart, or half the radius apart in a smaller disc.
     The level is found as soon as two consecutive samples bracket it.
 
 Trace
@@ -98,7 +99,8 @@ class TracerParams:
     probe_leg_m
         Length of each probe leg flown at the start of the search.
     spiral_spacing_m
-        Distance between successive turns of the fallback search spiral.
+        Distance between successive turns of the fallback search spiral (at most half
+        the search radius: a 3 m disc still gets a turn from 1.5 to 3 m).
     trace_bandwidth_rps
         Closed-loop bandwidth of the lateral controller (triple pole at ``-p``); capped
         at ``0.3 * sample_rate_hz`` so the loop stays well inside the sample rate.

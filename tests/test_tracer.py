@@ -146,6 +146,26 @@ def test_level_not_nearby_gives_not_found(level: float) -> None:
     assert len(samples) < 600
 
 
+def test_spiral_searches_a_disc_smaller_than_its_spacing() -> None:
+    """A flat field around the start (the plane fit has no gradient to descend) with the
+    level 2.4 m away, off the probe legs: only the fallback spiral can find it. With a
+    3 m search radius (the adaptive planner's) and the 3 m spiral spacing, the spiral used
+    to end before its first point: the task came back ``not_found``."""
+
+    def cone(x, y):  # flat at 10, a cone of radius 2 m rising to 30 at (52.4, 50)
+        r = np.hypot(np.asarray(x) - 52.4, np.asarray(y) - 50.0)
+        return 10.0 + 20.0 * np.clip(1.0 - r / 2.0, 0.0, 1.0)
+
+    body = SimBody(cone, REGION, 50.0, 20.0)  # arrives from the south: probes go west, north
+    task = TraceTask(15.0, 50.0, 50.0, 3.0, 3.0, 1)  # the level 1.5 m from the cone's top
+    events: list[str] = []
+    samples, outcome = drain(trace_contour(body, task, on_event=events.append))
+    assert "contour found" in events
+    assert outcome.status != "not_found"
+    search = [s for s in samples if s.phase == Phase.SEARCH]
+    assert max(math.hypot(s.x_m - 50.0, s.y_m - 50.0) for s in search) <= 3.0 + 0.5
+
+
 def test_senses_only_at_own_position() -> None:
     inner = gaussian(50.0, 50.0)
     holder: dict[str, SimBody] = {}
