@@ -149,9 +149,9 @@ def test_level_not_nearby_gives_not_found(level: float) -> None:
 def test_spiral_searches_a_disc_smaller_than_its_spacing() -> None:
     """A flat field around the start (the plane fit has no gradient to descend) and a cone
     east of it, off the probe legs, its level 0.9-3.9 m from the start: only the fallback
-    spiral can find it. With a
-    3 m search radius (the adaptive planner's) and the 3 m spiral spacing, the spiral used
-    to end before its first point: the task came back ``not_found``."""
+    spiral can find it. With a 3 m search radius (the adaptive planner's) and the 3 m
+    spiral spacing, the spiral used to end before its first point: the task came back
+    ``not_found``."""
 
     def cone(x, y):  # flat at 10, a cone of radius 2 m rising to 30 at (52.4, 50)
         r = np.hypot(np.asarray(x) - 52.4, np.asarray(y) - 50.0)
