@@ -776,6 +776,10 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             # radius, so a disc narrower than two spiral spacings still gets a turn
             r = s.sr_radius
             step = min(s.spiral_spacing_m, 0.5 * r)
+            if step <= 0.0:  # a search radius of 0: no disc to search
+                s.found = 0
+                s.pc = s.sr_ret
+                continue
             s.pitch = step / (2.0 * math.pi)
             s.phi0 = math.atan2(b.y_m - s.sr_cy, b.x_m - s.sr_cx)
             s.theta = 2.0 * math.pi

@@ -165,6 +165,11 @@ def test_spiral_searches_a_disc_smaller_than_its_spacing() -> None:
     assert outcome.status != "not_found"
     search = [s for s in samples if s.phase == Phase.SEARCH]
     assert max(math.hypot(s.x_m - 50.0, s.y_m - 50.0) for s in search) <= 3.0 + 0.5
+    assert any(s.x_m > 51.0 for s in search)  # it went round: the probes stay at x <= 50
+    # a search radius of 0 has no disc to spiral in: not found, at once
+    body = SimBody(cone, REGION, 50.0, 20.0)
+    _, outcome = drain(trace_contour(body, TraceTask(15.0, 50.0, 50.0, 0.0, 3.0, 1)))
+    assert outcome.status == "not_found"
 
 
 def test_senses_only_at_own_position() -> None:
