@@ -64,6 +64,11 @@ from econdor_lab.study import parse_seeds  # noqa: E402
 
 TARGETS_DB = (-10.0, -20.0, -30.0)
 ISO_TARGET_M = 0.5
+EVERY_M = 20.0
+"""Threshold runs are also measured along the way: the estimate from the samples flown so
+far, every this many metres of flight (the planner's and the survey's alike)."""
+SURVEY_FROM = 0.5
+"""... a survey from this fraction of its flight on (before, part of the area is unflown)."""
 FIELDS: dict[str, dict[str, Any]] = {
     "authors": {"model": "authors"},
     "paper": {"model": "paper"},
@@ -167,17 +172,70 @@ def _row(rec: Any, flight_m: float) -> dict[str, Any]:
             "target_missed": iso.get("target_missed", math.nan)}
 
 
-def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]) -> dict[str, Any]:
+class _Executor(InProcessExecutor):
+    """The in-process executor, counting the samples of the flight home (the DFC adds them
+    to its last record, whose estimate is from before them)."""
+
+    home_samples = 0
+
+    def finish(self) -> list[Any]:
+        reports = super().finish()
+        self.home_samples = sum(len(r.samples) for r in reports)
+        return reports
+
+
+def sample_distances(flight_m: list[float], counts: list[int], x_m: np.ndarray,
+                     y_m: np.ndarray, home: tuple[float, float]) -> np.ndarray:
+    """The flight distance at each sample: within each flight (record), the path between
+    its samples (from the last sample before it, or home), scaled so that the flight ends
+    at its recorded distance (turns, searches and braking fly more than the chords)."""
+    out = np.zeros(len(x_m))
+    prev_n, prev_d = 0, 0.0
+    px, py = home
+    for d, n in zip(flight_m, counts, strict=True):
+        if n > prev_n:
+            xs = np.r_[px, x_m[prev_n:n]]
+            ys = np.r_[py, y_m[prev_n:n]]
+            cum = np.cumsum(np.hypot(np.diff(xs), np.diff(ys)))
+            scale = (d - prev_d) / cum[-1] if cum[-1] > 0 else 0.0
+            out[prev_n:n] = prev_d + cum * scale
+            px, py = x_m[n - 1], y_m[n - 1]
+        prev_n, prev_d = n, d
+    return out
+
+
+def first_within(mission: Mission, truth_grid: np.ndarray, level: float, x_m: np.ndarray,
+                 y_m: np.ndarray, v: np.ndarray, dist_m: np.ndarray, from_m: float = 0.0
+                 ) -> float:
+    """The first flight distance (checked every EVERY_M from ``from_m``) at which the
+    estimate from the samples so far has an iso-line error at ``level`` <= ISO_TARGET_M
+    (the mission's reconstruction, as the DFC does it); nan if never."""
+    grid = mission.grid
+    method = mission.algorithm.reconstruction
+    start = max(from_m, EVERY_M)
+    for d in np.arange(start, dist_m[-1] + EVERY_M, EVERY_M) if len(dist_m) else ():
+        n = int(np.searchsorted(dist_m, min(d, dist_m[-1]), side="right"))
+        if n < 3:
+            continue
+        est = (kriging_reconstruct(x_m[:n], y_m[:n], v[:n], grid) if method == "kriging"
+               else reconstruct(x_m[:n], y_m[:n], v[:n], grid, method=method))
+        if isoline_error(truth_grid, est, grid, level) <= ISO_TARGET_M:
+            return float(dist_m[n - 1])
+    return math.nan
+
+
+def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any], bool]
+                ) -> dict[str, Any]:
     """One budget-true run: per-iteration rows (flight home excluded), sources missed."""
-    field, seed, label, budget_m, recon, threshold, adaptive = args
+    field, seed, label, budget_m, recon, threshold, adaptive, along_way = args
     planner, variant = split_variant(label)
     adaptive = {**adaptive, **variant}
     targets = (mid_level(mission_for(field, budget_m, planner, recon), seed),) if threshold else ()
     mission = mission_for(field, budget_m, planner, recon, targets, adaptive=adaptive)
     truth = mission.build_field(seed)
     t0 = time.perf_counter()
-    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner=planner,
-              truth=truth, seed=seed).run()
+    executor = _Executor(mission, truth, seed=seed)
+    res = Dfc(mission, executor, planner=planner, truth=truth, seed=seed).run()
     rows = []
     for i, rec in enumerate(res.records):
         last = i == len(res.records) - 1
@@ -186,29 +244,52 @@ def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]) ->
     for row in rows:
         n = row["samples"]
         row["missed"] = sources_missed(truth, s.x_m[:n], s.y_m[:n])
+    along = math.nan
+    if threshold and along_way and rows:
+        counts = [r["samples"] for r in rows]
+        counts[-1] -= executor.home_samples  # not the flight home
+        n = counts[-1]
+        dist = sample_distances([r["flight_m"] for r in rows], counts, s.x_m[:n], s.y_m[:n],
+                                (mission.region.xmin, mission.region.ymin))
+        xx, yy = mission.grid.mesh
+        along = first_within(mission, np.asarray(truth(xx, yy)), targets[0], s.x_m[:n],
+                             s.y_m[:n], s.value[:n], dist)
     return {"field": field, "seed": seed, "planner": label + (":threshold" if threshold else ""),
             "rows": rows, "stop": res.stop_reason, "wall_s": time.perf_counter() - t0,
-            "target": targets[0] if targets else math.nan}
+            "target": targets[0] if targets else math.nan, "along_m": along}
 
 
-def run_survey(mission: Mission, seed: int, lines: int) -> dict[str, Any]:
-    """One survey of ``lines`` north-south lines; its single estimate."""
+def run_survey(mission: Mission, seed: int, lines: int, along_way: bool = False
+               ) -> dict[str, Any]:
+    """One survey of ``lines`` north-south lines; its single estimate (and, with
+    ``along_way``, where along its flight the mid-level iso-line first met the target)."""
     truth = mission.build_field(seed)
-    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner="lawnmower",
-              truth=truth, seed=seed).run()
+    executor = _Executor(mission, truth, seed=seed)
+    res = Dfc(mission, executor, planner="lawnmower", truth=truth, seed=seed).run()
     rec = res.records[0]
     s = res.samples
     row = _row(rec, rec.flight_distance_m)
     row["missed"] = sources_missed(truth, s.x_m, s.y_m)
     row["lines"] = lines
+    if along_way and math.isfinite(row["iso"][1]) and row["iso"][1] <= ISO_TARGET_M:
+        # the same survey measured along the way (only one that gets there at its end)
+        n = rec.samples  # the survey's record: its samples, before the flight home
+        dist = sample_distances([rec.flight_distance_m], [n], s.x_m[:n], s.y_m[:n],
+                                (mission.region.xmin, mission.region.ymin))
+        xx, yy = mission.grid.mesh
+        row["along_m"] = first_within(mission, np.asarray(truth(xx, yy)), mid_level(mission, seed),
+                                      s.x_m[:n], s.y_m[:n], s.value[:n], dist,
+                                      SURVEY_FROM * rec.flight_distance_m)
     return row
 
 
 class SurveyScan:
     """The best survey per budget and per target for one field and seed (memoised)."""
 
-    def __init__(self, field: str, seed: int, recon: str, cache: Path | None) -> None:
+    def __init__(self, field: str, seed: int, recon: str, cache: Path | None,
+                 along_way: bool = False) -> None:
         self.field, self.seed, self.recon = field, seed, recon
+        self.along_way = along_way
         self.cache = cache
         self.runs: dict[int, dict[str, Any]] = {}
 
@@ -218,10 +299,13 @@ class SurveyScan:
             if self.cache is not None:
                 path = self.cache / f"survey-{self.field}-{self.recon}-{self.seed}-{lines}.json"
                 if path.exists():
-                    self.runs[lines] = json.loads(path.read_text())
-                    return self.runs[lines]
+                    row = json.loads(path.read_text())
+                    if (not self.along_way or "along_m" in row
+                            or not row["iso"][1] <= ISO_TARGET_M):
+                        self.runs[lines] = row
+                        return row
             mission = mission_for(self.field, 0.0, "lawnmower", self.recon, survey_lines=lines)
-            self.runs[lines] = run_survey(mission, self.seed, lines)
+            self.runs[lines] = run_survey(mission, self.seed, lines, self.along_way)
             if path is not None:
                 path.write_text(json.dumps(self.runs[lines]))
         return self.runs[lines]
@@ -301,10 +385,10 @@ def ideal_tracer(field: str, seed: int, recon: str, max_lines: int = 40, min_lin
     return {"km": math.nan, "lines": max_lines, "iso": math.nan}
 
 
-def scan_survey(args: tuple[str, int, float, str, str | None, list[float], bool]
+def scan_survey(args: tuple[str, int, float, str, str | None, list[float], bool, bool]
                 ) -> dict[str, Any]:
-    field, seed, budget_m, recon, cache, budgets, threshold = args
-    scan = SurveyScan(field, seed, recon, Path(cache) if cache else None)
+    field, seed, budget_m, recon, cache, budgets, threshold, along_way = args
+    scan = SurveyScan(field, seed, recon, Path(cache) if cache else None, along_way)
     t0 = time.perf_counter()
     max_lines = int((budget_m - 100.0) // 100.0)
     out: dict[str, Any] = {"field": field, "seed": seed, "budget": {}, "to_db": {}}
@@ -315,6 +399,13 @@ def scan_survey(args: tuple[str, int, float, str, str | None, list[float], bool]
         out["to_db"][str(t)] = r["flight_m"] if r else math.nan
     r = scan.first_reaching(lambda row: row["iso"][1] <= ISO_TARGET_M, max_lines)
     out["to_iso50"] = r["flight_m"] if r else math.nan
+    # measured along the way: a survey of a few more lines may get there before its end
+    out["to_iso50_along"] = math.nan
+    if r and along_way:
+        along = [scan.get(n).get("along_m", math.nan)
+                 for n in range(r["lines"], min(r["lines"] + 3, max_lines) + 1)]
+        along = [a for a in along if not math.isnan(a)]
+        out["to_iso50_along"] = min(along) if along else math.nan
     if threshold:
         out["ideal"] = ideal_tracer(field, seed, recon)
         # the fewest lines >= 1 are the fewest lines when those are >= 1 already
@@ -442,22 +533,28 @@ def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, d
     survey's and the ideal tracer's (see :func:`ideal_tracer`), then one summary line."""
     rs = [r for r in runs if r["field"] == field and r["planner"].endswith(":threshold")]
     labels = list(dict.fromkeys(r["planner"] for r in rs))
+    along_way = any(not math.isnan(r.get("along_m", math.nan)) for r in rs)
+    along_head = [f"km along the way (every {EVERY_M:g} m)", "survey km along",
+                  "ratio along"] if along_way else []
     summary = []
     for label in labels:
         head = ["seed", "level", f"km to iso ≤ {ISO_TARGET_M} m", "survey km", "ratio",
-                "ideal tracer km (lines)", "ideal ratio", "final iso m", "pieces missed", "stop",
+                *along_head, "ideal tracer km (lines)", "ideal ratio", "final iso m", "pieces missed", "stop",
                 "flown km"]
         print(f"\n### threshold mapping, field {field}: {label.removesuffix(':threshold')}\n")
         print(bar + bar.join(head) + bar)
         if md:
             print(bar + bar.join("---" for _ in head) + bar)
-        ratios, ideal, ideal_line = [], [], []
+        ratios, ideal, ideal_line, alongs = [], [], [], []
         for r in sorted((r for r in rs if r["planner"] == label), key=lambda r: r["seed"]):
             d = distance_to(r["rows"], lambda row: row["iso_target"] <= ISO_TARGET_M, budget_m)
             sv = surveys[r["seed"]]
             to_iso = sv["to_iso50"]
             ratio = d / to_iso if to_iso and not math.isnan(to_iso) else math.nan
             ratios.append(ratio)
+            along_m, sv_along = r.get("along_m", math.nan), sv.get("to_iso50_along", math.nan)
+            alongs.append(along_m / sv_along if sv_along and not math.isnan(sv_along)
+                          else math.nan)
             tracer = sv.get("ideal") or {"km": math.nan, "lines": -1}
             ideal.append(tracer["km"] * 1000 / to_iso if to_iso else math.nan)
             after_line = sv.get("ideal_line") or {"km": math.nan}
@@ -465,25 +562,34 @@ def threshold_table(field: str, runs: list[dict[str, Any]], surveys: dict[int, d
             last = r["rows"][-1]
             print(bar + bar.join([
                 str(r["seed"]), fmt(r["target"]), fmt(d / 1000, ".2f"), fmt(to_iso / 1000, ".2f"),
-                fmt(ratio, ".2f"), f"{fmt(tracer['km'], '.2f')} ({tracer['lines']})",
+                fmt(ratio, ".2f"),
+                *([fmt(along_m / 1000, ".2f"), fmt(sv_along / 1000, ".2f"),
+                   fmt(alongs[-1], ".2f")] if along_way else []),
+                f"{fmt(tracer['km'], '.2f')} ({tracer['lines']})",
                 fmt(ideal[-1], ".2f"), fmt(last["iso_target"], ".2f"),
                 fmt(last["target_missed"], ".0f"), r["stop"],
                 fmt(last["flight_m"] / 1000, ".2f")]) + bar)
         got = [x for x in ratios if not math.isnan(x)]
+        got_along = [x for x in alongs if not math.isnan(x)]
         summary.append((label, med(ratios), len(got), len(ratios), sum(x <= 0.5 for x in got),
-                        sum(x < 1.0 for x in got), med(ideal), med(ideal_line)))
+                        sum(x < 1.0 for x in got), med(ideal), med(ideal_line),
+                        med(alongs), sum(x <= 0.5 for x in got_along)))
     if not summary:
         return
     print(f"\n### threshold mapping, field {field}: summary\n")
     head = ["mapper", "median ratio to the survey", "runs there", "ratio ≤ 0.5", "beat survey",
-            "ideal tracer's median ratio", "... after one line"]
+            "ideal tracer's median ratio", "... after one line",
+            *([f"median ratio along the way (every {EVERY_M:g} m)", "ratio along ≤ 0.5"]
+              if along_way else [])]
     print(bar + bar.join(head) + bar)
     if md:
         print(bar + bar.join("---" for _ in head) + bar)
-    for label, ratio, got, n, half, won, ideal_ratio, line_ratio in summary:
+    for label, ratio, got, n, half, won, ideal_ratio, line_ratio, along, half_along in summary:
         print(bar + bar.join([label.removesuffix(":threshold"), fmt(ratio, ".2f"), f"{got}/{n}",
                               str(half), str(won), fmt(ideal_ratio, ".2f"),
-                              fmt(line_ratio, ".2f")]) + bar)
+                              fmt(line_ratio, ".2f"),
+                              *([fmt(along, ".3f"), str(half_along)] if along_way else [])
+                              ]) + bar)
 
 
 def figures(out: Path, fields: list[str], planners: list[str], runs: list[dict[str, Any]],
@@ -552,6 +658,10 @@ def main() -> int:
                         "--planners, or the default adaptive planner if there is none")
     p.add_argument("--threshold-only", action="store_true",
                    help="only the threshold mapping runs (implies --threshold)")
+    p.add_argument("--along", action="store_true",
+                   help="threshold runs measured along the way too: the estimate from the "
+                        f"samples so far every {EVERY_M:g} m of flight, the planner's and the "
+                        "survey's alike (slower)")
     p.add_argument("--adaptive", default="", help="adaptive settings, e.g. model=proxy,floor=20")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cache", default=None, help="directory memoising survey runs")
@@ -581,13 +691,14 @@ def main() -> int:
     settings = parse_settings(a.adaptive)
     a.threshold = a.threshold or a.threshold_only
     jobs: list[tuple[Any, ...]] = [] if a.threshold_only else [
-        (f, s, pl, a.budget, a.reconstruction, False, settings)
+        (f, s, pl, a.budget, a.reconstruction, False, settings, False)
         for f in fields for s in seeds for pl in planners]
     if a.threshold:
         mappers = [pl for pl in planners if split_variant(pl)[0] == "adaptive"] or ["adaptive"]
-        jobs += [(f, s, pl, a.budget, a.reconstruction, True, settings)
+        jobs += [(f, s, pl, a.budget, a.reconstruction, True, settings, a.along)
                  for f in fields for s in seeds for pl in mappers]
-    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets, a.threshold)
+    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets, a.threshold,
+                    a.threshold and a.along)
                    for f in fields for s in seeds]
     t0 = time.perf_counter()
     if a.from_json:
