@@ -20,11 +20,11 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
                 min_piece_length_m, keep_diagonals, max_idle_iterations, target_levels}
     lawnmower: {spacing_m, budget_m}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
-               line_orientation, start, start_lines, model, length_m, fit_length, floor,
-               gradient_gain_m, power, plan_spacing_m, search_radius_m, resolve_m, explore_m,
-               band_m, level_tol, threshold_batch_m, crossings_first, first_order,
-               open_entry, probes, probe_climb, probe_m, probe_prominence,
-               probe_reach, sweeps}
+               line_orientation, start, start_lines, start_step_m, model, length_m,
+               fit_length, floor, gradient_gain_m, power, plan_spacing_m, search_radius_m,
+               resolve_m, explore_m, band_m, level_tol, threshold_batch_m, crossings_first,
+               first_order, open_entry, probes, probe_climb, probe_m, probe_prominence,
+               probe_reach, sweeps, explore, line_step_m, line_weight, probe_length_m}
 """
 
 from __future__ import annotations
@@ -134,6 +134,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
         "start": (str, "auto", _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
         "start_lines": (int, 0, _range(0, 1000)),
+        "start_step_m": (float, 30.0, _non_negative),
         "model": (str, "auto", _one_of("auto", "gp", "proxy")),
         "length_m": (float, 5.0, _positive),
         "fit_length": (bool, True, None),
@@ -156,6 +157,10 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
         "probe_reach": (float, 2.0, _non_negative),
         "sweeps": (bool, True, None),
+        "explore": (str, "auto", _one_of("auto", "legs", "lines")),
+        "line_step_m": (float, 5.0, _positive),
+        "line_weight": (str, "p", _one_of("none", "p")),
+        "probe_length_m": (float, 20.0, _non_negative),
     },
 }
 
@@ -329,6 +334,7 @@ class AdaptiveConfig:
     line_orientation: str
     start: str
     start_lines: int
+    start_step_m: float
     model: str
     length_m: float
     fit_length: bool
@@ -351,6 +357,10 @@ class AdaptiveConfig:
     probe_prominence: float
     probe_reach: float
     sweeps: bool
+    explore: str
+    line_step_m: float
+    line_weight: str
+    probe_length_m: float
 
 
 @dataclass(frozen=True)

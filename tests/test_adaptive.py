@@ -408,7 +408,8 @@ def test_threshold_coverage_floor_is_measured_in_metres_not_through_the_model():
 def test_threshold_planner_is_done_when_no_flight_would_lower_what_is_left(monkeypatch):
     """Open cells are left, but the greedy finds no candidate that would lower their score
     (at the area's edge the model can know more than a pass 0.5 m inside adds): the
-    planner says ``done`` instead of planning nothing until the run stalls."""
+    planner says ``done`` instead of planning nothing until the run stalls (``explore:
+    legs``; with ``lines`` what is left once every place is covered is planned so too)."""
     from econdor_gcs.core import adaptive
 
     def plane(x, y):
@@ -418,7 +419,7 @@ def test_threshold_planner_is_done_when_no_flight_would_lower_what_is_left(monke
     ctx = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID,
                       estimate=plane(xx, yy), samples=_survey([50.0], plane),
                       positions_m=[(50.0, 100.0)])
-    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,)))
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), explore="legs"))
     batch = planner.next_batch(ctx)
     assert planner.open_cells > 0 and batch.jobs and not batch.done
     monkeypatch.setattr(adaptive, "greedy_plan",
@@ -661,3 +662,135 @@ def test_start_auto_is_a_survey_of_16_lines_for_the_field_and_1_for_thresholds()
     small = PlanContext(iteration=0, region=REGION, n_vehicles=1, budget_left_m=700.0)
     first = AdaptivePlanner().initiation(small)
     assert first is not None and len(first.jobs) == 6
+
+
+# -- threshold mode: the start line in steps, lines through uncovered ground ----------------
+
+
+def _bump(x, y):
+    """A round bump at (50, 45): its iso-line at 50 is a ring of radius ~11.8 m."""
+    return 100.0 * np.exp(-((np.asarray(x) - 50.0) ** 2 + (np.asarray(y) - 45.0) ** 2) / 200.0)
+
+
+def _context(s: SampleLog, iteration: int, pos: tuple[float, float]) -> PlanContext:
+    from econdor_gcs.core.spline import reconstruct
+
+    est = reconstruct(s.x_m, s.y_m, s.value, GRID)
+    return PlanContext(iteration=iteration, region=REGION, n_vehicles=1, grid=GRID, estimate=est,
+                       samples=s, positions_m=[pos], budget_left_m=3000.0)
+
+
+def _concat(*logs: SampleLog) -> SampleLog:
+    out = SampleLog.concat(list(logs))
+    out.t_s = np.arange(len(out)) * 0.1
+    return out
+
+
+def test_the_start_line_is_flown_in_steps_and_a_crossing_is_traced_before_the_next_step():
+    """``start_step_m``: the start line is an iteration per step; a crossing a step sampled
+    is traced (whole, allowed to run the perimeter) before the next step, which goes on
+    from where the last one ended, not from where the line was first left open."""
+    params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines")
+    planner = AdaptivePlanner(params)
+    first = planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
+    assert first is not None and len(first.jobs) == 1
+    assert [(w.x_m, w.y_m) for w in first.jobs[0].tasks] == [(50.0, 0.0), (50.0, 30.0)]
+    step1 = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 30.0)], _bump)
+    second = planner.next_batch(_context(step1, 1, (50.0, 30.0)))
+    (leg,) = second.jobs
+    ys = [w.y_m for w in leg.tasks]
+    assert ys[0] == pytest.approx(32.0, abs=1.0) and ys[-1] == pytest.approx(ys[0] + 30.0)
+    step2 = _concat(step1, samples_along([(50.0, ys[0]), (50.0, ys[-1])], _bump))
+    third = planner.next_batch(_context(step2, 2, (50.0, ys[-1])))
+    (trace,) = third.jobs
+    task = trace.tasks[0]
+    assert isinstance(task, TraceTask) and task.level == 50.0
+    assert math.hypot(task.x_m - 50.0, task.y_m - 45.0) == pytest.approx(11.8, abs=1.0)
+    assert task.max_length_m >= 400.0  # the perimeter: the estimate's ring is from a line
+    # the ring traced (its samples read the level) from the crossing nearest the vehicle, a
+    # gap left open at y = 5-15 on the line (as if a gust had thrown the vehicle off): the
+    # next step still goes on north
+    ring = np.array([[50.0 + 11.8 * math.cos(t), 45.0 + 11.8 * math.sin(t)]
+                     for t in np.linspace(0.0, 2 * math.pi, 120)])
+    traced = SampleLog(np.zeros(len(ring)), ring[:, 0], ring[:, 1], np.full(len(ring), 50.0),
+                       np.full(len(ring), Phase.TRACE, dtype=np.int8),
+                       np.zeros(len(ring), np.int16))
+    holed = _concat(step2, traced)
+    keep = ~((holed.x_m > 49.0) & (holed.y_m > 5.0) & (holed.y_m < 15.0))
+    holed = SampleLog(holed.t_s[keep], holed.x_m[keep], holed.y_m[keep], holed.value[keep],
+                      holed.phase[keep], holed.vehicle[keep])
+    fourth = planner.next_batch(_context(holed, 3, (50.0, 56.8)))  # the loop closed here
+    (leg,) = fourth.jobs
+    assert [w.x_m for w in leg.tasks] == [50.0, 50.0]
+    assert leg.tasks[0].y_m == pytest.approx(ys[-1] + 2.0, abs=1.0)
+    # one vehicle only: a fleet flies the start survey whole
+    fleet = AdaptivePlanner(params).initiation(PlanContext(iteration=0, region=REGION,
+                                                           n_vehicles=2))
+    assert fleet is not None and fleet.jobs[0].length_m == pytest.approx(100.0)
+
+
+def test_lines_mode_flies_the_line_through_the_most_uncovered_ground_until_none_is_left():
+    """``explore: lines``: with the start line flown and no crossing, the next flight is a
+    step along the line through the most uncovered ground per metre (the middle of an
+    unflown half, not beside the line flown); with every place within ``explore_m`` of a
+    sample the planner is done."""
+    def low(x, y):
+        return 10.0 + 0.01 * np.asarray(x) + 0.02 * np.asarray(y)  # never reaches 50
+
+    params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines",
+                            probes=False)
+    planner = AdaptivePlanner(params)
+    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
+    line = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 100.0)], low)  # flown whole
+    batch = planner.next_batch(_context(line, 1, (50.0, 100.0)))
+    (leg,) = batch.jobs
+    xs = {round(w.x_m, 1) for w in leg.tasks}
+    assert len(xs) == 1 and 15.0 <= abs(xs.pop() - 50.0) <= 35.0  # north-south, mid-half
+    assert leg.length_m <= 30.0 + 1e-9  # a step of it
+    assert leg.tasks[0].y_m == pytest.approx(99.5)  # from its end nearer the vehicle
+    covered = samples_along([(x, 0.0 if k % 2 else 100.0) for k, x in
+                             enumerate(np.arange(2.5, 100.0, 5.0)) for _ in (0, 1)], low)
+    done = planner.next_batch(_context(_concat(line, covered), 2, (97.5, 0.0)))
+    assert done.done and not done.jobs
+
+
+def test_lines_mode_probes_first_only_where_the_model_cannot_see_beside_the_track():
+    """A GP with a long fitted length (a smooth field) predicts what lies a probe's reach
+    beside the track, so the lines weighted by it look there; a short one, or one that
+    learnt no amplitude (every sample alike: a flat background), cannot, so the track's
+    extrema are probed."""
+    from econdor_gcs.core.gp import MaternHyper
+
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), explore="lines"))
+    s = samples_along([(0.0, 10.0), (100.0, 10.0)], lambda x, y: 10.0 + 0.3 * np.asarray(x))
+    ctx = PlanContext(iteration=1, region=REGION, n_vehicles=1, samples=s)
+    assert planner._blind_beside(ctx)  # no GP yet
+    for length, amplitude, blind in ((30.0, 10.0, False), (12.0, 10.0, True),
+                                     (30.0, 0.1, True)):
+        planner.hyper = MaternHyper(mean=20.0, amplitude=amplitude, length_m=length)
+        assert planner._blind_beside(ctx) is blind
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), explore="lines",
+                                             probe_length_m=0.0))
+    planner.hyper = MaternHyper(mean=20.0, amplitude=10.0, length_m=30.0)
+    assert planner._blind_beside(ctx)
+
+
+def test_a_vehicle_a_trace_took_away_from_its_line_weighs_the_rest_against_other_lines():
+    """``explore: lines``: the start line is flown to y = 62, then a trace ends 37 m from
+    where the line was left. Going back there is no longer a given: the rest of the line
+    (from either end) competes with the lines through uncovered ground, and here a line
+    through the unflown west, entered near the vehicle, covers more per metre."""
+    def low(x, y):
+        return 10.0 + 0.01 * np.asarray(x) + 0.02 * np.asarray(y)
+
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), start_step_m=30.0,
+                                             explore="lines", probes=False))
+    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
+    s1 = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 30.0)], low)
+    planner.next_batch(_context(s1, 1, (50.0, 30.0)))
+    away = [(50.0, 62.0), (75.0, 70.0), (60.0, 99.0)]  # the trace's track
+    s2 = _concat(s1, samples_along([(50.0, 31.0), (50.0, 62.0)], low), samples_along(away, low))
+    (leg,) = planner.next_batch(_context(s2, 2, (60.0, 99.0))).jobs
+    start = leg.tasks[0]
+    assert math.hypot(start.x_m - 50.0, start.y_m - 63.0) > 10.0  # not back to the line
+    assert start.x_m < 50.0 and start.y_m == pytest.approx(99.5)  # the west, from the top

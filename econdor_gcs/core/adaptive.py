@@ -79,6 +79,7 @@ from .candidates import (
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
+from .routes import SteppedRoute, best_lines, gap_lines, misclassification
 from .tasks import FlightReport, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
@@ -89,6 +90,12 @@ from .uncertainty import (
     uncertainty_map,
 )
 
+ROUTE_LEFT_M = 15.0
+"""``explore: lines``: a vehicle this far from where its line was left (a trace took it
+away) weighs what is left of the line against the other lines before going on."""
+LINE_WEIGHT_FLOOR = 0.02
+LINE_WEIGHT_GAIN = 10.0
+"""``line_weight: p``: a cell's coverage deficit counts ``min(1, floor + gain p)`` times."""
 WHOLE_TRACE_FACTOR = 2.0
 """A whole-component trace stops after this multiple of the estimated component's length."""
 WHOLE_TRACE_MIN_M = 60.0
@@ -133,6 +140,14 @@ class AdaptiveParams:
         when mapping the whole field; one in threshold mode (a line through the middle
         costs 0.15 km against the diagonals' 0.38, and the iso-line is then found from its
         crossings and extrema).
+    start_step_m : float
+        Threshold mode: the start survey is flown in steps of this length (m; 0: in one
+        piece), each an iteration of its own, and a component through a crossing that a
+        step sampled is traced before the next step: a start that meets the iso-line
+        early traces it at once, and when that was all there was, the rest of the
+        survey is never flown. Until the survey is whole a trace may run the area's
+        perimeter (the estimate's component, from a part of the line, can be far too
+        short for the twice-its-length cap).
     model : {"auto", "proxy", "gp"}
         Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
         proxy when mapping the whole field (it measured best there), the GP posterior
@@ -210,6 +225,34 @@ class AdaptiveParams:
         Threshold mode: offer north-south legs over what is still farther than
         ``explore_m`` from every sample, on the centre lines of strips ``2 explore_m``
         wide less one planning cell (:func:`~econdor_gcs.core.candidates.sweep_candidates`).
+    explore : {"auto", "legs", "lines"}
+        Threshold mode: how the planner looks for what is not found yet. ``legs``: the
+        greedy over exploration legs, lines, sweeps and traces, scored by the straddle and
+        the coverage floor, after the probes. ``lines`` (one vehicle): after every trace
+        through a sampled crossing, the line flown in steps (``start_step_m``) goes on;
+        then the probes, where the model is blind beside the tracks (``probe_length_m``);
+        then the straight line through the most uncovered ground per metre (north-south
+        or east-west, the area's full width or half of it, every ``line_step_m``; the
+        coverage floor alone scores it, weighted by ``line_weight``), flown in steps too,
+        so that a crossing it samples is traced at once. Once every place is within
+        ``explore_m`` of a sample, what the model still scores is planned as with
+        ``legs``. ``auto``: ``lines`` where the model sees beside the tracks (a smooth
+        field: the fitted length is at least ``probe_length_m``), else ``legs`` (a
+        narrow feature beside a track shows only as an extremum along it; the start
+        survey is then flown whole after its first step).
+    line_step_m : float
+        ``explore: lines``: spacing of the lines on offer (m).
+    line_weight : {"none", "p"}
+        ``explore: lines``: each cell's coverage deficit counts in full (``none``) or
+        weighted by ``min(1, LINE_WEIGHT_FLOOR + LINE_WEIGHT_GAIN p)``, where ``p =
+        Phi(-|mu - L| / sigma)`` is the GP's probability that the cell lies on the other
+        side of the level than the estimate says (``p``): lines go first where an
+        iso-line the estimate does not show is likely.
+    probe_length_m : float
+        ``explore: lines``: probes (``probes``) go first only while the model cannot see
+        beside a track: no GP fitted, one with no amplitude yet, or a fitted length scale
+        below this (m); ``explore: auto`` is ``legs`` then. With a longer length (a smooth
+        field) the GP-weighted lines look beside the tracks themselves. 0: always.
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -225,6 +268,7 @@ class AdaptiveParams:
     line_orientation: str = "ns"
     start: str = "auto"
     start_lines: int = 0
+    start_step_m: float = 30.0
     model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
@@ -248,6 +292,10 @@ class AdaptiveParams:
     probe_prominence: float = 1e-4
     probe_reach: float = 2.0
     sweeps: bool = True
+    explore: str = "auto"
+    line_step_m: float = 5.0
+    line_weight: str = "p"
+    probe_length_m: float = 20.0
     target_levels: tuple[float, ...] = ()
 
 
@@ -274,6 +322,12 @@ def survey_start_batch(region: Region, lines: int) -> Batch:
     """
     xs = region.xmin + (np.arange(lines) + 0.5) * region.width_m / lines
     return Batch(survey_jobs(region, xs), levels_planned=0)
+
+
+def start_route(region: Region, lines: int) -> FloatArray:
+    """The start survey (:func:`survey_start_batch`) as one polyline in flying order."""
+    jobs = survey_start_batch(region, lines).jobs
+    return np.array([p for j in jobs for p in (j.start_m, j.end_m)], dtype=float)
 
 
 def perimeter_batch(context: PlanContext, inset_m: float = 0.5) -> Batch:
@@ -534,6 +588,8 @@ class AdaptivePlanner:
         if params.start not in ("auto", "diagonals", "perimeter", "plan", "survey"):
             raise ValueError(f"start: must be auto, diagonals, perimeter, plan or survey, "
                              f"got {params.start!r}")
+        if params.explore not in ("auto", "legs", "lines"):
+            raise ValueError(f"explore: must be auto, legs or lines, got {params.explore!r}")
         if params.start == "auto":
             params = dataclasses.replace(params, start="survey")
         if params.start_lines == 0:
@@ -544,6 +600,9 @@ class AdaptivePlanner:
         self.open_cells = 0
         """Threshold mode: planning cells where an iso-line could still be (after the last plan)."""
         self._probed: list[FloatArray] = []
+        self._route = SteppedRoute()
+        """The line flown in steps (``start_step_m``): the start survey, then (``explore:
+        lines``) each line through uncovered ground."""
 
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
@@ -561,8 +620,34 @@ class AdaptivePlanner:
             lines = self.params.start_lines
             if math.isfinite(context.budget_left_m):  # never more than the budget holds
                 lines = min(lines, lawnmower_lines_for_budget(r, context.budget_left_m))
+            if self._stepped(context):
+                self._route.start(start_route(r, lines))
+                return self._step_batch(self._next_step(context), 0)
             return survey_start_batch(r, lines)
         return self.next_batch(context)
+
+    def _stepped(self, context: PlanContext) -> bool:
+        """Whether the start survey is flown in steps (threshold mode, one vehicle)."""
+        p = self.params
+        return bool(p.target_levels) and p.start_step_m > 0 and context.n_vehicles == 1
+
+    def _next_step(self, context: PlanContext, whole: bool = False) -> FloatArray | None:
+        """The next step of the line flown in steps (``whole``: all the rest of it),
+        ``None`` once it has been flown."""
+        s = context.samples
+        return self._route.next_step(np.column_stack([s.x_m, s.y_m]),
+                                     math.inf if whole else self.params.start_step_m)
+
+    @staticmethod
+    def _step_batch(step: FloatArray | None, levels_planned: int) -> Batch:
+        """One step of the start survey as the iteration's only job."""
+        if step is None:
+            return Batch([], levels_planned=levels_planned)
+        length = path_length(step[:, 0], step[:, 1])
+        start = (float(step[0, 0]), float(step[0, 1]))
+        end = (float(step[-1, 0]), float(step[-1, 1]))
+        job = Job([Waypoint(float(x), float(y)) for x, y in step], start, end, length, vehicle=0)
+        return Batch([job], levels_planned=levels_planned, survey_m=length)
 
     def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
         """Nothing to learn from the outcomes: the next plan starts from every sample."""
@@ -593,6 +678,7 @@ class AdaptivePlanner:
         s = context.samples
         region = context.region
         near_m: FloatArray | None = None  # threshold mode: each cell's nearest sample (m)
+        whole_cap_m = 0.0  # threshold mode: a whole trace may run this far at least
         if p.target_levels:
             levels = np.asarray(p.target_levels, dtype=float)
             gap = np.min(np.abs(umap.mean[:, None] - levels[None, :]), axis=1)
@@ -641,6 +727,21 @@ class AdaptivePlanner:
             if p.sweeps:
                 uncovered = open_cells & (dist > p.explore_m)
                 cands += sweep_candidates(umap, uncovered, region, sweep_spacing_m(p))
+            if context.n_vehicles == 1 and (p.explore == "lines" or (
+                    p.explore == "auto" and not self._blind_beside(context))):
+                lines = self._lines_batch(context, umap, levels, cands, dist, open_cells,
+                                          cells_xy)
+                if lines is not None:
+                    return lines
+            # the start survey in steps: a trace through a crossing first, then the next step
+            # (``explore: auto``, where the model is blind beside the track: all the rest)
+            if self._route.active and not any(c.first and c.kind == CandidateKind.TRACE
+                                              for c in cands):
+                step = self._next_step(context, whole=p.explore == "auto")
+                if step is not None:
+                    return self._step_batch(step, len(levels))
+            whole_cap_m = 2.0 * (region.width_m + region.height_m) if (
+                self._route.active) else 0.0
             # done: nowhere left where the model says an iso-line could be, and no sampled
             # crossing or extremum left that says one is (or may be) there
             if self.open_cells == 0 and not any(c.first for c in cands):
@@ -678,9 +779,77 @@ class AdaptivePlanner:
             # area's edge, say, where the model already knows more than a pass 0.5 m
             # inside would add): nothing left to do is done, not a stall.
             return Batch([], levels_planned=len(levels), done=True)
-        return self._batch(picks, levels)
+        return self._batch(picks, levels, whole_cap_m)
 
-    def _batch(self, picks: list[list[Pick]], levels: FloatArray) -> Batch:
+    def _lines_batch(self, context: PlanContext, umap: UncertaintyMap, levels: FloatArray,
+                     cands: list[Candidate], dist: FloatArray, open_cells: NDArray[np.bool_],
+                     cells_xy: FloatArray) -> Batch | None:
+        """``explore: lines`` (one vehicle; see :class:`AdaptiveParams`): the traces through
+        sampled crossings and the probes, nearest first; else the next step of the line
+        being flown; else the line through the most uncovered ground per metre; ``None``
+        once every place is within ``explore_m`` of a sample (what the model still
+        scores near the samples is then planned as with ``legs``)."""
+        p = self.params
+        region = context.region
+        perimeter = 2.0 * (region.width_m + region.height_m)
+        pos = np.asarray(context.positions_m[0] if context.positions_m else
+                         (region.xmin, region.ymin), dtype=float)
+        def fly_first(first: list[Candidate]) -> Batch:
+            footprints = Footprints(umap, [c.points_m for c in first])
+            picks, _ = greedy_plan(first, footprints, umap.variance,
+                                   lambda v, d, cells: np.zeros(len(cells)), [tuple(pos)],
+                                   [p.threshold_batch_m], p.trace_overhead_m,
+                                   traces_before_legs=p.first_order == "crossings")
+            # the estimate's component can be far too short while lines are still open
+            return self._batch(picks, levels, perimeter)
+
+        traces = [c for c in cands if c.first and c.kind == CandidateKind.TRACE]
+        if traces:
+            return fly_first(traces)
+        s = context.samples
+        samples_xy = np.column_stack([s.x_m, s.y_m])
+        weight = np.ones(len(dist))
+        if p.line_weight == "p" and self.hyper is not None:
+            sd = self.hyper.amplitude * np.sqrt(np.maximum(umap.variance, 1e-12))
+            weight = np.minimum(1.0, LINE_WEIGHT_FLOOR + LINE_WEIGHT_GAIN * misclassification(
+                umap.mean, sd, levels))
+        near = np.where(open_cells, dist, 0.0)  # closed cells have nothing to cover
+        rest = self._route.rest(samples_xy)
+        if rest is not None and float(np.hypot(*(rest[0] - pos))) > ROUTE_LEFT_M:
+            # a trace took the vehicle away from the line it was flying: what is left of
+            # that line (from either end) competes with the lines through uncovered ground
+            ranked = best_lines(cells_xy, near, weight, p.explore_m,
+                                [rest, *gap_lines(region, p.line_step_m)], pos)
+            if ranked:
+                self._route.start(ranked[0])
+        step = self._next_step(context)
+        if step is not None:
+            return self._step_batch(step, len(levels))
+        probes = [c for c in cands if c.first] if self._blind_beside(context) else []
+        if probes:
+            return fly_first(probes)
+        for seg in best_lines(cells_xy, near, weight, p.explore_m,
+                              gap_lines(region, p.line_step_m), pos):
+            self._route.start(seg)
+            step = self._route.next_step(samples_xy, p.start_step_m)
+            if step is not None:  # (a line flown along already has no step left)
+                return self._step_batch(step, len(levels))
+        return None
+
+    def _blind_beside(self, context: PlanContext) -> bool:
+        """``explore: lines``: whether the model cannot see what lies beside a flown track:
+        no fitted GP, one that has learnt no amplitude (every sample alike), or one whose
+        length scale is below ``probe_length_m`` — a peak a probe's reach off the track
+        then shows in the samples only as an extremum along it, so it is probed; with a
+        longer length the GP-weighted lines look there by themselves."""
+        p, h = self.params, self.hyper
+        if p.probe_length_m <= 0 or h is None:
+            return True
+        span = float(np.ptp(context.samples.value)) if len(context.samples) else 0.0
+        return h.length_m < p.probe_length_m or h.amplitude < 0.05 * span
+
+    def _batch(self, picks: list[list[Pick]], levels: FloatArray, whole_cap_m: float = 0.0
+               ) -> Batch:
         p = self.params
         jobs: list[Job] = []
         survey_m = 0.0
@@ -696,8 +865,8 @@ class AdaptivePlanner:
                     # a whole component: until it closes or meets the edge, but never
                     # more than WHOLE_TRACE_FACTOR x the estimate's length (a lost
                     # tracer does not wander the area)
-                    max_len = (max(WHOLE_TRACE_FACTOR * length, WHOLE_TRACE_MIN_M) if c.whole
-                               else length)
+                    max_len = (max(WHOLE_TRACE_FACTOR * length, WHOLE_TRACE_MIN_M, whole_cap_m)
+                               if c.whole else length)
                     # the estimated contour, for vehicles that fly it as waypoints
                     contour = tuple((float(x), float(y)) for x, y in path)
                     task = TraceTask(c.level, start[0], start[1], p.search_radius_m, max_len, 0,
