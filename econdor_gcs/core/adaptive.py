@@ -147,7 +147,11 @@ class AdaptiveParams:
         early traces it at once, and when that was all there was, the rest of the
         survey is never flown. Until the survey is whole a trace may run the area's
         perimeter (the estimate's component, from a part of the line, can be far too
-        short for the twice-its-length cap).
+        short for the twice-its-length cap). The lines through uncovered ground
+        (``explore: lines``) are flown in these steps too. A vehicle cannot stop at a
+        crossing a step samples: what the step flies beyond it is flown again on the way
+        back to the trace's start, so short steps cost iterations, not distance (10 m
+        against 30 m: paper 0.51x against 0.55x of the survey, README).
     model : {"auto", "proxy", "gp"}
         Variance model (:mod:`econdor_gcs.core.uncertainty`). ``auto``: the distance
         proxy when mapping the whole field (it measured best there), the GP posterior
@@ -268,7 +272,7 @@ class AdaptiveParams:
     line_orientation: str = "ns"
     start: str = "auto"
     start_lines: int = 0
-    start_step_m: float = 30.0
+    start_step_m: float = 10.0
     model: str = "auto"
     length_m: float = 5.0
     fit_length: bool = True
