@@ -648,6 +648,10 @@ def test_survey_start_flies_even_strips_over_the_fleet_then_plans():
     assert result.stop_reason == "flight_budget"
     with pytest.raises(ValueError, match="start"):
         AdaptivePlanner(AdaptiveParams(start="zigzag"))
+    with pytest.raises(ValueError, match="explore"):
+        AdaptivePlanner(AdaptiveParams(explore="spiral"))
+    with pytest.raises(ValueError, match="line_weight"):
+        AdaptivePlanner(AdaptiveParams(line_weight="q"))
 
 
 def test_start_auto_is_a_survey_of_16_lines_for_the_field_and_1_for_thresholds():

@@ -594,6 +594,8 @@ class AdaptivePlanner:
                              f"got {params.start!r}")
         if params.explore not in ("auto", "legs", "lines"):
             raise ValueError(f"explore: must be auto, legs or lines, got {params.explore!r}")
+        if params.line_weight not in ("none", "p"):
+            raise ValueError(f"line_weight: must be none or p, got {params.line_weight!r}")
         if params.start == "auto":
             params = dataclasses.replace(params, start="survey")
         if params.start_lines == 0:
