@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -69,6 +70,20 @@ def test_fit_recovers_the_length_scale_of_a_sampled_process():
     hyper = fit_matern(x, y, v, nu=2.5, max_points=350)
     assert 5.0 < hyper.length_m < 12.0
     assert 1.0 < hyper.amplitude < 4.0
+
+
+def test_a_flat_background_with_rounding_noise_has_no_amplitude():
+    # a plume's background far from every source: 10 to within a few ulps (the sum of
+    # vanishing Gaussians), the samples of a 10 m step along a line
+    y = np.arange(0.0, 60.0, 0.8)
+    x = np.full_like(y, 50.0)
+    v = 10.0 + 4e-15 * np.sin(7.0 * y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the likelihood of rounding noise is not searched
+        hyper = fit_matern(x, y, v)
+    assert hyper.amplitude == 0.0
+    assert hyper.mean == pytest.approx(10.0)
+    assert fit_matern(x, y, 10.0 + 1e-6 * np.sin(y / 7.0)).amplitude > 0.0  # small is not flat
 
 
 def test_fit_refuses_too_few_samples():

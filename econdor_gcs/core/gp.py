@@ -61,6 +61,9 @@ from .geometry import FloatArray, Grid
 __all__ = ["Kriging", "MaternHyper", "fit_matern", "kriging_reconstruct", "matern", "thin_samples"]
 
 NU_CHOICES = (0.5, 1.5, 2.5)
+FLAT_RTOL = 1e-9
+"""Samples whose values differ by less than this fraction of their magnitude are alike
+(:func:`fit_matern` learns no amplitude from them)."""
 
 
 def matern(r: ArrayLike, nu: float) -> FloatArray:
@@ -209,8 +212,10 @@ def fit_matern(
     if idx.size < 3:
         raise ReconstructionError(f"need at least 3 distinct samples to fit a GP, got {idx.size}")
     px, py, pv = xa[idx], ya[idx], va[idx]
-    if np.ptp(pv) <= 0:
-        return MaternHyper(float(pv[0]), 0.0, length_bounds_m[1], nugget, nu)
+    if np.ptp(pv) <= FLAT_RTOL * max(1.0, float(np.max(np.abs(pv)))):
+        # every value alike, to rounding (a flat background sums to 10 +- 1e-15): no
+        # amplitude to learn, and a likelihood of rounding noise is singular at some lengths
+        return MaternHyper(float(np.mean(pv)), 0.0, length_bounds_m[1], nugget, nu)
     d = np.hypot(px[:, None] - px[None, :], py[:, None] - py[None, :])
     lo, hi = (math.log(b) for b in length_bounds_m)
     res = minimize_scalar(lambda t: _profile_nll(t, d, pv, nu, nugget)[0], bounds=(lo, hi),
