@@ -773,6 +773,10 @@ def test_lines_mode_probes_first_only_where_the_model_cannot_see_beside_the_trac
                                      (30.0, 0.1, True)):
         planner.hyper = MaternHyper(mean=20.0, amplitude=amplitude, length_m=length)
         assert planner._blind_beside(ctx) is blind
+    flat = samples_along([(0.0, 10.0), (100.0, 10.0)], lambda x, y: np.full(np.shape(x), 10.0))
+    planner.hyper = MaternHyper(mean=10.0, amplitude=0.0, length_m=200.0)  # as fitted to it
+    assert planner._blind_beside(PlanContext(iteration=1, region=REGION, n_vehicles=1,
+                                             samples=flat))
     planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), explore="lines",
                                              probe_length_m=0.0))
     planner.hyper = MaternHyper(mean=20.0, amplitude=10.0, length_m=30.0)

@@ -852,7 +852,7 @@ class AdaptivePlanner:
         if p.probe_length_m <= 0 or h is None:
             return True
         span = float(np.ptp(context.samples.value)) if len(context.samples) else 0.0
-        return h.length_m < p.probe_length_m or h.amplitude < 0.05 * span
+        return h.length_m < p.probe_length_m or h.amplitude <= 0.05 * span
 
     def _batch(self, picks: list[list[Pick]], levels: FloatArray, whole_cap_m: float = 0.0
                ) -> Batch:
