@@ -58,6 +58,7 @@ from econdor_gcs.errors import ReconstructionError
 
 __all__ = [
     "AUTO_EXACT_MAX_SAMPLES",
+    "AUTO_THIN_CELL_M",
     "DEFAULT_LEVELS",
     "FAST_EVAL_SPACING_M",
     "BiharmonicSpline",
@@ -71,8 +72,14 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 IndexArray = NDArray[np.intp]
 
-#: ``reconstruct(method="auto")`` uses the exact solve up to this many distinct positions.
+#: ``reconstruct(method="auto")`` uses the exact solve up to this many distinct positions,
+#: and beyond that on the samples thinned to one per :data:`AUTO_THIN_CELL_M` square as
+#: long as no more than this many are left.
 AUTO_EXACT_MAX_SAMPLES = 2000
+
+#: The thinning of the exact solve beyond :data:`AUTO_EXACT_MAX_SAMPLES` distinct positions
+#: (the fast method's own ``cell_size``).
+AUTO_THIN_CELL_M = 0.5
 
 #: ``reconstruct`` evaluates the fast method on grids no finer than this and
 #: upsamples bicubically (no measurable loss: the field varies over metres).
@@ -937,11 +944,19 @@ def reconstruct(
     n_samples = xa.size
     exact = method == "exact"
     if method == "auto" and (n_samples <= AUTO_EXACT_MAX_SAMPLES
-                             # one sample per 0.5 m cell: a lower bound on the distinct
-                             # positions, cheaper than counting them
-                             or _block_pick(xa, ya, 0.5).size <= AUTO_EXACT_MAX_SAMPLES):
-        xa, ya, va = _merge_duplicates(xa, ya, va)
-        exact = xa.size <= AUTO_EXACT_MAX_SAMPLES
+                             # one sample per AUTO_THIN_CELL_M cell: a lower bound on the
+                             # distinct positions, cheaper than counting them
+                             or _block_pick(xa, ya, AUTO_THIN_CELL_M).size
+                             <= AUTO_EXACT_MAX_SAMPLES):
+        xm, ym, vm = _merge_duplicates(xa, ya, va)
+        if xm.size <= AUTO_EXACT_MAX_SAMPLES:
+            xa, ya, va, exact = xm, ym, vm, True
+        else:
+            # the exact solve on the samples thinned as the fast method thins them
+            xa, ya, va = _thin_pick(xa, ya, va, AUTO_THIN_CELL_M)
+            exact = xa.size <= AUTO_EXACT_MAX_SAMPLES
+            if not exact:
+                xa, ya, va = _check_samples(x, y, v)
     if exact:
         est: BiharmonicSpline | FastBiharmonicSpline = BiharmonicSpline()
         xa, ya, va = _merge_duplicates(xa, ya, va)
