@@ -80,6 +80,7 @@ STATE = np.dtype([
     ("boundary_margin_m", _F), ("lost_offset_m", _F), ("lost_time_s", _F),
     ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
     ("budget_factor", _F), ("edge_skip_m", _F), ("recover_speed_mps", _F), ("recover_m", _F),
+    ("edge_walk_m", _F),
     # control
     ("pc", _I), ("status", _I), ("await_value", _I), ("cmd_vx", _F), ("cmd_vy", _F),
     ("cmd_phase", _I), ("odo_before", _F), ("area_guard", _I),
@@ -106,6 +107,10 @@ STATE = np.dtype([
     # trace orchestration
     ("heading0", _F), ("reacquired", _I), ("back_edge_m", _F),
     ("has_good", _I), ("good_x", _F), ("good_y", _F), ("slow_until_m", _F), ("lost_at_m", _F),
+    # edge walk
+    ("wk_edge", _I), ("wk_len", _F), ("wk_odo", _F), ("wk_k", _I), ("wk_max", _I),
+    ("wk_emax", _F), ("wk_smax", _F), ("wk_cross", _I), ("wk_cx", _F), ("wk_cy", _F),
+    ("wk_gx", _F), ("wk_gy", _F), ("wk_count", _I), ("wk_e", _F), ("wk_de", _F),
 ])
 """One task's state (parameters, program counter, loop locals)."""
 
@@ -124,7 +129,8 @@ STATUS_NAMES = {REACHED: "reached", UNREACHABLE: "unreachable", CLOSED: "closed"
 
 # events (see sim_vehicle.tracer.TracerEvent)
 (EV_FOUND, EV_NOT_FOUND, EV_LOST_SEARCHING, EV_REACQUIRED, EV_BOUNDARY_OTHER, EV_BUDGET,
- EV_CLOSED, EV_BOUNDARY, EV_LENGTH_LIMIT, EV_LOST, EV_FENCE) = range(1, 12)
+ EV_CLOSED, EV_BOUNDARY, EV_LENGTH_LIMIT, EV_LOST, EV_FENCE, EV_EDGE_WALK,
+ EV_EDGE_FOUND) = range(1, 14)
 
 # the guard
 GUARD_SOFT_ACCEL_FRACTION = 0.7
@@ -143,6 +149,22 @@ attempts afresh."""
 GOOD_OFFSET_M = 1.0
 """A trace sample within this lateral offset of the level is where a lost trace resumes
 (searched for where the vehicle is when it is already within this distance of it)."""
+WALK_MIN_M = 2.0
+"""An edge walk shorter than this (the flight back it would save is that short) is not
+begun."""
+WALK_PEAK_M = 2.0
+"""The edge walk judges where the field comes back down to the level once it has walked
+this far past the highest value it read."""
+WALK_CORNER_M = 0.5
+"""The edge walk turns the corner this close to it (along the inset edge)."""
+WALK_MAX = 6
+"""Edge walks a trace task may make (each found piece can lead to the next edge; on a
+field at the level everywhere, noise would keep finding it)."""
+WALK_STOP_M = 0.1
+"""The vehicle comes back to within this of where the walk found the level before it
+turns onto the iso-line (the walk runs on half a metre per sample)."""
+WALK_GAIN_HZ = 1.0
+"""Gain of the edge walk's hold on its inset from the edge (m/s per m)."""
 FENCE_EPISODE_GAP_S = 1.0
 """Fence limiting after this long without any counts as a new breach attempt."""
 
@@ -168,6 +190,10 @@ PC_TR_AFTER_RETURN = 35
 PC_TR_END = 36
 PC_FT_END = 37
 PC_TR_AFTER_BACKUP = 38
+PC_WK_START = 40
+PC_WK = 41
+PC_TR_AFTER_WALK = 42
+PC_TR_AFTER_EDGE_FOUND = 43
 
 # phases (econdor_gcs.core.tasks.Phase)
 _TRANSIT, _SEARCH, _TRACE = 0, 1, 2
@@ -578,9 +604,9 @@ def _heading_from_gradient(gx: float, gy: float, side: float) -> float:
 
 
 @njit(cache=True)
-def _found(s, recent: np.ndarray, cur_x: float, cur_y: float, cur_v: float,
-           cross_x: float, cross_y: float) -> None:
-    """Record where the level was crossed and the gradient there; return from the search."""
+def _crossing_gradient(s, recent: np.ndarray, cur_x: float, cur_y: float, cur_v: float
+                       ) -> tuple[float, float]:
+    """The gradient where the level was crossed between the previous and this sample."""
     gx, gy, _ = fit_gradient(recent, s.rec_start, s.rec_len, s.gradient_window)
     if s.has_prev:
         # the bracketing pair gives the derivative along the last step: trust its sign
@@ -594,12 +620,26 @@ def _found(s, recent: np.ndarray, cur_x: float, cur_y: float, cur_v: float,
             if math.hypot(gx, gy) < 1e-12 or gfit_along * along <= 0.0:
                 # the fit disagrees with the crossing itself: use the step direction
                 gx, gy = along * ux, along * uy
+    return gx, gy
+
+
+@njit(cache=True)
+def _found_at(s, x: float, y: float, gx: float, gy: float) -> None:
+    """Record where the level was found and the gradient there; return from the search."""
     s.found = 1
-    s.f_x = cross_x
-    s.f_y = cross_y
+    s.f_x = x
+    s.f_y = y
     s.f_gx = gx
     s.f_gy = gy
     s.pc = s.sr_ret
+
+
+@njit(cache=True)
+def _found(s, recent: np.ndarray, cur_x: float, cur_y: float, cur_v: float,
+           cross_x: float, cross_y: float) -> None:
+    """Record where the level was crossed and the gradient there; return from the search."""
+    gx, gy = _crossing_gradient(s, recent, cur_x, cur_y, cur_v)
+    _found_at(s, cross_x, cross_y, gx, gy)
 
 
 @njit(cache=True)
@@ -642,6 +682,43 @@ def _spiral_point(s, b, th: float) -> tuple[float, float]:
     x = s.sr_cx + r * math.cos(th + s.phi0)
     y = s.sr_cy + r * math.sin(th + s.phi0)
     return min(max(x, b.xmin + m), b.xmax - m), min(max(y, b.ymin + m), b.ymax - m)
+
+
+@njit(cache=True)
+def _walk_edge(b, x: float, y: float, ux: float, uy: float) -> int:
+    """The edge of the area that heading ``(ux, uy)`` from ``(x, y)`` runs into (0 south,
+    1 east, 2 north, 3 west); the nearest edge for a heading along none."""
+    best, edge = math.inf, -1
+    if uy < -1e-12 and (b.ymin - y) / uy < best:
+        best, edge = (b.ymin - y) / uy, 0
+    if ux > 1e-12 and (b.xmax - x) / ux < best:
+        best, edge = (b.xmax - x) / ux, 1
+    if uy > 1e-12 and (b.ymax - y) / uy < best:
+        best, edge = (b.ymax - y) / uy, 2
+    if ux < -1e-12 and (b.xmin - x) / ux < best:
+        best, edge = (b.xmin - x) / ux, 3
+    if edge < 0:
+        off = (y - b.ymin, b.xmax - x, b.ymax - y, x - b.xmin)
+        edge = 0
+        for k in range(1, 4):
+            if off[k] < off[edge]:
+                edge = k
+    return edge
+
+
+@njit(cache=True)
+def _walk_frame(b, edge: int, x: float, y: float, inset: float
+                ) -> tuple[float, float, float, float]:
+    """Along ``edge``, counterclockwise round the area (its inside on the left): the unit
+    tangent, the distance from the edge and how far ahead the walk's inset line meets
+    the next edge's."""
+    if edge == 0:
+        return 1.0, 0.0, y - b.ymin, b.xmax - inset - x
+    if edge == 1:
+        return 0.0, 1.0, b.xmax - x, b.ymax - inset - y
+    if edge == 2:
+        return -1.0, 0.0, b.ymax - y, x - (b.xmin + inset)
+    return 0.0, -1.0, x - b.xmin, y - (b.ymin + inset)
 
 
 @njit(cache=True)
@@ -937,6 +1014,7 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             s.has_good = 0
             s.slow_until_m = 0.0
             s.lost_at_m = 0.0
+            s.wk_count = 0
             _call_leg(s, s.heading0, 1.0)
             continue
         if pc == PC_TR_AFTER_LEG:
@@ -958,12 +1036,80 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
                                  PC_TR_AFTER_REACQUIRE)
                     continue
             if status == BOUNDARY and s.side > 0 and s.back_edge_m > s.edge_skip_m:
+                # before the flight back: along the edge, the area's inside on the left as
+                # the higher values were, for where the iso-line (or the next one round
+                # the same region) comes back in; never farther than the flight it saves
+                walk = min(s.edge_walk_m, math.hypot(b.x_m - s.start_x, b.y_m - s.start_y))
+                edge = _walk_edge(b, b.x_m, b.y_m, s.ux, s.uy)
+                _, _, off, _ = _walk_frame(b, edge, b.x_m, b.y_m, s.boundary_margin_m)
+                if (walk >= WALK_MIN_M and off <= 2.0 * s.boundary_margin_m + 1.0
+                        and s.wk_count < WALK_MAX):
+                    s.wk_count += 1
+                    n_events = _emit(events, n_events, EV_EDGE_WALK, n_out)
+                    s.wk_len = walk
+                    s.wk_edge = edge
+                    s.pc = PC_WK_START
+                    continue
                 n_events = _emit(events, n_events, EV_BOUNDARY_OTHER, n_out)
                 _call_fly_to(s, b, s.start_x, s.start_y, _TRANSIT, 0.5, s.transit_speed_mps,
                              PC_TR_AFTER_RETURN)
                 continue
             s.status = status
             s.pc = PC_TR_END
+            continue
+        if pc == PC_WK_START:
+            s.wk_odo = b.odometer_m
+            s.wk_k = 0
+            v_walk = min(s.search_speed_mps, b.max_speed_mps)
+            s.wk_max = int(3.0 * (s.wk_len / max(v_walk, 0.1) + 10.0) / b.dt_s) + 100
+            s.has_prev = 0
+            s.found = 0
+            s.sr_level = s.level
+            s.sr_ret = PC_TR_AFTER_WALK
+            s.wk_emax = 0.0
+            s.wk_smax = 0.0
+            s.wk_cross = 0
+            s.wk_de = 0.0
+            s.pc = PC_WK
+            continue
+        if pc == PC_WK:
+            inset = s.boundary_margin_m
+            tx, ty, off, ahead = _walk_frame(b, s.wk_edge, b.x_m, b.y_m, inset)
+            if ahead <= WALK_CORNER_M:  # round the corner
+                s.wk_edge = (s.wk_edge + 1) % 4
+                tx, ty, off, ahead = _walk_frame(b, s.wk_edge, b.x_m, b.y_m, inset)
+            blocked = False
+            if fr.shape[0] > 0 or fc.shape[0] > 0:  # the fence across the way
+                blocked = (fence_ray_exit(fv, fr, fc, b.x_m, b.y_m, tx, ty) - b.fence_margin_m
+                           < min(ahead, 2.0 * inset))
+            if (blocked or b.odometer_m - s.wk_odo >= s.wk_len or s.wk_k >= s.wk_max
+                    or s.ticks_left <= 0):
+                s.found = 0
+                s.pc = PC_TR_AFTER_WALK
+                continue
+            s.wk_k += 1
+            s.ticks_left -= 1
+            v = min(s.search_speed_mps, b.max_speed_mps,
+                    math.sqrt(2.0 * 0.5 * b.max_accel_mps2 * max(ahead, 0.0)) + 0.5)
+            if s.has_prev and s.wk_de < 0.0:  # coming down to the level: slow, as a search
+                v = min(v, max(s.approach_speed_mps, s.approach_gain_hz * s.wk_e / -s.wk_de))
+            lat = max(-v, min(v, WALK_GAIN_HZ * (inset - off)))  # > 0: inward
+            return _command(s, v * tx - lat * ty, v * ty + lat * tx, _SEARCH), n_events
+        if pc == PC_TR_AFTER_WALK:
+            if s.found:
+                n_events = _emit(events, n_events, EV_EDGE_FOUND, n_out)
+                s.has_good, s.good_x, s.good_y = 1, s.f_x, s.f_y
+                # back to the crossing, braking: the walk's speed along the edge would
+                # carry the turn onto the iso-line out of the area
+                _call_fly_to(s, b, s.f_x, s.f_y, _SEARCH, WALK_STOP_M, s.search_speed_mps,
+                             PC_TR_AFTER_EDGE_FOUND)
+                continue
+            n_events = _emit(events, n_events, EV_BOUNDARY_OTHER, n_out)
+            _call_fly_to(s, b, s.start_x, s.start_y, _TRANSIT, 0.5, s.transit_speed_mps,
+                         PC_TR_AFTER_RETURN)
+            continue
+        if pc == PC_TR_AFTER_EDGE_FOUND:
+            _call_leg(s, _heading_from_gradient(s.f_gx, s.f_gy, s.side), s.side)
             continue
         if pc == PC_TR_AFTER_BACKUP:
             _call_search(s, s.level, s.good_x, s.good_y, s.reacquire_radius_m,
@@ -1031,6 +1177,61 @@ def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarr
                 or (b.odometer_m - s.odo0_m) - s.path0 > s.max_path
                 or not _contains(b.xmin + m, b.xmax - m, b.ymin + m, b.ymax - m, x, y)):
             s.pc = PC_SR_SPIRAL_START
+        return
+    if pc == PC_WK:
+        # the walk runs inside the region the trace kept on its left: where the field
+        # falls through the level again (and not within WALK_MIN_M / 2 of where the
+        # walk began, where it crosses the level the trace left), an iso-line comes in
+        walked = b.odometer_m - s.wk_odo
+        e1 = s.side * (v - s.level)
+        if s.has_prev:
+            e0 = s.side * (s.prev_v - s.level)
+            if e0 > 0.0 and e1 <= 0.0:  # down through the level: an iso-line comes in
+                t = e0 / (e0 - e1)
+                cx, cy = s.prev_x + t * (x - s.prev_x), s.prev_y + t * (y - s.prev_y)
+                # the walk's samples lie on one line: a plane fit cannot tell the gradient
+                # across it, so the derivative along the last step stands for it (the
+                # trace then sets off square to the edge and the controller turns it)
+                sx, sy = x - s.prev_x, y - s.prev_y
+                step = max(math.hypot(sx, sy), 1e-9)
+                along = (v - s.prev_v) / step
+                gx, gy = along * sx / step, along * sy / step
+                if walked >= WALK_MIN_M:
+                    _found_at(s, cx, cy, gx, gy)
+                    return
+                # this near where the walk began it may be the level the trace left,
+                # read again through noise: taken once the walk stays below it
+                s.wk_cross, s.wk_cx, s.wk_cy, s.wk_gx, s.wk_gy = 1, cx, cy, gx, gy
+            elif e0 <= 0.0 < e1:
+                s.wk_cross = 0
+        if s.has_prev:
+            step = math.hypot(x - s.prev_x, y - s.prev_y)
+            if step > 1e-9:
+                s.wk_de = (e1 - s.side * (s.prev_v - s.level)) / step
+        s.wk_e = e1
+        s.has_prev, s.prev_x, s.prev_y, s.prev_v = 1, x, y, v
+        if walked >= WALK_MIN_M and e1 <= 0.0:
+            if s.wk_cross:
+                _found_at(s, s.wk_cx, s.wk_cy, s.wk_gx, s.wk_gy)
+            elif walked >= 2.0 * WALK_MIN_M:  # below the level all along: not this side
+                s.found = 0
+                s.pc = PC_TR_AFTER_WALK
+            return
+        # Where will the field along the edge come back down to the level? Past its
+        # highest point the profile is taken for a parabola through that top: a bump's
+        # edge comes back in soon, a plateau's (a front, a wide high ground) not within
+        # the walk, which then gives up instead of running out its length.
+        if e1 >= s.wk_emax:
+            s.wk_emax, s.wk_smax = e1, walked
+            ret = 2.0 * walked  # still rising: at least as far again
+        elif walked - s.wk_smax >= WALK_PEAK_M:
+            drop = s.wk_emax - e1
+            ret = s.wk_smax + (walked - s.wk_smax) * math.sqrt(s.wk_emax / drop)
+        else:
+            ret = 0.0
+        if ret > s.wk_len:
+            s.found = 0
+            s.pc = PC_TR_AFTER_WALK
         return
     if pc == PC_LEG_TURN:
         s.win_start, s.win_len = _ring_push(window, s.win_start, s.win_len, x, y, v)

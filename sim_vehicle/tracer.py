@@ -20,9 +20,15 @@ Trace
     the left, or on the right on the return leg). The integral term is the path
     curvature, which is also used to slow down in tight bends. ``|grad|`` is
     re-estimated from a plane fit over the recent trace samples whenever they are
-    spread enough across the track. Loop closure, the region boundary (then the
-    vehicle returns to the entry point and traces the other way), the length limit,
-    loss of the contour and a hard tick budget end the trace. A lost contour (a bend
+    spread enough across the track. Loop closure, the region boundary, the length
+    limit, loss of the contour and a hard tick budget end the trace. At the boundary
+    the vehicle first walks along it, the higher values still on its left (inside the
+    region the trace kept there), for where an iso-line comes back in: the same one
+    when the region only bulges over the edge. Found, it is traced on the same way,
+    often back round to the entry (closed). The walk goes no farther than the flight
+    back to the entry it would save, and gives up sooner when the field along the edge
+    shows no sign of coming back down to the level; then the vehicle returns to the
+    entry point and traces the other way. A lost contour (a bend
     too sharp for the cruise speed, a saddle where the gradient vanishes) is searched
     for again where the trace last held it, and the next ``recover_m`` are traced at
     ``recover_speed_mps``; ``max_reacquire`` losses in a row end the trace.
@@ -62,6 +68,8 @@ class TracerEvent(StrEnum):
     LENGTH_LIMIT = "length limit"
     LOST = "contour lost"
     FENCE = "stopped at the fence"
+    EDGE_WALK = "boundary reached, walking the edge"
+    EDGE_FOUND = "contour found along the edge"
 
 
 _EVENTS = {m.EV_FOUND: TracerEvent.FOUND, m.EV_NOT_FOUND: TracerEvent.NOT_FOUND,
@@ -70,7 +78,8 @@ _EVENTS = {m.EV_FOUND: TracerEvent.FOUND, m.EV_NOT_FOUND: TracerEvent.NOT_FOUND,
            m.EV_BOUNDARY_OTHER: TracerEvent.BOUNDARY_OTHER_DIRECTION,
            m.EV_BUDGET: TracerEvent.BUDGET_EXHAUSTED, m.EV_CLOSED: TracerEvent.CLOSED,
            m.EV_BOUNDARY: TracerEvent.BOUNDARY, m.EV_LENGTH_LIMIT: TracerEvent.LENGTH_LIMIT,
-           m.EV_LOST: TracerEvent.LOST, m.EV_FENCE: TracerEvent.FENCE}
+           m.EV_LOST: TracerEvent.LOST, m.EV_FENCE: TracerEvent.FENCE,
+           m.EV_EDGE_WALK: TracerEvent.EDGE_WALK, m.EV_EDGE_FOUND: TracerEvent.EDGE_FOUND}
 
 EventCallback = Callable[[TracerEvent], None]
 
@@ -143,6 +152,16 @@ class TracerParams:
         starts where the trace last held it (within 1 m). 0: the search starts where the
         vehicle is, the trace goes on at cruise speed and ``max_reacquire`` counts per
         task (as the tracer did before this parameter).
+    edge_walk_m
+        At the area's boundary, before flying back to the entry, the trace walks along
+        the edge (at ``search_speed_mps``, ``boundary_margin_m`` inside, counterclockwise
+        round the area: the higher values stay on its left) for up to this far, and
+        never farther than the flight back it would save, for where the field falls
+        through the level again: an iso-line comes in there, traced on the same way.
+        Past the highest value it read, the walk takes the field along the edge for a
+        parabola through that top and gives up when that would reach the level beyond
+        its length (a plateau, as beside a front, never comes back down). At most six
+        walks a task. 0: no walk (the tracer before this parameter).
     """
 
     speed_mps: float = 8.0
@@ -171,6 +190,7 @@ class TracerParams:
     edge_skip_m: float = 4.0
     recover_speed_mps: float = 2.0
     recover_m: float = 20.0
+    edge_walk_m: float = 100.0
 
 
 # ----------------------------------------------------------------------------- the machine

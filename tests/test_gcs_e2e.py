@@ -8,6 +8,7 @@ itself) is shared by the end-to-end and the transport-parity tests.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -148,8 +149,11 @@ def test_transport_parity(full_run: tuple[Path, Path, int, str]) -> None:
     distance, same MAE. After it, the tracer's feedback amplifies the 1e-7 deg (~1 cm)
     quantisation of MAVLink coordinates and float32 sample values, so trace paths drift
     apart; the planned levels stay within a few tenths (field range 0..100), kappa and the
-    number of pieces agree, and the MAE within 1.5 dB (measured: <= 0.6 dB on the demo
-    mission for iterations 1-3).
+    number of pieces agree, and the MAE within 1.5 dB in iteration 1. In iteration 2 a
+    trace's edge walk may find the next iso-line in one run and give up in the other:
+    in-process alone, sensor noise of 1e-6 (on a field of 0..100) moves its MAE from
+    -14.0 to -18.6 dB and its distance from 3059 to 3445 m (measured), so the MAVLink run
+    is held to the band that such in-process runs span, widened by 1.5 dB and 15 %.
     """
     mission_path, out, code, _ = full_run
     assert code == 0
@@ -167,13 +171,21 @@ def test_transport_parity(full_run: tuple[Path, Path, int, str]) -> None:
     assert mav[1]["kappa"] == ref["kappa"][1]
     assert mav[1]["delta"] == pytest.approx(ref["delta"][1], rel=0.01)
     np.testing.assert_allclose(mav[1]["levels"], ref["levels"][1], atol=0.05)
+    assert mav[1]["mae_db"] == pytest.approx(ip_rows[1]["mae_db"], abs=1.5)
+    assert mav[1]["flight_distance_m"] == pytest.approx(ip_rows[1]["flight_distance_m"],
+                                                        rel=0.15)
     for i in (1, 2):
         assert mav[i]["kappa"] == ref["kappa"][i]
-        assert mav[i]["mae_db"] == pytest.approx(ip_rows[i]["mae_db"], abs=1.5)
-        assert mav[i]["flight_distance_m"] == pytest.approx(ip_rows[i]["flight_distance_m"],
-                                                            rel=0.15)
     assert len(mav[2]["levels"]) == len(ref["levels"][2])
     np.testing.assert_allclose(mav[2]["levels"], ref["levels"][2], atol=1.0)
+    band = [ip_rows[2]] + [
+        run_seed(dataclasses.replace(mission, vehicles=dataclasses.replace(
+            mission.vehicles, noise_std=noise)), mission.seed, "econdor", None)["rows"][2]
+        for noise in (1e-6, 2e-6)]
+    maes = [r["mae_db"] for r in band]
+    assert min(maes) - 1.5 <= mav[2]["mae_db"] <= max(maes) + 1.5
+    dists = [r["flight_distance_m"] for r in band]
+    assert 0.85 * min(dists) <= mav[2]["flight_distance_m"] <= 1.15 * max(dists)
 
 
 def test_connect_serves_vehicles_started_elsewhere(tmp_path: Path,
