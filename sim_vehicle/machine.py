@@ -1186,14 +1186,17 @@ def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarr
         e1 = s.side * (v - s.level)
         if s.has_prev:
             e0 = s.side * (s.prev_v - s.level)
+            sx, sy = x - s.prev_x, y - s.prev_y
+            step = math.hypot(sx, sy)
+            if step > 1e-9:
+                s.wk_de = (e1 - e0) / step
             if e0 > 0.0 and e1 <= 0.0:  # down through the level: an iso-line comes in
                 t = e0 / (e0 - e1)
-                cx, cy = s.prev_x + t * (x - s.prev_x), s.prev_y + t * (y - s.prev_y)
+                cx, cy = s.prev_x + t * sx, s.prev_y + t * sy
                 # the walk's samples lie on one line: a plane fit cannot tell the gradient
                 # across it, so the derivative along the last step stands for it (the
                 # trace then sets off square to the edge and the controller turns it)
-                sx, sy = x - s.prev_x, y - s.prev_y
-                step = max(math.hypot(sx, sy), 1e-9)
+                step = max(step, 1e-9)
                 along = (v - s.prev_v) / step
                 gx, gy = along * sx / step, along * sy / step
                 if walked >= WALK_MIN_M:
@@ -1204,10 +1207,6 @@ def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarr
                 s.wk_cross, s.wk_cx, s.wk_cy, s.wk_gx, s.wk_gy = 1, cx, cy, gx, gy
             elif e0 <= 0.0 < e1:
                 s.wk_cross = 0
-        if s.has_prev:
-            step = math.hypot(x - s.prev_x, y - s.prev_y)
-            if step > 1e-9:
-                s.wk_de = (e1 - s.side * (s.prev_v - s.level)) / step
         s.wk_e = e1
         s.has_prev, s.prev_x, s.prev_y, s.prev_v = 1, x, y, v
         if walked >= WALK_MIN_M and e1 <= 0.0:

@@ -917,7 +917,10 @@ def reconstruct(
     method : {"auto", "exact", "fast"}
         ``"exact"``: :class:`BiharmonicSpline`; ``"fast"``:
         :class:`FastBiharmonicSpline`; ``"auto"``: exact when there are at most
-        :data:`AUTO_EXACT_MAX_SAMPLES` distinct positions, fast otherwise. The
+        :data:`AUTO_EXACT_MAX_SAMPLES` distinct positions; else exact on the samples
+        thinned to one per :data:`AUTO_THIN_CELL_M` square when that leaves at most
+        as many (the fast method's tiles extrapolate across the wide gaps such sparse
+        sets have); fast otherwise. The
         fast method is evaluated at :data:`FAST_EVAL_SPACING_M` spacing and
         upsampled bicubically when ``grid`` is finer.
     estimator : FastBiharmonicSpline, optional
@@ -943,20 +946,16 @@ def reconstruct(
     xa, ya, va = _check_samples(x, y, v)
     n_samples = xa.size
     exact = method == "exact"
-    if method == "auto" and (n_samples <= AUTO_EXACT_MAX_SAMPLES
-                             # one sample per AUTO_THIN_CELL_M cell: a lower bound on the
-                             # distinct positions, cheaper than counting them
-                             or _block_pick(xa, ya, AUTO_THIN_CELL_M).size
-                             <= AUTO_EXACT_MAX_SAMPLES):
-        xm, ym, vm = _merge_duplicates(xa, ya, va)
-        if xm.size <= AUTO_EXACT_MAX_SAMPLES:
-            xa, ya, va, exact = xm, ym, vm, True
-        else:
-            # the exact solve on the samples thinned as the fast method thins them
-            xa, ya, va = _thin_pick(xa, ya, va, AUTO_THIN_CELL_M)
-            exact = xa.size <= AUTO_EXACT_MAX_SAMPLES
-            if not exact:
-                xa, ya, va = _check_samples(x, y, v)
+    if method == "auto":
+        exact = n_samples <= AUTO_EXACT_MAX_SAMPLES
+        if not exact:
+            # one sample per AUTO_THIN_CELL_M square, as the fast method thins them (no
+            # more than the distinct positions)
+            xt, yt, vt = _thin_pick(xa, ya, va, AUTO_THIN_CELL_M)
+            exact = xt.size <= AUTO_EXACT_MAX_SAMPLES
+            if exact:
+                xm, ym, vm = _merge_duplicates(xa, ya, va)
+                xa, ya, va = (xm, ym, vm) if xm.size <= AUTO_EXACT_MAX_SAMPLES else (xt, yt, vt)
     if exact:
         est: BiharmonicSpline | FastBiharmonicSpline = BiharmonicSpline()
         xa, ya, va = _merge_duplicates(xa, ya, va)
