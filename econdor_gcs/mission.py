@@ -134,7 +134,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
         "start": (str, "auto", _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
         "start_lines": (int, 0, _range(0, 1000)),
-        "start_step_m": (float, 10.0, _non_negative),
+        "start_step_m": (float, 5.0, _non_negative),
         "model": (str, "auto", _one_of("auto", "gp", "proxy")),
         "length_m": (float, 5.0, _positive),
         "fit_length": (bool, True, None),

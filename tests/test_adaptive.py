@@ -692,8 +692,9 @@ def _concat(*logs: SampleLog) -> SampleLog:
 
 def test_the_start_line_is_flown_in_steps_and_a_crossing_is_traced_before_the_next_step():
     """``start_step_m``: the start line is an iteration per step; a crossing a step sampled
-    is traced (whole, allowed to run the perimeter) before the next step, which goes on
-    from where the last one ended, not from where the line was first left open."""
+    is traced (whole, allowed to run the perimeter) before the next step. What is left of
+    the line goes on from where the last step ended, not from where the line was first left
+    open; after the trace it competes with the lines through uncovered ground."""
     params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines")
     planner = AdaptivePlanner(params)
     first = planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
@@ -723,10 +724,18 @@ def test_the_start_line_is_flown_in_steps_and_a_crossing_is_traced_before_the_ne
     keep = ~((holed.x_m > 49.0) & (holed.y_m > 5.0) & (holed.y_m < 15.0))
     holed = SampleLog(holed.t_s[keep], holed.x_m[keep], holed.y_m[keep], holed.value[keep],
                       holed.phase[keep], holed.vehicle[keep])
+    holed_xy = np.column_stack([holed.x_m, holed.y_m])
+    rest = planner._route.rest(holed_xy)
+    assert rest is not None and rest[:, 0].tolist() == [50.0, 50.0]
+    assert rest[0, 1] == pytest.approx(ys[-1] + 2.0, abs=1.0) and rest[1, 1] > rest[0, 1]
     fourth = planner.next_batch(_context(holed, 3, (50.0, 56.8)))  # the loop closed here
     (leg,) = fourth.jobs
-    assert [w.x_m for w in leg.tasks] == [50.0, 50.0]
-    assert leg.tasks[0].y_m == pytest.approx(ys[-1] + 2.0, abs=1.0)
+    pts = np.array([(w.x_m, w.y_m) for w in leg.tasks])
+    assert leg.length_m <= 30.0 + 1e-9  # a step of the line that won
+    assert not np.any((np.abs(pts[:, 0] - 50.0) < 1.0) & (pts[:, 1] < 20.0))  # not the gap
+    # the rest of the start line was weighed against the other lines: the step is of the
+    # best of them per metre (here through the unflown west, entered beside the vehicle)
+    assert pts[0, 0] == pytest.approx(50.0, abs=1.0) and pts[-1, 0] < 25.0
     # one vehicle only: a fleet flies the start survey whole
     fleet = AdaptivePlanner(params).initiation(PlanContext(iteration=0, region=REGION,
                                                            n_vehicles=2))
