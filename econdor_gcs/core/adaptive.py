@@ -610,10 +610,10 @@ class AdaptivePlanner:
         """Threshold mode: planning cells where an iso-line could still be (after the last plan)."""
         self._probed: list[FloatArray] = []
         self._route = SteppedRoute()
-        self._traced = False
-        """``explore: lines``: the last plan was a trace through a sampled crossing."""
         """The line flown in steps (``start_step_m``): the start survey, then (``explore:
         lines``) each line through uncovered ground."""
+        self._traced = False
+        """``explore: lines``: the last plan was a trace through a sampled crossing."""
 
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
@@ -827,7 +827,8 @@ class AdaptivePlanner:
                 umap.mean, sd, levels))
         near = np.where(open_cells, dist, 0.0)  # closed cells have nothing to cover
         rest = self._route.rest(samples_xy)
-        if rest is not None and (after_trace or float(np.hypot(*(rest[0] - pos))) > ROUTE_LEFT_M):
+        if rest is not None and (after_trace
+                                 or float(np.hypot(*(rest[0] - pos))) > ROUTE_LEFT_M):
             # a trace interrupted the line, or a probe took the vehicle away from it: what is
             # left of that line (from either end) competes with the lines through uncovered
             # ground
