@@ -811,3 +811,14 @@ def test_a_vehicle_a_trace_took_away_from_its_line_weighs_the_rest_against_other
     start = leg.tasks[0]
     assert math.hypot(start.x_m - 50.0, start.y_m - 63.0) > 10.0  # not back to the line
     assert start.x_m < 50.0 and start.y_m == pytest.approx(99.5)  # the west, from the top
+
+
+def test_a_mission_without_an_adaptive_section_gets_the_planners_own_defaults():
+    """The mission schema repeats every adaptive default; a default changed on one side
+    only would leave missions (and the bench) on the old value without anyone noticing."""
+    from econdor_gcs.mission import _SCHEMA
+
+    own = {f.name: f.default for f in dataclasses.fields(AdaptiveParams)}
+    schema = {key: spec[1] for key, spec in _SCHEMA["adaptive"].items()}
+    assert set(schema) <= set(own)
+    assert {k: own[k] for k in schema} == schema
