@@ -4,7 +4,8 @@ Every problem is reported as one :class:`~econdor_gcs.errors.MissionError` line 
 names the key (``field.sigma1_m: must be > 0, got -3``). Unknown keys are errors, so a
 typo never silently falls back to a default.
 
-Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``)::
+Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, those of
+``adaptive`` taken from :class:`~econdor_gcs.core.adaptive.AdaptiveParams`)::
 
     name: demo
     seed: 0                          # field seed (studies override it per run)
@@ -37,6 +38,7 @@ from typing import Any
 
 import yaml
 
+from .core.adaptive import AdaptiveParams
 from .core.geodesy import Origin
 from .core.geometry import Grid, Region
 from .core.planners import PLANNER_NAMES
@@ -72,6 +74,9 @@ def _range(lo: float, hi: float) -> Check:
 
     return check
 
+
+_ADAPTIVE = AdaptiveParams()
+"""The adaptive section's defaults are the planner's own."""
 
 # section -> key -> (type, default, check)
 _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
@@ -124,43 +129,44 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "budget_m": (float, 0.0, _non_negative),
     },
     "adaptive": {
-        "batch_m": (float, 200.0, _positive),
-        "batch_growth": (float, 0.0, _non_negative),
-        "levels": (int, 30, _range(1, 1000)),
-        "piece_m": (float, 30.0, _positive),
-        "leg_m": (float, 30.0, _positive),
-        "legs": (int, 40, _range(0, 10000)),
-        "line_spacing_m": (float, 2.0, _non_negative),
-        "line_orientation": (str, "ns", _one_of("ns", "ew", "both")),
-        "start": (str, "auto", _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
-        "start_lines": (int, 0, _range(0, 1000)),
-        "start_step_m": (float, 5.0, _non_negative),
-        "model": (str, "auto", _one_of("auto", "gp", "proxy")),
-        "length_m": (float, 5.0, _positive),
-        "fit_length": (bool, True, None),
-        "floor": (float, 0.0, _non_negative),
-        "gradient_gain_m": (float, 5.0, _non_negative),
-        "power": (float, 2.0, _range(0.5, 4.0)),
-        "plan_spacing_m": (float, 2.0, _positive),
-        "search_radius_m": (float, 3.0, _positive),
-        "resolve_m": (float, 1.5, _positive),
-        "explore_m": (float, 10.0, _positive),
-        "band_m": (float, 3.0, _non_negative),
-        "level_tol": (float, 0.01, _range(0.0, 0.5)),
-        "threshold_batch_m": (float, 80.0, _positive),
-        "crossings_first": (bool, True, None),
-        "first_order": (str, "crossings", _one_of("crossings", "nearest")),
-        "open_entry": (str, "auto", _one_of("auto", "end", "crossing")),
-        "probes": (bool, True, None),
-        "probe_climb": (bool, True, None),
-        "probe_m": (float, 30.0, _positive),
-        "probe_prominence": (float, 1e-4, _range(0.0, 1.0)),
-        "probe_reach": (float, 2.0, _non_negative),
-        "sweeps": (bool, True, None),
-        "explore": (str, "auto", _one_of("auto", "legs", "lines")),
-        "line_step_m": (float, 5.0, _positive),
-        "line_weight": (str, "p", _one_of("none", "p")),
-        "probe_length_m": (float, 20.0, _non_negative),
+        "batch_m": (float, _ADAPTIVE.batch_m, _positive),
+        "batch_growth": (float, _ADAPTIVE.batch_growth, _non_negative),
+        "levels": (int, _ADAPTIVE.levels, _range(1, 1000)),
+        "piece_m": (float, _ADAPTIVE.piece_m, _positive),
+        "leg_m": (float, _ADAPTIVE.leg_m, _positive),
+        "legs": (int, _ADAPTIVE.legs, _range(0, 10000)),
+        "line_spacing_m": (float, _ADAPTIVE.line_spacing_m, _non_negative),
+        "line_orientation": (str, _ADAPTIVE.line_orientation, _one_of("ns", "ew", "both")),
+        "start": (str, _ADAPTIVE.start,
+                  _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
+        "start_lines": (int, _ADAPTIVE.start_lines, _range(0, 1000)),
+        "start_step_m": (float, _ADAPTIVE.start_step_m, _non_negative),
+        "model": (str, _ADAPTIVE.model, _one_of("auto", "gp", "proxy")),
+        "length_m": (float, _ADAPTIVE.length_m, _positive),
+        "fit_length": (bool, _ADAPTIVE.fit_length, None),
+        "floor": (float, _ADAPTIVE.floor, _non_negative),
+        "gradient_gain_m": (float, _ADAPTIVE.gradient_gain_m, _non_negative),
+        "power": (float, _ADAPTIVE.power, _range(0.5, 4.0)),
+        "plan_spacing_m": (float, _ADAPTIVE.plan_spacing_m, _positive),
+        "search_radius_m": (float, _ADAPTIVE.search_radius_m, _positive),
+        "resolve_m": (float, _ADAPTIVE.resolve_m, _positive),
+        "explore_m": (float, _ADAPTIVE.explore_m, _positive),
+        "band_m": (float, _ADAPTIVE.band_m, _non_negative),
+        "level_tol": (float, _ADAPTIVE.level_tol, _range(0.0, 0.5)),
+        "threshold_batch_m": (float, _ADAPTIVE.threshold_batch_m, _positive),
+        "crossings_first": (bool, _ADAPTIVE.crossings_first, None),
+        "first_order": (str, _ADAPTIVE.first_order, _one_of("crossings", "nearest")),
+        "open_entry": (str, _ADAPTIVE.open_entry, _one_of("auto", "end", "crossing")),
+        "probes": (bool, _ADAPTIVE.probes, None),
+        "probe_climb": (bool, _ADAPTIVE.probe_climb, None),
+        "probe_m": (float, _ADAPTIVE.probe_m, _positive),
+        "probe_prominence": (float, _ADAPTIVE.probe_prominence, _range(0.0, 1.0)),
+        "probe_reach": (float, _ADAPTIVE.probe_reach, _non_negative),
+        "sweeps": (bool, _ADAPTIVE.sweeps, None),
+        "explore": (str, _ADAPTIVE.explore, _one_of("auto", "legs", "lines")),
+        "line_step_m": (float, _ADAPTIVE.line_step_m, _positive),
+        "line_weight": (str, _ADAPTIVE.line_weight, _one_of("none", "p")),
+        "probe_length_m": (float, _ADAPTIVE.probe_length_m, _non_negative),
     },
 }
 

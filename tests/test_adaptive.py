@@ -813,12 +813,14 @@ def test_a_vehicle_a_trace_took_away_from_its_line_weighs_the_rest_against_other
     assert start.x_m < 50.0 and start.y_m == pytest.approx(99.5)  # the west, from the top
 
 
-def test_a_mission_without_an_adaptive_section_gets_the_planners_own_defaults():
-    """The mission schema repeats every adaptive default; a default changed on one side
-    only would leave missions (and the bench) on the old value without anyone noticing."""
-    from econdor_gcs.mission import _SCHEMA
-
-    own = {f.name: f.default for f in dataclasses.fields(AdaptiveParams)}
-    schema = {key: spec[1] for key, spec in _SCHEMA["adaptive"].items()}
-    assert set(schema) <= set(own)
-    assert {k: own[k] for k in schema} == schema
+def test_a_mission_without_an_adaptive_section_gets_the_planners_own_defaults(tmp_path):
+    """The mission schema takes the adaptive defaults from ``AdaptiveParams``: a mission
+    that sets none flies the planner as the planner's defaults say (a default written
+    twice had left missions and the bench on an old value)."""
+    path = tmp_path / "bare.yaml"
+    path.write_text("field: {model: paper}\n")
+    mission = load_mission(path)
+    assert AdaptiveParams(**dataclasses.asdict(mission.adaptive)) == AdaptiveParams()
+    # and a key the mission sets is the mission's
+    path.write_text("field: {model: paper}\nadaptive: {start_step_m: 7.5}\n")
+    assert load_mission(path).adaptive.start_step_m == 7.5
