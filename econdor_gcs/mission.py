@@ -30,7 +30,9 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import typing
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,8 +77,13 @@ def _range(lo: float, hi: float) -> Check:
     return check
 
 
-_ADAPTIVE = AdaptiveParams()
-"""The adaptive section's defaults are the planner's own."""
+def _from_params(cls: type, checks: dict[str, Check | None]
+                 ) -> dict[str, tuple[type | tuple[type, ...], Any, Check | None]]:
+    """Schema rows for the keys of ``checks``, with the type and default the dataclass
+    ``cls`` gives them (the planner's own parameters, written once, there)."""
+    hints = typing.get_type_hints(cls)
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    return {k: (hints[k], defaults[k], check) for k, check in checks.items()}
 
 # section -> key -> (type, default, check)
 _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
@@ -128,46 +135,45 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "spacing_m": (float, 0.0, _non_negative),
         "budget_m": (float, 0.0, _non_negative),
     },
-    "adaptive": {
-        "batch_m": (float, _ADAPTIVE.batch_m, _positive),
-        "batch_growth": (float, _ADAPTIVE.batch_growth, _non_negative),
-        "levels": (int, _ADAPTIVE.levels, _range(1, 1000)),
-        "piece_m": (float, _ADAPTIVE.piece_m, _positive),
-        "leg_m": (float, _ADAPTIVE.leg_m, _positive),
-        "legs": (int, _ADAPTIVE.legs, _range(0, 10000)),
-        "line_spacing_m": (float, _ADAPTIVE.line_spacing_m, _non_negative),
-        "line_orientation": (str, _ADAPTIVE.line_orientation, _one_of("ns", "ew", "both")),
-        "start": (str, _ADAPTIVE.start,
-                  _one_of("auto", "diagonals", "perimeter", "plan", "survey")),
-        "start_lines": (int, _ADAPTIVE.start_lines, _range(0, 1000)),
-        "start_step_m": (float, _ADAPTIVE.start_step_m, _non_negative),
-        "model": (str, _ADAPTIVE.model, _one_of("auto", "gp", "proxy")),
-        "length_m": (float, _ADAPTIVE.length_m, _positive),
-        "fit_length": (bool, _ADAPTIVE.fit_length, None),
-        "floor": (float, _ADAPTIVE.floor, _non_negative),
-        "gradient_gain_m": (float, _ADAPTIVE.gradient_gain_m, _non_negative),
-        "power": (float, _ADAPTIVE.power, _range(0.5, 4.0)),
-        "plan_spacing_m": (float, _ADAPTIVE.plan_spacing_m, _positive),
-        "search_radius_m": (float, _ADAPTIVE.search_radius_m, _positive),
-        "resolve_m": (float, _ADAPTIVE.resolve_m, _positive),
-        "explore_m": (float, _ADAPTIVE.explore_m, _positive),
-        "band_m": (float, _ADAPTIVE.band_m, _non_negative),
-        "level_tol": (float, _ADAPTIVE.level_tol, _range(0.0, 0.5)),
-        "threshold_batch_m": (float, _ADAPTIVE.threshold_batch_m, _positive),
-        "crossings_first": (bool, _ADAPTIVE.crossings_first, None),
-        "first_order": (str, _ADAPTIVE.first_order, _one_of("crossings", "nearest")),
-        "open_entry": (str, _ADAPTIVE.open_entry, _one_of("auto", "end", "crossing")),
-        "probes": (bool, _ADAPTIVE.probes, None),
-        "probe_climb": (bool, _ADAPTIVE.probe_climb, None),
-        "probe_m": (float, _ADAPTIVE.probe_m, _positive),
-        "probe_prominence": (float, _ADAPTIVE.probe_prominence, _range(0.0, 1.0)),
-        "probe_reach": (float, _ADAPTIVE.probe_reach, _non_negative),
-        "sweeps": (bool, _ADAPTIVE.sweeps, None),
-        "explore": (str, _ADAPTIVE.explore, _one_of("auto", "legs", "lines")),
-        "line_step_m": (float, _ADAPTIVE.line_step_m, _positive),
-        "line_weight": (str, _ADAPTIVE.line_weight, _one_of("none", "p")),
-        "probe_length_m": (float, _ADAPTIVE.probe_length_m, _non_negative),
-    },
+    "adaptive": _from_params(AdaptiveParams, {
+        "batch_m": _positive,
+        "batch_growth": _non_negative,
+        "levels": _range(1, 1000),
+        "piece_m": _positive,
+        "leg_m": _positive,
+        "legs": _range(0, 10000),
+        "line_spacing_m": _non_negative,
+        "line_orientation": _one_of("ns", "ew", "both"),
+        "start": _one_of("auto", "diagonals", "perimeter", "plan", "survey"),
+        "start_lines": _range(0, 1000),
+        "start_step_m": _non_negative,
+        "model": _one_of("auto", "gp", "proxy"),
+        "length_m": _positive,
+        "fit_length": None,
+        "floor": _non_negative,
+        "gradient_gain_m": _non_negative,
+        "power": _range(0.5, 4.0),
+        "plan_spacing_m": _positive,
+        "search_radius_m": _positive,
+        "resolve_m": _positive,
+        "explore_m": _positive,
+        "band_m": _non_negative,
+        "level_tol": _range(0.0, 0.5),
+        "threshold_batch_m": _positive,
+        "crossings_first": None,
+        "first_order": _one_of("crossings", "nearest"),
+        "open_entry": _one_of("auto", "end", "crossing"),
+        "probes": None,
+        "probe_climb": None,
+        "probe_m": _positive,
+        "probe_prominence": _range(0.0, 1.0),
+        "probe_reach": _non_negative,
+        "sweeps": None,
+        "explore": _one_of("auto", "legs", "lines"),
+        "line_step_m": _positive,
+        "line_weight": _one_of("none", "p"),
+        "probe_length_m": _non_negative,
+    }),
 }
 
 _FIELD_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
