@@ -347,8 +347,8 @@ def ideal_tracer(field: str, seed: int, recon: str, max_lines: int = 40, min_lin
     the lines, the pieces and the transits between them (nearest piece next, from the home
     corner or the survey's end), no search: a floor for planners that find the iso-line by
     flying on it, not a bound for all. With ``min_lines = 1``: the same after at least one
-    line (the adaptive planner's start in threshold mode, which flies the same ~50 m from
-    home to the line through the middle)."""
+    line (the adaptive planner's start in threshold mode until it became the diagonal,
+    which flew the same ~50 m from home to the line through the middle)."""
     mission = mission_for(field, 0.0, "lawnmower", recon)
     truth, grid, region = mission.build_field(seed), mission.grid, mission.region
     level = mid_level(mission, seed)

@@ -6,7 +6,9 @@ that its samples cross is traced perfectly — entered at the crossing, a closed
 round, an open one to its nearer end first, flown back to the entry and on to the other
 end (``--oracle-ends``: straight to the other end and back along the piece when that is
 nearer, as if the tracer knew where the piece comes back into the area). The policy is
-the product's (``explore: lines``): the line through the middle from the home corner, in
+the product's (``explore: lines``) as it was before its start line became the one from the
+vehicle through the centre (the diagonal from the home corner): the line through the
+middle from the home corner, in
 steps (a crossing traced at once, then the line resumed) or whole (``--whole-start``:
 its crossings traced after it), then the line through the most uncovered ground per
 metre (north-south or east-west, full width or half, every 5 m), unweighted. The estimate

@@ -658,7 +658,22 @@ def test_start_auto_is_a_survey_of_16_lines_for_the_field_and_1_for_thresholds()
     ctx = PlanContext(iteration=0, region=REGION, n_vehicles=1)
     first = AdaptivePlanner().initiation(ctx)
     assert first is not None and len(first.jobs) == 16
-    one = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(ctx)
+    # threshold mode, one vehicle: one line from where the vehicle is through the centre,
+    # flown in steps (from the home corner: the diagonal)
+    for pos, start, heading in (((0.0, 0.0), (0.5, 0.5), (1.0, 1.0)),
+                                ((50.0, 0.0), (50.0, 0.5), (0.0, 1.0)),
+                                ((100.0, 30.0), (99.5, 30.0), (-49.5, 20.0))):
+        at = PlanContext(iteration=0, region=REGION, n_vehicles=1, positions_m=[pos])
+        one = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(at)
+        assert one is not None and len(one.jobs) == 1
+        (job,) = one.jobs
+        assert job.start_m == pytest.approx(start)
+        step = np.subtract(job.end_m, job.start_m)
+        assert step[0] * heading[1] - step[1] * heading[0] == pytest.approx(0.0, abs=1e-9)
+        assert float(np.dot(step, heading)) > 0.0 and job.length_m <= 5.0
+    # a fleet flies the north-south line through the middle whole
+    fleet = PlanContext(iteration=0, region=REGION, n_vehicles=2)
+    one = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(fleet)
     assert one is not None and [j.start_m for j in one.jobs] == [(50.0, 0.0)]  # the middle
     diagonals = AdaptiveParams(target_levels=(55.0,), start="diagonals")
     assert AdaptivePlanner(diagonals).initiation(ctx) is None  # the mission's pattern
@@ -697,11 +712,12 @@ def test_the_start_line_is_flown_in_steps_and_a_crossing_is_traced_before_the_ne
     open; after the trace it competes with the lines through uncovered ground."""
     params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines")
     planner = AdaptivePlanner(params)
-    first = planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
+    first = planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
+                                           positions_m=[(50.0, 0.0)]))
     assert first is not None and len(first.jobs) == 1
-    assert [(w.x_m, w.y_m) for w in first.jobs[0].tasks] == [(50.0, 0.0), (50.0, 30.0)]
-    step1 = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 30.0)], _bump)
-    second = planner.next_batch(_context(step1, 1, (50.0, 30.0)))
+    assert [(w.x_m, w.y_m) for w in first.jobs[0].tasks] == [(50.0, 0.5), (50.0, 30.5)]
+    step1 = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 30.5)], _bump)  # along the edge first
+    second = planner.next_batch(_context(step1, 1, (50.0, 30.5)))
     (leg,) = second.jobs
     ys = [w.y_m for w in leg.tasks]
     assert ys[0] == pytest.approx(32.0, abs=1.0) and ys[-1] == pytest.approx(ys[0] + 30.0)
@@ -753,7 +769,8 @@ def test_lines_mode_flies_the_line_through_the_most_uncovered_ground_until_none_
     params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines",
                             probes=False)
     planner = AdaptivePlanner(params)
-    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
+    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
+                                          positions_m=[(50.0, 0.0)]))
     line = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 100.0)], low)  # flown whole
     batch = planner.next_batch(_context(line, 1, (50.0, 100.0)))
     (leg,) = batch.jobs
@@ -802,7 +819,8 @@ def test_a_vehicle_a_trace_took_away_from_its_line_weighs_the_rest_against_other
 
     planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), start_step_m=30.0,
                                              explore="lines", probes=False))
-    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1))
+    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
+                                          positions_m=[(50.0, 0.0)]))
     s1 = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 30.0)], low)
     planner.next_batch(_context(s1, 1, (50.0, 30.0)))
     away = [(50.0, 62.0), (75.0, 70.0), (60.0, 99.0)]  # the trace's track

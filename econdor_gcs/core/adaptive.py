@@ -79,7 +79,7 @@ from .candidates import (
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
-from .routes import SteppedRoute, best_lines, gap_lines, misclassification
+from .routes import SteppedRoute, best_lines, gap_lines, misclassification, start_line
 from .tasks import FlightReport, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
@@ -141,7 +141,10 @@ class AdaptiveParams:
         half a spacing inside the edges, as the best survey flies them). 0 (``auto``): 16
         when mapping the whole field; one in threshold mode (a line through the middle
         costs 0.15 km against the diagonals' 0.38, and the iso-line is then found from its
-        crossings and extrema).
+        crossings and extrema). Flown in steps (one vehicle, ``start_step_m``), that one
+        line runs from the vehicle straight through the area's centre
+        (:func:`~econdor_gcs.core.routes.start_line`: from the home corner, the
+        diagonal), so it samples from its first metre.
     start_step_m : float
         Threshold mode: the start survey is flown in steps of this length (m; 0: in one
         piece), each an iteration of its own, and a component through a crossing that a
@@ -632,7 +635,8 @@ class AdaptivePlanner:
             if math.isfinite(context.budget_left_m):  # never more than the budget holds
                 lines = min(lines, lawnmower_lines_for_budget(r, context.budget_left_m))
             if self._stepped(context):
-                self._route.start(start_route(r, lines))
+                pos = context.positions_m[0] if context.positions_m else (r.xmin, r.ymin)
+                self._route.start(start_line(r, pos) if lines == 1 else start_route(r, lines))
                 return self._step_batch(self._next_step(context), 0)
             return survey_start_batch(r, lines)
         return self.next_batch(context)

@@ -124,6 +124,35 @@ class SteppedRoute:
         return step
 
 
+def start_line(region: Region, from_m: tuple[float, float], inset_m: float = 0.5
+               ) -> FloatArray:
+    """Threshold mode's start line: from ``from_m`` (the vehicle, brought ``inset_m``
+    inside the area) straight through the area's centre on to its far edge, ``inset_m``
+    inside it; from the centre itself, the north-south line through it from its south end.
+
+    The line samples from its first metre (no flight to a line elsewhere) and passes the
+    middle of the area, where a mid-range iso-line most often is: from the home corner it
+    is the diagonal.
+
+    >>> r = Region(0.0, 100.0, 0.0, 100.0)
+    >>> start_line(r, (0.0, 0.0)).tolist()
+    [[0.5, 0.5], [99.5, 99.5]]
+    >>> start_line(r, (50.0, -20.0)).tolist()
+    [[50.0, 0.5], [50.0, 99.5]]
+    >>> start_line(r, (50.0, 50.0)).tolist()
+    [[50.0, 0.5], [50.0, 99.5]]
+    """
+    lo = np.array([region.xmin + inset_m, region.ymin + inset_m])
+    hi = np.array([region.xmax - inset_m, region.ymax - inset_m])
+    centre = 0.5 * (lo + hi)
+    a = np.clip(np.asarray(from_m, dtype=float), lo, hi)
+    d = centre - a
+    if float(np.hypot(*d)) < 1.0:  # at the centre: no direction to go on in
+        a, d = np.array([centre[0], lo[1]]), np.array([0.0, 1.0])
+    reach = [((hi[k] if d[k] > 0 else lo[k]) - a[k]) / d[k] for k in (0, 1) if d[k] != 0.0]
+    return np.array([a, a + min(reach) * d])
+
+
 def gap_lines(region: Region, spacing_m: float) -> list[FloatArray]:
     """North-south and east-west lines every ``spacing_m`` from the edges (the middle, and
     the middles of the halves, among them when the spacing divides a quarter), running
