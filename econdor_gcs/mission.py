@@ -85,6 +85,7 @@ def _from_params(cls: type, checks: dict[str, Check | None]
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
     return {k: (hints[k], defaults[k], check) for k, check in checks.items()}
 
+
 # section -> key -> (type, default, check)
 _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
     "area": {

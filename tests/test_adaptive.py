@@ -660,10 +660,13 @@ def test_start_auto_is_a_survey_of_16_lines_for_the_field_and_1_for_thresholds()
     assert first is not None and len(first.jobs) == 16
     # threshold mode, one vehicle: one line from where the vehicle is through the centre,
     # flown in steps (from the home corner: the diagonal)
+    # (no position known yet: from the home corner)
     for pos, start, heading in (((0.0, 0.0), (0.5, 0.5), (1.0, 1.0)),
+                                (None, (0.5, 0.5), (1.0, 1.0)),
                                 ((50.0, 0.0), (50.0, 0.5), (0.0, 1.0)),
                                 ((100.0, 30.0), (99.5, 30.0), (-49.5, 20.0))):
-        at = PlanContext(iteration=0, region=REGION, n_vehicles=1, positions_m=[pos])
+        at = PlanContext(iteration=0, region=REGION, n_vehicles=1,
+                         positions_m=[pos] if pos else [])
         one = AdaptivePlanner(AdaptiveParams(target_levels=(55.0,))).initiation(at)
         assert one is not None and len(one.jobs) == 1
         (job,) = one.jobs

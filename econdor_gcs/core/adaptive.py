@@ -635,7 +635,7 @@ class AdaptivePlanner:
             if math.isfinite(context.budget_left_m):  # never more than the budget holds
                 lines = min(lines, lawnmower_lines_for_budget(r, context.budget_left_m))
             if self._stepped(context):
-                pos = context.positions_m[0] if context.positions_m else (r.xmin, r.ymin)
+                pos = context.positions_or_home_m[0]
                 self._route.start(start_line(r, pos) if lines == 1 else start_route(r, lines))
                 return self._step_batch(self._next_step(context), 0)
             return survey_start_batch(r, lines)
@@ -781,7 +781,7 @@ class AdaptivePlanner:
         batch_m = p.threshold_batch_m if p.target_levels else p.batch_m
         share = max(batch_m, p.batch_growth * context.flown_m)
         per_vehicle = min(share, context.budget_left_m / max(1, context.n_vehicles))
-        positions = list(context.positions_m) or [(region.xmin, region.ymin)] * context.n_vehicles
+        positions = context.positions_or_home_m
         footprints = Footprints(umap, [c.points_m for c in cands])
         picks, _ = greedy_plan(cands, footprints, umap.variance, cell_value, positions,
                                [per_vehicle] * len(positions), p.trace_overhead_m,
@@ -807,8 +807,7 @@ class AdaptivePlanner:
         p = self.params
         region = context.region
         perimeter = 2.0 * (region.width_m + region.height_m)
-        pos = np.asarray(context.positions_m[0] if context.positions_m else
-                         (region.xmin, region.ymin), dtype=float)
+        pos = np.asarray(context.positions_or_home_m[0], dtype=float)
         def fly_first(first: list[Candidate]) -> Batch:
             footprints = Footprints(umap, [c.points_m for c in first])
             picks, _ = greedy_plan(first, footprints, umap.variance,

@@ -122,6 +122,13 @@ class PlanContext:
     flown_m: float = 0.0
     """Flight distance so far (all vehicles, everything counted)."""
 
+    @property
+    def positions_or_home_m(self) -> list[tuple[float, float]]:
+        """``positions_m``, or, before any is known, every vehicle at the area's home
+        corner (its south-west corner, where the in-process executor starts them)."""
+        home = (self.region.xmin, self.region.ymin)
+        return list(self.positions_m) or [home] * self.n_vehicles
+
 
 class Planner(Protocol):
     """The contract every planner follows (see the module docstring)."""
