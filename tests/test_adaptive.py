@@ -761,6 +761,31 @@ def test_the_start_line_is_flown_in_steps_and_a_crossing_is_traced_before_the_ne
     assert fleet is not None and fleet.jobs[0].length_m == pytest.approx(100.0)
 
 
+def test_the_start_line_is_flown_in_steps_where_the_model_is_blind_beside_the_track():
+    """``explore: auto`` where the GP cannot see beside the track (a flat background: no
+    amplitude) still flies the start line in steps to its end: what the model sees is not
+    told from a fit to the line's first metres, and a crossing further on is traced as soon
+    as a step samples it."""
+    def flat(x, y):
+        return np.full(np.shape(x), 10.0)
+
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), start_step_m=10.0))
+    first = planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
+                                           positions_m=[(50.0, 0.0)]))
+    assert first is not None
+    path = [(50.0, 0.0)] + [(w.x_m, w.y_m) for w in first.jobs[0].tasks]
+    s = samples_along(path, flat)
+    for it in range(1, 4):
+        ctx = _context(s, it, path[-1])
+        assert planner._blind_beside(ctx) or it == 1  # (no GP before the first plan)
+        (step,) = planner.next_batch(ctx).jobs
+        assert step.length_m == pytest.approx(10.0, abs=1e-6)  # a step, not the rest
+        pts = [(w.x_m, w.y_m) for w in step.tasks]
+        assert pts[0][0] == pytest.approx(50.0) and pts[0][1] > path[-1][1]  # on north
+        s = _concat(s, samples_along(pts, flat))
+        path = pts
+
+
 def test_lines_mode_flies_the_line_through_the_most_uncovered_ground_until_none_is_left():
     """``explore: lines``: with the start line flown and no crossing, the next flight is a
     step along the line through the most uncovered ground per metre (the middle of an

@@ -248,8 +248,9 @@ class AdaptiveParams:
         ``explore_m`` of a sample, what the model still scores is planned as with
         ``legs``. ``auto``: ``lines`` where the model sees beside the tracks (a smooth
         field: the fitted length is at least ``probe_length_m``), else ``legs`` (a
-        narrow feature beside a track shows only as an extremum along it; the start
-        survey is then flown whole after its first step).
+        narrow feature beside a track shows only as an extremum along it). Either way
+        the start line is flown in steps to its end: whether the model sees beside the
+        tracks cannot be told from a GP fitted to its first few metres.
     line_step_m : float
         ``explore: lines``: spacing of the lines on offer (m).
     line_weight : {"none", "p"}
@@ -646,12 +647,10 @@ class AdaptivePlanner:
         p = self.params
         return bool(p.target_levels) and p.start_step_m > 0 and context.n_vehicles == 1
 
-    def _next_step(self, context: PlanContext, whole: bool = False) -> FloatArray | None:
-        """The next step of the line flown in steps (``whole``: all the rest of it),
-        ``None`` once it has been flown."""
+    def _next_step(self, context: PlanContext) -> FloatArray | None:
+        """The next step of the line flown in steps, ``None`` once it has been flown."""
         s = context.samples
-        return self._route.next_step(np.column_stack([s.x_m, s.y_m]),
-                                     math.inf if whole else self.params.start_step_m)
+        return self._route.next_step(np.column_stack([s.x_m, s.y_m]), self.params.start_step_m)
 
     @staticmethod
     def _step_batch(step: FloatArray | None, levels_planned: int) -> Batch:
@@ -749,10 +748,9 @@ class AdaptivePlanner:
                 if lines is not None:
                     return lines
             # the start survey in steps: a trace through a crossing first, then the next step
-            # (``explore: auto``, where the model is blind beside the track: all the rest)
             if self._route.active and not any(c.first and c.kind == CandidateKind.TRACE
                                               for c in cands):
-                step = self._next_step(context, whole=p.explore == "auto")
+                step = self._next_step(context)
                 if step is not None:
                     return self._step_batch(step, len(levels))
             whole_cap_m = 2.0 * (region.width_m + region.height_m) if (
