@@ -25,7 +25,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
                fit_length, floor, gradient_gain_m, power, plan_spacing_m, search_radius_m,
                resolve_m, explore_m, band_m, level_tol, threshold_batch_m, crossings_first,
                first_order, open_entry, probes, probe_climb, probe_m, probe_prominence,
-               probe_reach, sweeps, explore, line_step_m, line_weight, probe_length_m}
+               probe_reach, sweeps, explore, line_step_m, rays, line_weight,
+               probe_length_m}
 """
 
 from __future__ import annotations
@@ -172,6 +173,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "sweeps": None,
         "explore": _one_of("auto", "legs", "lines"),
         "line_step_m": _positive,
+        "rays": _range(0, 3600),
         "line_weight": _one_of("none", "p"),
         "probe_length_m": _non_negative,
     }),
@@ -372,6 +374,7 @@ class AdaptiveConfig:
     sweeps: bool
     explore: str
     line_step_m: float
+    rays: int
     line_weight: str
     probe_length_m: float
 

@@ -789,23 +789,30 @@ def test_the_start_line_is_flown_in_steps_where_the_model_is_blind_beside_the_tr
 def test_lines_mode_flies_the_line_through_the_most_uncovered_ground_until_none_is_left():
     """``explore: lines``: with the start line flown and no crossing, the next flight is a
     step along the line through the most uncovered ground per metre (the middle of an
-    unflown half, not beside the line flown); with every place within ``explore_m`` of a
+    unflown half, not beside the line flown; with ``rays``, a line from the vehicle itself
+    into that half, with no transit to it); with every place within ``explore_m`` of a
     sample the planner is done."""
     def low(x, y):
         return 10.0 + 0.01 * np.asarray(x) + 0.02 * np.asarray(y)  # never reaches 50
 
-    params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines",
-                            probes=False)
-    planner = AdaptivePlanner(params)
-    assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
-                                          positions_m=[(50.0, 0.0)]))
     line = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 100.0)], low)  # flown whole
-    batch = planner.next_batch(_context(line, 1, (50.0, 100.0)))
-    (leg,) = batch.jobs
-    xs = {round(w.x_m, 1) for w in leg.tasks}
+    legs = {}
+    for rays in (0, 32):
+        params = AdaptiveParams(target_levels=(50.0,), start_step_m=30.0, explore="lines",
+                                probes=False, rays=rays)
+        planner = AdaptivePlanner(params)
+        assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
+                                              positions_m=[(50.0, 0.0)]))
+        (legs[rays],) = planner.next_batch(_context(line, 1, (50.0, 100.0))).jobs
+        assert legs[rays].length_m <= 30.0 + 1e-9  # a step of it
+    xs = {round(w.x_m, 1) for w in legs[0].tasks}
     assert len(xs) == 1 and 15.0 <= abs(xs.pop() - 50.0) <= 35.0  # north-south, mid-half
-    assert leg.length_m <= 30.0 + 1e-9  # a step of it
-    assert leg.tasks[0].y_m == pytest.approx(99.5)  # from its end nearer the vehicle
+    assert legs[0].tasks[0].y_m == pytest.approx(99.5)  # from its end nearer the vehicle
+    a, b = ((w.x_m, w.y_m) for w in legs[32].tasks)
+    # from the vehicle (past the ground its own samples already cover)
+    assert math.hypot(a[0] - 50.0, a[1] - 100.0) < 4.0
+    # ... down into one unflown half, away from the line flown
+    assert abs(b[0] - 50.0) >= 10.0 and b[1] < a[1] and abs(b[0] - 50.0) < 30.0
     covered = samples_along([(x, 0.0 if k % 2 else 100.0) for k, x in
                              enumerate(np.arange(2.5, 100.0, 5.0)) for _ in (0, 1)], low)
     done = planner.next_batch(_context(_concat(line, covered), 2, (97.5, 0.0)))
@@ -841,12 +848,13 @@ def test_a_vehicle_a_trace_took_away_from_its_line_weighs_the_rest_against_other
     """``explore: lines``: the start line is flown to y = 62, then a trace ends 37 m from
     where the line was left. Going back there is no longer a given: the rest of the line
     (from either end) competes with the lines through uncovered ground, and here a line
-    through the unflown west, entered near the vehicle, covers more per metre."""
+    through the unflown west, entered near the vehicle, covers more per metre (``rays: 0``:
+    the lines from the vehicle itself, which would win here too, are left out)."""
     def low(x, y):
         return 10.0 + 0.01 * np.asarray(x) + 0.02 * np.asarray(y)
 
     planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,), start_step_m=30.0,
-                                             explore="lines", probes=False))
+                                             explore="lines", probes=False, rays=0))
     assert planner.initiation(PlanContext(iteration=0, region=REGION, n_vehicles=1,
                                           positions_m=[(50.0, 0.0)]))
     s1 = samples_along([(0.0, 0.0), (50.0, 0.0), (50.0, 30.0)], low)

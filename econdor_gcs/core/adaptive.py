@@ -79,7 +79,7 @@ from .candidates import (
 from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
-from .routes import SteppedRoute, best_lines, gap_lines, misclassification, start_line
+from .routes import SteppedRoute, best_lines, gap_lines, misclassification, ray_lines, start_line
 from .tasks import FlightReport, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
@@ -253,6 +253,11 @@ class AdaptiveParams:
         tracks cannot be told from a GP fitted to its first few metres.
     line_step_m : float
         ``explore: lines``: spacing of the lines on offer (m).
+    rays : int
+        ``explore: lines``: beside those, the straight lines from the vehicle to the area's
+        edge in this many directions (:func:`~econdor_gcs.core.routes.ray_lines`): no
+        transit to them, so a line that samples from where a trace ended competes with one
+        that must be flown to first. 0: none.
     line_weight : {"none", "p"}
         ``explore: lines``: each cell's coverage deficit counts in full (``none``) or
         weighted by ``min(1, LINE_WEIGHT_FLOOR + LINE_WEIGHT_GAIN p)``, where ``p =
@@ -305,6 +310,7 @@ class AdaptiveParams:
     sweeps: bool = True
     explore: str = "auto"
     line_step_m: float = 5.0
+    rays: int = 32
     line_weight: str = "p"
     probe_length_m: float = 20.0
     target_levels: tuple[float, ...] = ()
@@ -827,14 +833,17 @@ class AdaptivePlanner:
             weight = np.minimum(1.0, LINE_WEIGHT_FLOOR + LINE_WEIGHT_GAIN * misclassification(
                 umap.mean, sd, levels))
         near = np.where(open_cells, dist, 0.0)  # closed cells have nothing to cover
+        lines = gap_lines(region, p.line_step_m) + ray_lines(region, pos, p.rays)
         rest = self._route.rest(samples_xy)
-        if rest is not None and (after_trace
-                                 or float(np.hypot(*(rest[0] - pos))) > ROUTE_LEFT_M):
+        if rest is not None and not best_lines(cells_xy, near, weight, p.explore_m, [rest], pos):
+            self._route.stop()  # every place along the rest is covered: nothing to fly it for
+        elif rest is not None and (after_trace
+                                   or float(np.hypot(*(rest[0] - pos))) > ROUTE_LEFT_M):
             # a trace interrupted the line, or a probe took the vehicle away from it: what is
             # left of that line (from either end) competes with the lines through uncovered
             # ground
             ranked = best_lines(cells_xy, near, weight, p.explore_m,
-                                [rest, *gap_lines(region, p.line_step_m)], pos)
+                                [rest, *lines], pos)
             if ranked:
                 self._route.start(ranked[0])
         step = self._next_step(context)
@@ -843,8 +852,7 @@ class AdaptivePlanner:
         probes = [c for c in cands if c.first] if self._blind_beside(context) else []
         if probes:
             return fly_first(probes)
-        for seg in best_lines(cells_xy, near, weight, p.explore_m,
-                              gap_lines(region, p.line_step_m), pos):
+        for seg in best_lines(cells_xy, near, weight, p.explore_m, lines, pos):
             self._route.start(seg)
             step = self._route.next_step(samples_xy, p.start_step_m)
             if step is not None:  # (a line flown along already has no step left)

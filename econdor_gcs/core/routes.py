@@ -93,6 +93,10 @@ class SteppedRoute:
     def start(self, route: FloatArray) -> None:
         self.route, self.at_m = np.asarray(route, dtype=float), 0.0
 
+    def stop(self) -> None:
+        """Give the route up: nothing more of it is flown."""
+        self.route = None
+
     def rest(self, samples_xy: FloatArray) -> FloatArray | None:
         """What is left of a straight route (two points) to be flown, as a segment from
         its first open point on to its end; ``None`` for a route with corners, or none.
@@ -172,6 +176,30 @@ def gap_lines(region: Region, spacing_m: float) -> list[FloatArray]:
     for y in np.arange(region.ymin + spacing_m, region.ymax - 0.5 * spacing_m, spacing_m):
         for a, b in ((lo_x, hi_x), (lo_x, mid_x), (mid_x, hi_x)):
             out.append(np.array([[a, y], [b, y]]))
+    return out
+
+
+def ray_lines(region: Region, from_m: FloatArray, directions: int, inset_m: float = 0.5,
+              min_m: float = 10.0) -> list[FloatArray]:
+    """Straight lines from ``from_m`` (brought ``inset_m`` inside the area) to the area's
+    edge, ``inset_m`` inside it, in ``directions`` directions evenly round from east; those
+    shorter than ``min_m`` are left out. A line from where the vehicle is samples from its
+    first metre: no transit to it.
+
+    >>> r = Region(0.0, 100.0, 0.0, 100.0)
+    >>> [s.round(1).tolist() for s in ray_lines(r, np.array([20.0, 0.0]), 4)]
+    [[[20.0, 0.5], [99.5, 0.5]], [[20.0, 0.5], [20.0, 99.5]], [[20.0, 0.5], [0.5, 0.5]]]
+    """
+    lo = np.array([region.xmin + inset_m, region.ymin + inset_m])
+    hi = np.array([region.xmax - inset_m, region.ymax - inset_m])
+    a = np.clip(np.asarray(from_m, dtype=float), lo, hi)
+    out = []
+    for th in 2.0 * np.pi * np.arange(directions) / max(directions, 1):
+        d = np.array([math.cos(th), math.sin(th)])
+        reach = min(((hi[k] if d[k] > 0 else lo[k]) - a[k]) / d[k]
+                    for k in (0, 1) if abs(d[k]) > 1e-9)
+        if reach >= min_m:
+            out.append(np.array([a, a + reach * d]))
     return out
 
 
