@@ -146,15 +146,25 @@ def start_line(region: Region, from_m: tuple[float, float], inset_m: float = 0.5
     >>> start_line(r, (50.0, 50.0)).tolist()
     [[50.0, 0.5], [50.0, 99.5]]
     """
-    lo = np.array([region.xmin + inset_m, region.ymin + inset_m])
-    hi = np.array([region.xmax - inset_m, region.ymax - inset_m])
+    lo, hi = _inner_box(region, inset_m)
     centre = 0.5 * (lo + hi)
     a = np.clip(np.asarray(from_m, dtype=float), lo, hi)
     d = centre - a
     if float(np.hypot(*d)) < 1.0:  # at the centre: no direction to go on in
         a, d = np.array([centre[0], lo[1]]), np.array([0.0, 1.0])
-    reach = [((hi[k] if d[k] > 0 else lo[k]) - a[k]) / d[k] for k in (0, 1) if d[k] != 0.0]
-    return np.array([a, a + min(reach) * d])
+    return np.array([a, a + _reach(a, d, lo, hi) * d])
+
+
+def _inner_box(region: Region, inset_m: float) -> tuple[FloatArray, FloatArray]:
+    """The lower-left and upper-right corners of the area ``inset_m`` inside its edges."""
+    return (np.array([region.xmin + inset_m, region.ymin + inset_m]),
+            np.array([region.xmax - inset_m, region.ymax - inset_m]))
+
+
+def _reach(a: FloatArray, d: FloatArray, lo: FloatArray, hi: FloatArray) -> float:
+    """How many times ``d`` takes ``a`` (inside the box ``lo``-``hi``) to the box's edge."""
+    return min(((hi[k] if d[k] > 0 else lo[k]) - a[k]) / d[k] for k in (0, 1)
+               if abs(d[k]) > 1e-9)
 
 
 def gap_lines(region: Region, spacing_m: float) -> list[FloatArray]:
@@ -190,14 +200,12 @@ def ray_lines(region: Region, from_m: FloatArray, directions: int, inset_m: floa
     >>> [s.round(1).tolist() for s in ray_lines(r, np.array([20.0, 0.0]), 4)]
     [[[20.0, 0.5], [99.5, 0.5]], [[20.0, 0.5], [20.0, 99.5]], [[20.0, 0.5], [0.5, 0.5]]]
     """
-    lo = np.array([region.xmin + inset_m, region.ymin + inset_m])
-    hi = np.array([region.xmax - inset_m, region.ymax - inset_m])
+    lo, hi = _inner_box(region, inset_m)
     a = np.clip(np.asarray(from_m, dtype=float), lo, hi)
     out = []
     for th in 2.0 * np.pi * np.arange(directions) / max(directions, 1):
         d = np.array([math.cos(th), math.sin(th)])
-        reach = min(((hi[k] if d[k] > 0 else lo[k]) - a[k]) / d[k]
-                    for k in (0, 1) if abs(d[k]) > 1e-9)
+        reach = _reach(a, d, lo, hi)
         if reach >= min_m:
             out.append(np.array([a, a + reach * d]))
     return out
