@@ -378,6 +378,8 @@ class Autopilot:
             self.outbox.statustext("PreArm: waiting for sensors to settle",
                                    mavlink.MAV_SEVERITY_CRITICAL)
             return FAILED, []
+        if not self.state.armed:  # a new flight: the traces of the last one are not its own
+            self.state.body.forget_tracks()
         self.state.armed = True
         self.outbox.statustext("armed")
         return ACCEPTED, [self.telemetry.heartbeat()]

@@ -29,6 +29,7 @@ MAX_SUBSTEP_S = 0.02
 """Kinematics are integrated with sub-steps no longer than this."""
 
 _NO_TERMS = np.zeros(0)
+_NO_TRACK = np.zeros((0, 5))
 # 8-byte slots of the BODY record, read through plain float64 / int64 views (much cheaper
 # per read than a field lookup on a record)
 _SLOT = {name: offset // 8 for name, (_, offset, *_) in (BODY.fields or {}).items()}
@@ -105,6 +106,7 @@ class SimBody:
         self.noise_std = float(noise_std)
         self._rng = rng if rng is not None else np.random.default_rng()
         self._noise = np.zeros(0)  # drawn ahead, used in order (one value per tick)
+        self._tracks: dict[float, np.ndarray] = {}  # level: where it was traced
         self.state = np.zeros(1, dtype=BODY)
         s = self._s = self.state[0]
         self._f = self.state.view(np.float64)
@@ -228,13 +230,34 @@ class SimBody:
             return offset + scale * gaussian_sum_at(self.x_m, self.y_m, cx, cy, inv, w)
         return float(self._field(np.float64(self.x_m), np.float64(self.y_m)))
 
+    def traced_track(self, level: float) -> np.ndarray:
+        """Where this vehicle traced ``level`` before: ``(n, 5)`` rows ``x, y, traced_m,
+        ux, uy`` (see :func:`sim_vehicle.machine.advance`), empty if it never did."""
+        return self._tracks.get(float(level), _NO_TRACK)
+
+    def remember_track(self, level: float, track: np.ndarray) -> None:
+        """Keep a finished trace's track of ``level`` (a trace of it later ends where it
+        comes onto it)."""
+        if len(track):
+            level = float(level)
+            self._tracks[level] = np.concatenate([self.traced_track(level), track])
+
+    def forget_tracks(self) -> None:
+        """A new flight: no trace of it has been flown yet."""
+        self._tracks = {}
+
+    def keep_tracks_of(self, other: SimBody) -> None:
+        """Take over ``other``'s tracks (a body rebuilt in the same flight)."""
+        self._tracks = dict(other._tracks)
+
     def checkpoint(self) -> dict[str, Any]:
         """Everything that moves (the machine's record: time, position, velocity, heading,
-        odometer), the noise drawn ahead and the noise generator, JSON-safe;
-        :meth:`restore` puts it back exactly."""
+        odometer), the noise drawn ahead, the noise generator and the tracks traced,
+        JSON-safe; :meth:`restore` puts it back exactly."""
         record = {name: self.state[0][name].item() for name in self.state.dtype.names or ()}
         return {"record": record, "noise_ahead": self._noise.tolist(),
-                "rng": self._rng.bit_generator.state}
+                "rng": self._rng.bit_generator.state,
+                "tracks": [[level, track.tolist()] for level, track in self._tracks.items()]}
 
     def restore(self, checkpoint: dict[str, Any]) -> None:
         """Continue from a :meth:`checkpoint` of a body built with the same parameters."""
@@ -242,6 +265,8 @@ class SimBody:
             self.state[0][name] = value
         self._noise = np.asarray(checkpoint["noise_ahead"], dtype=float)
         self._rng.bit_generator.state = checkpoint["rng"]
+        self._tracks = {float(level): np.asarray(track, dtype=float).reshape(-1, 5)
+                        for level, track in checkpoint.get("tracks", [])}
 
     def sense(self) -> float:
         """Read the sensor at the current position (true value + noise).

@@ -11,8 +11,8 @@ it needs to go on in two numpy records:
     to a :class:`~sim_vehicle.body.SimBody` and outlives tasks.
 ``st`` (:data:`STATE`)
     One task: its parameters, the program counter ``pc`` and the locals of the search,
-    trace and fly-to loops, plus three sample buffers passed beside it (the task's
-    recent samples, the trace leg's window, the leg's turn history).
+    trace and fly-to loops, plus four sample buffers passed beside it (the task's
+    recent samples, the trace leg's window, the leg's turn history, the trace's track).
 
 Each tick is ``_pre`` (checks and transitions that take no time, ending in a velocity
 command), the kinematic sub-steps, a sensor reading and ``_post`` (what the loop does
@@ -80,7 +80,7 @@ STATE = np.dtype([
     ("boundary_margin_m", _F), ("lost_offset_m", _F), ("lost_time_s", _F),
     ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
     ("budget_factor", _F), ("edge_skip_m", _F), ("recover_speed_mps", _F), ("recover_m", _F),
-    ("edge_walk_m", _F),
+    ("edge_walk_m", _F), ("rejoin_min_m", _F),
     # control
     ("pc", _I), ("status", _I), ("await_value", _I), ("cmd_vx", _F), ("cmd_vy", _F),
     ("cmd_phase", _I), ("odo_before", _F), ("area_guard", _I),
@@ -111,6 +111,8 @@ STATE = np.dtype([
     ("wk_edge", _I), ("wk_len", _F), ("wk_odo", _F), ("wk_k", _I), ("wk_max", _I),
     ("wk_emax", _F), ("wk_smax", _F), ("wk_cross", _I), ("wk_cx", _F), ("wk_cy", _F),
     ("wk_gx", _F), ("wk_gy", _F), ("wk_count", _I), ("wk_e", _F), ("wk_de", _F),
+    # the trace's own track (see _track_push)
+    ("tk_len", _I), ("tk_has", _I), ("tk_x", _F), ("tk_y", _F), ("tk_m", _F),
 ])
 """One task's state (parameters, program counter, loop locals)."""
 
@@ -123,6 +125,7 @@ KIND_TRACE = 2
 
 # statuses (see STATUS_NAMES)
 REACHED, UNREACHABLE, CLOSED, BOUNDARY, LENGTH_LIMIT, NOT_FOUND, LOST, BUDGET = range(1, 9)
+
 STATUS_NAMES = {REACHED: "reached", UNREACHABLE: "unreachable", CLOSED: "closed",
                 BOUNDARY: "boundary", LENGTH_LIMIT: "length_limit", NOT_FOUND: "not_found",
                 LOST: "lost", BUDGET: "budget"}
@@ -165,6 +168,13 @@ WALK_STOP_M = 0.1
 turns onto the iso-line (the walk runs on half a metre per sample)."""
 WALK_GAIN_HZ = 1.0
 """Gain of the edge walk's hold on its inset from the edge (m/s per m)."""
+TRACK_STEP_M = 1.0
+"""The trace keeps a point of its track every this many metres traced (with the
+direction it was flown in) to tell when it comes back onto it."""
+REJOIN_MIN_COS = 0.5
+"""A trace rejoins its track where it comes back within ``closure_radius_m`` of it
+flying within 60 degrees of the direction the track was flown in (the other way along
+it is the trace's other sense, or the far side of a thin tongue)."""
 FENCE_EPISODE_GAP_S = 1.0
 """Fence limiting after this long without any counts as a new breach attempt."""
 
@@ -928,6 +938,7 @@ def _pre(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
             return _command(s, v_floor * math.cos(s.psi), v_floor * math.sin(s.psi),
                             _TRACE), n_events
         if pc == PC_LEG_MAIN_START:
+            s.tk_has = 0  # the track breaks here (a search or a flight back came between)
             cruise = min(s.speed_mps, b.max_speed_mps)
             v_floor = min(s.approach_speed_mps, cruise)
             s.lspeed = min(max(_speed(b), v_floor), cruise)
@@ -1155,8 +1166,46 @@ def _leg_end(s, status: int) -> None:
 
 
 @njit(cache=True)
+def _track_push(s, track: np.ndarray, prior: np.ndarray, x: float, y: float) -> bool:
+    """Keep a point of the trace's track every ``TRACK_STEP_M`` traced; True when the new
+    one rejoins the track flown at least ``rejoin_min_m`` before, away from the trace's
+    start (that closure is the start's own test): the trace has gone round a loop that
+    does not pass its start (past a saddle, or after a loss it took for the iso-line)."""
+    if s.tk_has and s.traced_m - s.tk_m < TRACK_STEP_M:
+        return False
+    if s.tk_len >= track.shape[0]:
+        return False
+    ux, uy = 0.0, 0.0  # the first point after a break has no direction
+    if s.tk_has:
+        step = math.hypot(x - s.tk_x, y - s.tk_y)
+        if step > 1e-9:
+            ux, uy = (x - s.tk_x) / step, (y - s.tk_y) / step
+    k = s.tk_len
+    track[k, 0], track[k, 1], track[k, 2], track[k, 3], track[k, 4] = x, y, s.traced_m, ux, uy
+    s.tk_len += 1
+    s.tk_has, s.tk_x, s.tk_y, s.tk_m = 1, x, y, s.traced_m
+    if ux == 0.0 and uy == 0.0:
+        return False
+    r = s.closure_radius_m
+    for i in range(prior.shape[0]):  # a track an earlier trace of this level flew
+        if (math.hypot(prior[i, 0] - x, prior[i, 1] - y) <= r
+                and abs(prior[i, 3] * ux + prior[i, 4] * uy) >= REJOIN_MIN_COS):
+            return True
+    before_m = s.traced_m - s.rejoin_min_m
+    for i in range(k):
+        if track[i, 2] > before_m:
+            break
+        if (math.hypot(track[i, 0] - x, track[i, 1] - y) <= r
+                and track[i, 3] * ux + track[i, 4] * uy >= REJOIN_MIN_COS
+                and math.hypot(track[i, 0] - s.start_x, track[i, 1] - s.start_y) > r):
+            return True
+    return False
+
+
+@njit(cache=True)
 def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarray,
-          window: np.ndarray, turns: np.ndarray, x: float, y: float, v: float) -> None:
+          window: np.ndarray, turns: np.ndarray, track: np.ndarray, prior: np.ndarray,
+          x: float, y: float, v: float) -> None:
     """What the loop that issued the command does with the new sample."""
     pc = s.pc
     if pc in (PC_SR_PROBE, PC_SR_SPIRAL):
@@ -1265,6 +1314,9 @@ def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarr
         _leg_end(s, CLOSED)
         return
     s.has_prev_dist, s.prev_dist = 1, dist
+    if s.rejoin_min_m > 0.0 and _track_push(s, track, prior, x, y):
+        _leg_end(s, CLOSED)
+        return
     if not _contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y) or (
             _edge_ahead_m(b, fv, fr, fc, x, y, s.ux, s.uy) < s.boundary_margin_m):
         _leg_end(s, BOUNDARY)
@@ -1293,8 +1345,9 @@ def _post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarr
 def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarray,
             fcy: np.ndarray, finv: np.ndarray, fw: np.ndarray, fscale: float, foffset: float,
             fence_verts: np.ndarray, fence_rings: np.ndarray, fence_circles: np.ndarray,
-            recent: np.ndarray, window: np.ndarray, turns: np.ndarray, out: np.ndarray,
-            noise: np.ndarray, ext_value: float, events: np.ndarray) -> tuple[int, int, int]:
+            recent: np.ndarray, window: np.ndarray, turns: np.ndarray, track: np.ndarray,
+            prior: np.ndarray, out: np.ndarray, noise: np.ndarray, ext_value: float, events: np.ndarray
+            ) -> tuple[int, int, int]:
     """Run the task in ``state`` on ``body`` for at most ``out.shape[0]`` ticks.
 
     Parameters
@@ -1306,9 +1359,11 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
         ``fcx, fcy, finv, fw`` (read here); 0: read by the caller (see module docstring).
     fence_verts, fence_rings, fence_circles
         The geofence (:attr:`sim_vehicle.fence.Fence.arrays`; empty arrays for none).
-    recent, window, turns
-        The task's sample buffers: ``(RECENT_SAMPLES, 3)``, ``(gradient_window, 3)`` and
-        ``(n, 2)`` with ``n`` more than the trace's tick budget.
+    recent, window, turns, track
+        The task's sample buffers: ``(RECENT_SAMPLES, 3)``, ``(gradient_window, 3)``,
+        ``(n, 2)`` with ``n`` more than the trace's tick budget and ``(n, 5)`` (a point
+        ``x, y, traced_m, ux, uy`` every ``TRACK_STEP_M`` traced; a full buffer keeps no
+        more).
     out
         ``(n, 5)``: one row ``t_s, x_m, y_m, value, phase`` per tick.
     noise
@@ -1360,8 +1415,8 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
         out[n_out, 3] = value
         out[n_out, 4] = s.cmd_phase
         n_out += 1
-        _post(s, b, fence_verts, fence_rings, fence_circles, recent, window, turns, b.x_m,
-              b.y_m, value)
+        _post(s, b, fence_verts, fence_rings, fence_circles, recent, window, turns, track,
+              prior, b.x_m, b.y_m, value)
     return n_out, n_events, min(n_out, noise.shape[0])
 
 
@@ -1374,6 +1429,8 @@ def start_task(body: np.ndarray, state: np.ndarray) -> None:
     s.odo0_m = b.odometer_m
     s.traced_m = 0.0
     s.rec_start = s.rec_len = 0
+    s.tk_len = 0
+    s.tk_has = 0
     s.await_value = 0
     s.area_guard = 1 if s.kind == KIND_TRACE else 0
     if s.kind == KIND_TRACE:

@@ -132,7 +132,9 @@ class VehicleState:
     def rebuild_body(self, t_s: float) -> None:
         """A new body at the same place (new sample rate / noise), the odometer carried on."""
         self.odo_base_m += self.body.odometer_m
-        self.body = self.make_body(self.body.x_m, self.body.y_m, t_s)
+        old = self.body
+        self.body = self.make_body(old.x_m, old.y_m, t_s)
+        self.body.keep_tracks_of(old)
         self.body_dirty = False
 
     def apply_pending_body(self) -> None:

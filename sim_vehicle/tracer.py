@@ -162,6 +162,16 @@ class TracerParams:
         parabola through that top and gives up when that would reach the level beyond
         its length (a plateau, as beside a front, never comes back down). At most six
         walks a task. 0: no walk (the tracer before this parameter).
+    rejoin_min_m
+        The loop is also closed when the trace comes back within ``closure_radius_m`` of
+        its own track, flown at least this far before in the same direction (within 60
+        degrees), away from where tracing began: past a saddle, where the level runs
+        close to itself, a trace can turn into a loop that does not pass its start and
+        would otherwise go round it until its length limit. The vehicle also keeps the
+        tracks of its traces, by level: a later trace of the same level ends where it
+        comes within ``closure_radius_m`` of one, flown either way (that stretch is
+        traced). 0: only the start closes the loop, and no track is kept (the tracer
+        before this parameter).
     """
 
     speed_mps: float = 8.0
@@ -191,6 +201,7 @@ class TracerParams:
     recover_speed_mps: float = 2.0
     recover_m: float = 20.0
     edge_walk_m: float = 100.0
+    rejoin_min_m: float = 20.0
 
 
 # ----------------------------------------------------------------------------- the machine
@@ -223,15 +234,21 @@ class _TaskRun:
             s["level"] = task.level
             s["search_radius_m"] = task.search_radius_m
             s["max_length_m"] = task.max_length_m
-            self.turns = np.zeros((m.trace_tick_budget(body.state, self.state) + 2, 2))
+            n_ticks = m.trace_tick_budget(body.state, self.state) + 2
+            self.turns = np.zeros((n_ticks, 2))
+            self.track = np.zeros((n_ticks, 5))
+            self.prior = body.traced_track(task.level)
         else:
             s["kind"] = m.KIND_FLY_TO
             s["wp_phase"] = int(phase)
             s["wp_tolerance_m"] = tolerance_m
             s["wp_speed_mps"] = body.limits.max_speed_mps if speed_mps is None else speed_mps
             self.turns = np.zeros((1, 2))
+            self.track = np.zeros((1, 5))
+            self.prior = np.zeros((0, 5))
         m.start_task(body.state, self.state)
         self._s = s
+        self._remembered = False
 
     @property
     def done(self) -> bool:
@@ -251,13 +268,17 @@ class _TaskRun:
             noise = body.noise_ahead(n - done)
             k, n_ev, used = m.advance(body.state, self.state, kind, cx, cy, inv, w, scale,
                                       offset, fence_verts, fence_rings, fence_circles,
-                                      self.recent, self.window, self.turns, out[done:],
+                                      self.recent, self.window, self.turns, self.track,
+                                      self.prior, out[done:],
                                       noise, value, self.events)
             body.noise_used(used)
             events.extend((_EVENTS[int(c)], done + int(i)) for c, i in self.events[:n_ev])
             done += k
             if self._s["await_value"]:  # a field the compiled code cannot read
                 value = float(body._field(np.float64(body.x_m), np.float64(body.y_m)))
+        if self.done and isinstance(self.task, TraceTask) and not self._remembered:
+            self._remembered = True
+            body.remember_track(self.task.level, self.track[: int(self._s["tk_len"])])
         return out[:done], events
 
     def outcome(self) -> TaskOutcome:

@@ -129,6 +129,23 @@ def test_px4_do_set_mode_encoding_and_rtl_lands_and_disarms():
     assert ap.parked
 
 
+def test_the_tracks_of_a_flight_are_kept_through_it_and_forgotten_at_the_next_arming():
+    """A trace ends where it comes onto a track of its level flown before: in the same
+    flight only (a later run of the same mission is traced afresh)."""
+    import numpy as np
+
+    ap = make()
+    track = np.array([[1.0, 2.0, 0.0, 1.0, 0.0], [2.0, 2.0, 1.0, 1.0, 0.0]])
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    ap.state.body.remember_track(5.0, track)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)  # already armed: the same flight
+    ap.state.rebuild_body(ap.state.body.t_s)  # a new sample rate: the same flight
+    np.testing.assert_array_equal(ap.state.body.traced_track(5.0), track)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert len(ap.state.body.traced_track(5.0)) == 0
+
+
 # -- the ArduCopter personality -------------------------------------------------------------
 
 
