@@ -111,7 +111,7 @@ STATE = np.dtype([
     ("wk_edge", _I), ("wk_len", _F), ("wk_odo", _F), ("wk_k", _I), ("wk_max", _I),
     ("wk_emax", _F), ("wk_smax", _F), ("wk_cross", _I), ("wk_cx", _F), ("wk_cy", _F),
     ("wk_gx", _F), ("wk_gy", _F), ("wk_count", _I), ("wk_e", _F), ("wk_de", _F),
-    # the trace's own track (see _track_push)
+    # the trace's track (see _track_push)
     ("tk_len", _I), ("tk_has", _I), ("tk_x", _F), ("tk_y", _F), ("tk_m", _F),
 ])
 """One task's state (parameters, program counter, loop locals)."""
@@ -125,7 +125,6 @@ KIND_TRACE = 2
 
 # statuses (see STATUS_NAMES)
 REACHED, UNREACHABLE, CLOSED, BOUNDARY, LENGTH_LIMIT, NOT_FOUND, LOST, BUDGET = range(1, 9)
-
 STATUS_NAMES = {REACHED: "reached", UNREACHABLE: "unreachable", CLOSED: "closed",
                 BOUNDARY: "boundary", LENGTH_LIMIT: "length_limit", NOT_FOUND: "not_found",
                 LOST: "lost", BUDGET: "budget"}
@@ -1168,9 +1167,10 @@ def _leg_end(s, status: int) -> None:
 @njit(cache=True)
 def _track_push(s, track: np.ndarray, prior: np.ndarray, x: float, y: float) -> bool:
     """Keep a point of the trace's track every ``TRACK_STEP_M`` traced; True when the new
-    one rejoins the track flown at least ``rejoin_min_m`` before, away from the trace's
-    start (that closure is the start's own test): the trace has gone round a loop that
-    does not pass its start (past a saddle, or after a loss it took for the iso-line)."""
+    one comes onto ``prior`` (an earlier trace of the level flew there, either way), or
+    rejoins the trace's own track flown at least ``rejoin_min_m`` before, the same way,
+    away from its start (that closure is the start's own test): the trace has gone round
+    a loop that does not pass its start (past a saddle, or after a loss)."""
     if s.tk_has and s.traced_m - s.tk_m < TRACK_STEP_M:
         return False
     if s.tk_len >= track.shape[0]:
@@ -1346,8 +1346,8 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
             fcy: np.ndarray, finv: np.ndarray, fw: np.ndarray, fscale: float, foffset: float,
             fence_verts: np.ndarray, fence_rings: np.ndarray, fence_circles: np.ndarray,
             recent: np.ndarray, window: np.ndarray, turns: np.ndarray, track: np.ndarray,
-            prior: np.ndarray, out: np.ndarray, noise: np.ndarray, ext_value: float, events: np.ndarray
-            ) -> tuple[int, int, int]:
+            prior: np.ndarray, out: np.ndarray, noise: np.ndarray, ext_value: float,
+            events: np.ndarray) -> tuple[int, int, int]:
     """Run the task in ``state`` on ``body`` for at most ``out.shape[0]`` ticks.
 
     Parameters
@@ -1364,6 +1364,10 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
         ``(n, 2)`` with ``n`` more than the trace's tick budget and ``(n, 5)`` (a point
         ``x, y, traced_m, ux, uy`` every ``TRACK_STEP_M`` traced; a full buffer keeps no
         more).
+    prior
+        ``(m, 5)``: the tracks of the vehicle's earlier traces of this level, as ``track``
+        (:meth:`sim_vehicle.body.SimBody.traced_track`); a trace ends where it comes onto
+        one.
     out
         ``(n, 5)``: one row ``t_s, x_m, y_m, value, phase`` per tick.
     noise

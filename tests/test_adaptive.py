@@ -878,3 +878,31 @@ def test_a_mission_without_an_adaptive_section_gets_the_planners_own_defaults(tm
     # and a key the mission sets is the mission's
     path.write_text("field: {model: paper}\nadaptive: {start_step_m: 7.5}\n")
     assert load_mission(path).adaptive.start_step_m == 7.5
+
+
+def test_a_trace_spent_at_once_is_not_planned_to_begin_there_again():
+    """A trace that found the level and ended closed (on a track traced before) or at the
+    edge within 10 m was spent where it began: no trace is planned to begin within 5 m of
+    it again (paper seed 98 planned one there 99 times over, to its flight budget, each
+    ending after a few metres). A trace that found nothing, or traced on, counts not."""
+    from econdor_gcs.core.tasks import FlightReport, TaskOutcome
+
+    def report(task: TraceTask, status: str, traced_m: float) -> FlightReport:
+        return FlightReport(0, SampleLog.concat([]), 10.0, traced_m,
+                            [TaskOutcome(task, status, 10.0, traced_m)], 0.0, 0.0, 1.0)
+
+    def trace(x: float, y: float, entry: tuple[float, float] | None = None) -> Candidate:
+        pts = np.array([[x, y], [x - 20.0, y + 20.0]])
+        return Candidate(CandidateKind.TRACE, pts, 50.0, whole=True,
+                         entry_m=None if entry is None else np.array(entry))
+
+    planner = AdaptivePlanner(AdaptiveParams(target_levels=(50.0,)))
+    planner.observe(0.0, [report(TraceTask(50.0, 99.0, 58.0, 3.0, 275.0, 0), "closed", 2.5),
+                          report(TraceTask(50.0, 20.0, 20.0, 3.0, 275.0, 0), "not_found", 0.0),
+                          report(TraceTask(50.0, 50.0, 80.0, 3.0, 275.0, 0), "closed", 90.0)])
+    near, entered_near = trace(98.0, 60.0), trace(70.0, 70.0, entry=(97.0, 56.0))
+    kept = [trace(20.0, 21.0), trace(50.0, 79.0), trace(90.0, 58.0),
+            Candidate(CandidateKind.LEG, np.array([[99.0, 58.0], [99.0, 0.0]]))]
+    assert planner._unspent([near, entered_near, *kept]) == kept
+    planner.observe(0.0, [report(TraceTask(50.0, 20.0, 20.0, 3.0, 275.0, 0), "boundary", 4.0)])
+    assert planner._unspent(kept) == kept[1:]

@@ -80,7 +80,7 @@ from .geometry import FloatArray, Grid, Region, path_length
 from .gp import MaternHyper, fit_matern
 from .planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
 from .routes import SteppedRoute, best_lines, gap_lines, misclassification, ray_lines, start_line
-from .tasks import FlightReport, Task, TraceTask, Waypoint
+from .tasks import FlightReport, OutcomeStatus, Task, TraceTask, Waypoint
 from .uncertainty import (
     Footprints,
     UncertaintyMap,
@@ -102,6 +102,14 @@ WHOLE_TRACE_FACTOR = 2.0
 """A whole-component trace stops after this multiple of the estimated component's length."""
 WHOLE_TRACE_MIN_M = 60.0
 """... and never before this length (the estimate's component can be far too short)."""
+SPENT_TRACE_M = 10.0
+"""A trace task that found the level but ended closed or at the edge within this was
+spent where it began: the iso-line there was traced before (the tracer ends where it
+comes onto a track it traced) or runs straight out of the area. No trace is planned to
+begin near there again. (One that found nothing may find it later, when the estimate
+has moved: that is not counted.)"""
+SPENT_NEAR_M = 5.0
+"""... within this of such a start."""
 OPEN_END_M = 6.0
 """``open_entry: auto``: an end of a component at the edge is entered when a sampled
 crossing lies this close to it (and nothing was traced or searched this close)."""
@@ -624,6 +632,8 @@ class AdaptivePlanner:
         lines``) each line through uncovered ground."""
         self._traced = False
         """``explore: lines``: the last plan was a trace through a sampled crossing."""
+        self._spent: list[tuple[float, float]] = []
+        """Where trace tasks began that were spent at once (``SPENT_TRACE_M``)."""
 
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
@@ -670,7 +680,31 @@ class AdaptivePlanner:
         return Batch([job], levels_planned=levels_planned, survey_m=length)
 
     def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
-        """Nothing to learn from the outcomes: the next plan starts from every sample."""
+        """Where a trace task was spent at once (``SPENT_TRACE_M``); otherwise the next
+        plan starts from every sample."""
+        for report in reports:
+            for o in report.outcomes:
+                if isinstance(o.task, TraceTask) and o.traced_m < SPENT_TRACE_M and (
+                        o.status in (OutcomeStatus.CLOSED, OutcomeStatus.BOUNDARY)):
+                    self._spent.append((o.task.x_m, o.task.y_m))
+
+    def _unspent(self, cands: list[Candidate]) -> list[Candidate]:
+        """``cands`` without the traces that would begin within ``SPENT_NEAR_M`` of where a
+        trace was spent: the estimate can keep offering a piece there (its end at the
+        area's edge, say, which no sample reaches) that the tracer has already traced."""
+        if not self._spent:
+            return cands
+        spent = cKDTree(np.asarray(self._spent))
+
+        def starts(c: Candidate) -> list[FloatArray]:
+            if c.entry_m is not None:
+                return [c.entry_m]
+            if c.closed:  # entered anywhere
+                return []
+            return [c.points_m[0], c.points_m[-1]] if c.reversible else [c.points_m[0]]
+
+        return [c for c in cands if c.kind != CandidateKind.TRACE or not any(
+            spent.query(p)[0] <= SPENT_NEAR_M for p in starts(c))]
 
     def uncertainty(self, context: PlanContext) -> tuple[UncertaintyMap, Grid]:
         """The uncertainty of the current estimate on the planning grid (the prior —
@@ -739,6 +773,7 @@ class AdaptivePlanner:
                 cands = mark_crossings(cands, s, levels, p.band_m,
                                        open_at_end=p.open_entry == "end",
                                        end_m=OPEN_END_M if p.open_entry == "auto" else 0.0)
+            cands = self._unspent(cands)
             if p.probes:
                 cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
                                          2.0 * p.resolve_m,
@@ -778,8 +813,8 @@ class AdaptivePlanner:
             if context.estimate is not None and context.grid is not None:
                 lo, hi = np.quantile(context.estimate, [0.005, 0.995])
                 levels = np.linspace(lo, hi, p.levels + 2)[1:-1]
-                cands = contour_candidates(context.estimate, context.grid, levels, p.piece_m,
-                                           p.min_piece_m)
+                cands = self._unspent(contour_candidates(context.estimate, context.grid,
+                                                         levels, p.piece_m, p.min_piece_m))
         cands += leg_candidates(umap, now, region, p.legs, p.leg_m)
         cands += line_candidates(region, p.line_spacing_m, p.line_orientation)
         batch_m = p.threshold_batch_m if p.target_levels else p.batch_m
