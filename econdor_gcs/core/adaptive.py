@@ -691,7 +691,9 @@ class AdaptivePlanner:
     def _unspent(self, cands: list[Candidate]) -> list[Candidate]:
         """``cands`` without the traces that would begin within ``SPENT_NEAR_M`` of where a
         trace was spent: the estimate can keep offering a piece there (its end at the
-        area's edge, say, which no sample reaches) that the tracer has already traced."""
+        area's edge, say, which no sample reaches) that the tracer has already traced.
+        Threshold mode only (where it was measured; the levels of the other modes move
+        from one plan to the next)."""
         if not self._spent:
             return cands
         spent = cKDTree(np.asarray(self._spent))
@@ -813,8 +815,8 @@ class AdaptivePlanner:
             if context.estimate is not None and context.grid is not None:
                 lo, hi = np.quantile(context.estimate, [0.005, 0.995])
                 levels = np.linspace(lo, hi, p.levels + 2)[1:-1]
-                cands = self._unspent(contour_candidates(context.estimate, context.grid,
-                                                         levels, p.piece_m, p.min_piece_m))
+                cands = contour_candidates(context.estimate, context.grid, levels, p.piece_m,
+                                           p.min_piece_m)
         cands += leg_candidates(umap, now, region, p.legs, p.leg_m)
         cands += line_candidates(region, p.line_spacing_m, p.line_orientation)
         batch_m = p.threshold_batch_m if p.target_levels else p.batch_m
