@@ -77,8 +77,9 @@ from .errors import LinkError, ProtocolError, VehicleTimeout
 from .link.autopilots import start_mission
 from .link.codec import mavlink
 from .link.mission import fence_items
-from .link.router import AIRBORNE_ALT_M, Router, VehicleLost
+from .link.router import AIRBORNE_ALT_M, Received, Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
+from .link.vehicles import EVENTS
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
 from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
@@ -139,7 +140,7 @@ def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
 class Station:
     """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
 
-    def __init__(self, endpoint: str, tlog: TlogWriter | None = None,
+    def __init__(self, endpoint: str | Sequence[str], tlog: TlogWriter | None = None,
                  heartbeat_timeout_s: float = 20.0, signing: SigningKey | None = None) -> None:
         self.loop = asyncio.new_event_loop()
         self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s,
@@ -286,9 +287,9 @@ class MavlinkExecutor:
                                        self.vehicle_losses, self._until,
                                        lambda: self.aborted)
         """Every sample a vehicle took brought in after each flight (resends)."""
-        self.router.add_sample_handler(self.telemetry.on_sample)
-        self.router.add_message_handler(self.telemetry.on_message)
-        self.router.add_event_handler(self._on_event)
+        self.router.subscribe(Sample, self.telemetry.on_sample)
+        self.router.subscribe(Received, lambda r: self.telemetry.on_message(r.sysid, r.msg))
+        self.router.subscribe(EVENTS, self._on_event)
 
     @property
     def fences_refused(self) -> list[int]:
