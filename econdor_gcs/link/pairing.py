@@ -79,12 +79,12 @@ class PositionTrack:
     """One vehicle's positions by ``time_boot_ms`` (sorted; a resent one goes in its place).
 
     >>> t = PositionTrack()
-    >>> t.add(1000, 47.0, 8.0, 10.0), t.add(2000, 47.0, 8.002, 20.0)
+    >>> t.add(1000, 47.0, 8.0, 10.0), t.add(2000, 47.0, 8.004, 20.0)
     (False, False)
-    >>> t.at(1500, 1000)
-    (47.0, 8.001, 15.0, False)
+    >>> t.at(1250, 1000)
+    (47.0, 8.001, 12.5, False)
     >>> t.at(2000, 1000)
-    (47.0, 8.002, 20.0, True)
+    (47.0, 8.004, 20.0, True)
     >>> t.at(2500, 1000) is None, t.newest_ms
     (True, 2000)
     """
