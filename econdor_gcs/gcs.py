@@ -216,7 +216,6 @@ class Station:
 
 #: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
 STREAM_WALL_HZ = {
-    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 4.0,
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
     mavlink.MAVLINK_MSG_ID_ATTITUDE: 1.0,
 }
@@ -351,15 +350,21 @@ class MavlinkExecutor:
                        for v in self.vehicles.values()])
 
     async def _slow_streams(self, sysid: int) -> None:
-        """Ask for the display-only streams at a few Hz of *wall* time.
+        """Ask for the positions at the sensor's rate and the display-only streams at a few
+        Hz of *wall* time.
 
-        The samples (GLOBAL_POSITION_INT + FIELD pairs) are all the DFC needs; at high
-        speed-ups the periodic streams would otherwise arrive at up to 50 Hz per message
-        and vehicle, and ten vehicles then flood the endpoint while the DFC reconstructs.
-        Intervals are in vehicle (sim) time, hence the speed-up factor. A vehicle that
-        does not support the command keeps its default rates.
+        A sample is placed by interpolating the vehicle's positions at its time
+        (:mod:`.link.pairing`), so GLOBAL_POSITION_INT comes at the mission's sample rate,
+        in vehicle time. At high speed-ups the display streams would otherwise arrive at up
+        to 50 Hz per message and vehicle, and ten vehicles then flood the endpoint while the
+        DFC reconstructs. Intervals are in vehicle (sim) time, hence the speed-up factor. A
+        vehicle that does not support the command keeps its default rates.
         """
         speedup = self.mission.vehicles.speedup
+        with contextlib.suppress(LinkError):
+            await self.router.set_message_interval(
+                sysid, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                1.0 / self.mission.vehicles.sample_rate_hz)
         for message_id, wall_hz in STREAM_WALL_HZ.items():
             with contextlib.suppress(LinkError):
                 await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
@@ -391,7 +396,7 @@ class MavlinkExecutor:
         """Whether :meth:`abort_flight` was called."""
         return self._abort.is_set()
 
-    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
+    def sample_accounting(self) -> dict[str, dict[str, int | str | None]]:
         """Per vehicle: samples taken, received, recovered, duplicates, missing
         (:meth:`.recovery.SampleRecovery.sample_accounting`; for summary.json)."""
         return self.recovery.sample_accounting()

@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Protocol
 
-from ..errors import LinkError
+from ..errors import LinkError, MissionRejected
 from .codec import MAVLinkMessage, mavlink
 from .mission import (
     DEFAULT_RETRIES,
@@ -29,6 +29,10 @@ __all__ = ["CommandVocabulary", "Machine"]
 
 FORCE_ARM_DISARM = 21196
 """COMPONENT_ARM_DISARM param2 that disarms in the air / skips the checks."""
+NO_SPACE_WAIT_S = 10.0
+"""How long an upload refused whole with MAV_MISSION_NO_SPACE is tried again: ArduCopter
+answers so until its mission storage is ready, about 3 s of its own time after boot."""
+NO_SPACE_RETRY_S = 0.25
 
 
 class Machine(Protocol):
@@ -73,14 +77,25 @@ class CommandVocabulary:
     # -- missions ---------------------------------------------------------------------------
     async def upload_mission(self, sysid: int, items: list[MissionItemSpec], *,
                              mission_type: int = 0, timeout_s: float = DEFAULT_TIMEOUT_S,
-                             retries: int = DEFAULT_RETRIES, legacy_items: bool = False) -> int:
+                             retries: int = DEFAULT_RETRIES, legacy_items: bool = False,
+                             no_space_wait_s: float = NO_SPACE_WAIT_S) -> int:
         """Upload a mission; return the number of items.  One mission transfer per vehicle at a
-        time (later calls wait)."""
+        time (later calls wait). A whole mission refused with MAV_MISSION_NO_SPACE is sent
+        again for up to ``no_space_wait_s`` (an autopilot that has just booted)."""
+        loop = asyncio.get_running_loop()
+        give_up = loop.time() + no_space_wait_s
         async with self._lock(sysid):
-            machine = MissionUploader(sysid, self._compid(sysid), items, mission_type,
-                                      timeout_s=timeout_s, retries=retries,
-                                      legacy_items=legacy_items)
-            return int(await self.run_protocol(sysid, machine))
+            while True:
+                machine = MissionUploader(sysid, self._compid(sysid), items, mission_type,
+                                          timeout_s=timeout_s, retries=retries,
+                                          legacy_items=legacy_items)
+                try:
+                    return int(await self.run_protocol(sysid, machine))
+                except MissionRejected as exc:
+                    if exc.result != mavlink.MAV_MISSION_NO_SPACE or exc.seq is not None \
+                            or loop.time() + NO_SPACE_RETRY_S > give_up:
+                        raise
+                await asyncio.sleep(NO_SPACE_RETRY_S)
 
     async def download_mission(self, sysid: int, *, mission_type: int = 0,
                                timeout_s: float = DEFAULT_TIMEOUT_S,

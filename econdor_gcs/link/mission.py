@@ -464,6 +464,14 @@ class MissionUploader(_Machine):
 
     The items' ``seq`` must be ``0..n-1`` in order; their ``mission_type`` is forced to
     ``mission_type``.
+
+    ``MAV_MISSION_INVALID_SEQUENCE`` during the transfer is an answer to a stale copy of an
+    item, not the end of it: ArduPilot requests an item again after one second of *its* time
+    (0.1 s of wall time at a 10x speed-up), so a busy station answers both requests, and the
+    second copy arrives when ArduPilot already waits for the next item; it says
+    INVALID_SEQUENCE and goes on requesting. Only when no request follows within the timeout
+    is it the vehicle's verdict (a vehicle with no transfer running), and the upload fails
+    with it (``stale_acks`` counts the others).
     """
 
     what = "mission upload"
@@ -481,7 +489,9 @@ class MissionUploader(_Machine):
         self.mission_type = mission_type
         self.legacy_items = legacy_items
         self.requested: set[int] = set()
+        self.stale_acks = 0
         self._last_seq: int | None = None
+        self._invalid: MAVLinkMessage | None = None
 
     def _count_msg(self) -> MAVLinkMessage:
         return mavlink.MAVLink_mission_count_message(
@@ -516,6 +526,7 @@ class MissionUploader(_Machine):
             new = seq not in self.requested
             self.requested.add(seq)
             self._last_seq = seq
+            self._invalid = None
             self._send(reply, now, progress=new)
         elif kind == "MISSION_ACK":
             if not self._mine(msg, self.mission_type):
@@ -526,16 +537,29 @@ class MissionUploader(_Machine):
                 if not self.items or (len(self.items) - 1) in self.requested:
                     self._succeed(len(self.items))
                 return
-            result = enum_name("MAV_MISSION_RESULT", msg.type)
-            seq = self._last_seq
-            if seq is None:
-                text = (f"vehicle {self.target_system} rejected the mission "
-                        f"({len(self.items)} items): {result}")
-            else:
-                text = (f"vehicle {self.target_system} rejected mission item {seq}: "
-                        f"{result}")
-            command = self.items[seq].command if seq is not None else None
-            self._fail(MissionRejected(text, int(msg.type), seq, command))
+            if msg.type == mavlink.MAV_MISSION_INVALID_SEQUENCE and self._last_seq is not None:
+                self.stale_acks += 1
+                self._invalid = msg  # the verdict only if no request follows (_retry)
+                return
+            self._refused(msg)
+
+    def _retry(self, now: float) -> None:
+        if self._invalid is not None:
+            self._refused(self._invalid)
+        else:
+            super()._retry(now)
+
+    def _refused(self, msg: MAVLinkMessage) -> None:
+        result = enum_name("MAV_MISSION_RESULT", msg.type)
+        seq = self._last_seq
+        if seq is None:
+            text = (f"vehicle {self.target_system} rejected the mission "
+                    f"({len(self.items)} items): {result}")
+        else:
+            text = (f"vehicle {self.target_system} rejected mission item {seq}: "
+                    f"{result}")
+        command = self.items[seq].command if seq is not None else None
+        self._fail(MissionRejected(text, int(msg.type), seq, command))
 
 
 class MissionDownloader(_Machine):
