@@ -169,7 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("export", help="missions for real aircraft from a run directory or a "
                                        "mission YAML (or a run's flown paths as GeoJSON)")
     ex.add_argument("source", type=Path, help="a run directory or a mission YAML")
-    ex.add_argument("--format", choices=("wpl", "plan", "geojson"), required=True)
+    ex.add_argument("--format", choices=("wpl", "plan", "geojson", "lua"), required=True,
+                    help="lua: a script for ArduPilot SITL that senses the mission's field "
+                         "at the vehicle (from a mission YAML or a run directory)")
     ex.add_argument("--out", required=True,
                     help="a file, or a directory (existing or ending in /) for one file per mission")
     ex.add_argument("--style", choices=("waypoints", "trace"), default="waypoints",

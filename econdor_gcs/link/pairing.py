@@ -214,8 +214,8 @@ class SamplePairer:
         """
         kind = msg.get_type()
         if kind == "GLOBAL_POSITION_INT":
-            if not position_source:
-                return []
+            if not position_source or (msg.lat == 0 and msg.lon == 0):
+                return []  # another clock, or no position yet (ArduPilot before its EKF has one)
             return self.position(sysid, int(msg.time_boot_ms), msg.lat / 1e7, msg.lon / 1e7,
                                  msg.relative_alt / 1000.0, now)
         if kind == "NAMED_VALUE_FLOAT" and _text(msg.name) == self.name:

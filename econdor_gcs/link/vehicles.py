@@ -281,6 +281,12 @@ class VehicleLink:
                       if info.mav_type == mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
 
 
+def no_position(msg: MAVLinkMessage) -> bool:
+    """A GLOBAL_POSITION_INT without a position: ArduPilot sends latitude = longitude = 0
+    until its EKF has one (the point off Africa is nobody's mission area)."""
+    return msg.lat == 0 and msg.lon == 0
+
+
 def _text(value: object) -> str:
     if isinstance(value, bytes | bytearray):
         value = value.decode("utf-8", "replace")
@@ -407,7 +413,9 @@ class VehicleTable:
 
     def _autopilot_message(self, link: VehicleLink, msg: MAVLinkMessage, kind: str,
                            now: float, events: list[Event]) -> None:
-        if kind == "GLOBAL_POSITION_INT":
+        if kind == "GLOBAL_POSITION_INT" and no_position(msg):
+            link.time_boot_ms = msg.time_boot_ms
+        elif kind == "GLOBAL_POSITION_INT":
             rel_alt_m = msg.relative_alt / 1000.0
             t_ms, last_ms = msg.time_boot_ms, link.last_fix_ms
             if last_ms is None or t_ms > last_ms or t_ms < last_ms - REBOOT_MS:
