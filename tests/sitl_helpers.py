@@ -103,7 +103,7 @@ class Sitl:
 
     def start(self) -> Sitl:
         self.workdir.mkdir(parents=True, exist_ok=True)
-        params = {"SYSID_THISMAV": self.sysid, **self.params}
+        params = dict(self.params)
         if self.scripts:
             params.setdefault("SCR_ENABLE", 1)
             params.setdefault("SCR_HEAP_SIZE", 300000)
@@ -117,7 +117,8 @@ class Sitl:
         lat, lon, alt = self.home
         cmd = [str(self.binary), "--model", "+", "--speedup", f"{self.speedup:g}",
                "--defaults", str(defaults), "--base-port", str(self.port),
-               "--rc-in-port", str(self.rc_port), "--home", f"{lat},{lon},{alt},0"]
+               "--rc-in-port", str(self.rc_port), "--home", f"{lat},{lon},{alt},0",
+               "--sysid", str(self.sysid)]
         if self.serial0 is not None:
             cmd += ["--serial0", self.serial0]
         log = self.log_path.open("wb")

@@ -246,7 +246,9 @@ def test_ardupilot_arm_then_mission_start_and_its_refusals():
     assert ap.do_set_mode(1, 42, 0) == mavlink.MAV_RESULT_FAILED  # no such mode
     assert ap.do_set_mode(1, COPTER_GUIDED, 0) == 0
     assert command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)[0] == 0
-    assert command(ap, mavlink.MAV_CMD_MISSION_START, 1, 0)[0] == 0
+    # ArduCopter (SITL): "first-item/last item not supported": only (0, 0) starts it
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, 1, 0)[0] == mavlink.MAV_RESULT_DENIED
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, 0, 0)[0] == 0
     assert ap.custom_mode() == COPTER_AUTO
     msgs = run_until(ap, lambda ms: ap.state.mission_complete)
     assert [m.seq for m in msgs if m.get_type() == "MISSION_ITEM_REACHED"] == [1, 2]
