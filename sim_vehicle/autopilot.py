@@ -135,6 +135,7 @@ class Autopilot:
                                    streams_on_request=self.streams_on_request)
         self.outbox.lua_payload = self.lua_payload and not settings.companion
         self.telemetry.no_fix_until_prearm = self.no_fix_until_prearm
+        self.telemetry.positions_at_sensor_rate()
         self.activity: Activity | None = None
         self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
                                          "commands_repeated": 0}

@@ -442,7 +442,7 @@ class Telemetry:
             self.intervals[message_id] = -1.0 if interval_us < 0 else interval_us / 1e6
         if interval_us >= 0:
             self.enabled.add(message_id)
-        self._positions_at_sensor_rate()
+        self.positions_at_sensor_rate()
         return True
 
     def request_data_stream(self, stream_id: int, rate_hz: float, start: bool) -> bool:
@@ -459,10 +459,10 @@ class Telemetry:
             self.enabled.add(mid)
             if mid in periodic and rate_hz > 0:
                 self.intervals[mid] = 1.0 / rate_hz
-        self._positions_at_sensor_rate()
+        self.positions_at_sensor_rate()
         return True
 
-    def _positions_at_sensor_rate(self) -> None:
+    def positions_at_sensor_rate(self) -> None:
         """A Lua payload's vehicle sends its positions with the samples only when they are
         asked for at the sensor's rate (else at the rate asked, as the periodic stream)."""
         gpi = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT

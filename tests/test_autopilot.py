@@ -9,7 +9,13 @@ from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import DEMO, item_int
 
 from econdor_gcs.mission import load_mission
-from sim_vehicle.ardupilot import COPTER_AUTO, COPTER_GUIDED, COPTER_STABILIZE, ArduCopterAutopilot
+from sim_vehicle.ardupilot import (
+    COPTER_AUTO,
+    COPTER_GUIDED,
+    COPTER_STABILIZE,
+    NO_SPACE_AFTER_BOOT_S,
+    ArduCopterAutopilot,
+)
 from sim_vehicle.px4 import PX4_MODES, Px4Autopilot
 from sim_vehicle.state import FlightMode, VehicleSettings
 
@@ -26,8 +32,11 @@ def rx(msg):
 def make(cls=Px4Autopilot, now=0.0, **kw):
     settings = VehicleSettings(sysid=1, **kw)
     o = MISSION.origin
-    return cls(MISSION.build_field(), MISSION.region, o, settings,
-               (o.lat_deg, o.lon_deg, o.alt_m), now=now)
+    ap = cls(MISSION.build_field(), MISSION.region, o, settings,
+             (o.lat_deg, o.lon_deg, o.alt_m), now=now)
+    if cls is ArduCopterAutopilot:  # it takes uploads 3 s (of its time) after boot
+        ap.skip_parked(round(NO_SPACE_AFTER_BOOT_S / ap.state.body.dt_s))
+    return ap
 
 
 def command(ap, cmd, *params, now=0.0):
