@@ -187,3 +187,87 @@ def sitls(*vehicles: Sitl) -> Iterator[list[Sitl]]:
     finally:
         for v in started:
             v.stop()
+
+
+class Watch:
+    """A second MAVLink client of a SITL (its SERIAL1 TCP port), as a person watching: asks
+    for telemetry, keeps every message, and waits on state with a typed timeout that says
+    what it saw (ArduPilot autotest's ``wait_*``)."""
+
+    def __init__(self, port: int, sysid: int = 1) -> None:
+        import threading
+
+        from econdor_gcs.link.codec import Codec, Parser, mavlink
+
+        self.sysid = sysid
+        self.mavlink = mavlink
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=10)
+        self.codec = Codec(250, 190)
+        self.parser = Parser()
+        self.messages: list = []
+        self._lock = threading.Lock()
+        self._stop = False
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+        self.send(mavlink.MAVLink_request_data_stream_message(
+            sysid, 1, mavlink.MAV_DATA_STREAM_ALL, 4, 1))
+
+    def send(self, msg) -> None:
+        self.sock.sendall(self.codec.encode(msg))
+
+    def _read(self) -> None:
+        self.sock.settimeout(0.2)
+        while not self._stop:
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            if not data:
+                return
+            msgs = self.parser.feed(data, "sitl")
+            with self._lock:
+                self.messages.extend(m for m in msgs if m.get_srcSystem() == self.sysid)
+
+    def of(self, kind: str) -> list:
+        with self._lock:
+            return [m for m in self.messages if m.get_type() == kind]
+
+    def wait(self, cond, timeout_s: float, what: str):
+        """Until ``cond(self)`` is true (returns it); TimeoutError with the last heartbeat
+        and texts otherwise."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            got = cond(self)
+            if got:
+                return got
+            if time.monotonic() > deadline:
+                hb = self.of("HEARTBEAT")[-1:]
+                texts = [m.text for m in self.of("STATUSTEXT")][-8:]
+                raise TimeoutError(f"SITL {self.sysid}: no {what} within {timeout_s:g} s "
+                                   f"(last heartbeat {hb}, texts {texts})")
+            time.sleep(0.05)
+
+    def landed_after(self, seq: int) -> bool:
+        """Item ``seq`` reached, then a disarmed heartbeat: the mission flown and landed."""
+        with self._lock:
+            msgs = list(self.messages)
+        reached = [i for i, m in enumerate(msgs)
+                   if m.get_type() == "MISSION_ITEM_REACHED" and m.seq == seq]
+        if not reached:
+            return False
+        return any(m.get_type() == "HEARTBEAT" and not m.base_mode
+                   & self.mavlink.MAV_MODE_FLAG_SAFETY_ARMED for m in msgs[reached[0]:])
+
+    def close(self) -> None:
+        self._stop = True
+        with contextlib.suppress(OSError):
+            self.sock.close()
+        self._thread.join(2)
+
+    def __enter__(self) -> Watch:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -161,6 +161,8 @@ end
 
 local sent = 0
 local last_count_ms = uint32_t(0)
+local due_ms = millis()
+local PERIOD = uint32_t(PERIOD_MS)
 
 local function update()
   if arming:is_armed() then
@@ -176,7 +178,15 @@ local function update()
     last_count_ms = now
     gcs:send_named_float("FIELD_N", sent)
   end
-  return update, PERIOD_MS
+  -- due one period after the last was due (the scheduler's lateness does not add up)
+  due_ms = due_ms + PERIOD
+  if due_ms <= now then
+    if now - due_ms > PERIOD then
+      due_ms = now
+    end
+    return update, 1
+  end
+  return update, (due_ms - now):toint()
 end
 
 return update, PERIOD_MS
