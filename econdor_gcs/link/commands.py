@@ -193,8 +193,13 @@ class CommandVocabulary:
         return await self.command(sysid, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, message_id,
                                   interval_us)
 
-    def request_data_streams(self, sysid: int, rate_hz: int = 4) -> None:
+    def request_data_streams(self, sysid: int, rate_hz: int = 1) -> None:
         """Ask for all telemetry streams the legacy way (REQUEST_DATA_STREAM; ArduPilot sends only
-        heartbeats until asked).  Fire and forget; PX4 and our simulated vehicle ignore it."""
+        heartbeats until asked).  Fire and forget; PX4 and our simulated vehicle ignore it.
+
+        ``rate_hz`` is in the vehicle's time: ArduPilot has some thirty messages in these
+        streams, and SITL at a 20x speed-up sent them at 80 Hz each at 4 Hz, enough to
+        fill its link and make it thin out every stream (the positions too: gaps of
+        1.2 s). What the station needs faster (the positions) it asks for by message."""
         self.send(sysid, mavlink.MAVLink_request_data_stream_message(
             sysid, self._compid(sysid), mavlink.MAV_DATA_STREAM_ALL, rate_hz, 1))
