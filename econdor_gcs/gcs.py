@@ -214,6 +214,11 @@ class Station:
 # the executor
 
 
+POSITIONS_PER_SAMPLE = 4
+"""Positions asked for per sensor period: a sample between two positions is placed by linear
+interpolation, and an autopilot's positions are its filter's output, which is not a straight
+line between fixes a sensor period apart (docs/experiments/2026-12-04-sitl.md)."""
+
 #: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
 STREAM_WALL_HZ = {
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
@@ -364,7 +369,7 @@ class MavlinkExecutor:
         with contextlib.suppress(LinkError):
             await self.router.set_message_interval(
                 sysid, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-                1.0 / self.mission.vehicles.sample_rate_hz)
+                1.0 / (POSITIONS_PER_SAMPLE * self.mission.vehicles.sample_rate_hz))
         for message_id, wall_hz in STREAM_WALL_HZ.items():
             with contextlib.suppress(LinkError):
                 await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
