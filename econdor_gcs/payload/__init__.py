@@ -95,7 +95,8 @@ end
         r = field.region
         return f"""local C = {_floats(field.centre_m)}
 local N = {_floats(field.normal)}
-local A, WL, PHASE, WIDTH = {field.amplitude_m:.9g}, {field.wavelength_m:.9g}, {field.phase_rad:.9g}, {field.width_m:.9g}
+local A, WL = {field.amplitude_m:.9g}, {field.wavelength_m:.9g}
+local PHASE, WIDTH = {field.phase_rad:.9g}, {field.width_m:.9g}
 local IX = {_floats(isl[:, 0])}
 local IY = {_floats(isl[:, 1])}
 local IR = {_floats(isl[:, 2])}
