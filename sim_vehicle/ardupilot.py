@@ -171,9 +171,6 @@ class ArduPilotMissionServer(MissionServer):
                           round(alt_amsl, 2))
         return [home, *items[1:]]
 
-    _HANDLERS = {**MissionServer._HANDLERS, "MISSION_COUNT": _on_count,
-                 "MISSION_ITEM_INT": _on_item, "MISSION_ITEM": _on_item}
-
     def reported(self, item: StoredItem) -> StoredItem:
         if item.mission_type != MISSION:
             return item

@@ -131,7 +131,9 @@ end
 def field_script(mission: Mission, seed: int | None = None) -> str:
     """A Lua script for ArduPilot SITL that senses ``mission``'s field (seed ``seed``, default
     the mission's) at the vehicle's position and sends it as ``FIELD`` at the mission's
-    sample rate while the vehicle is armed (and ``FIELD_N``, its count, every second)."""
+    sample rate while the vehicle flies (armed and likely flying: not the seconds on the
+    ground after landing, which come after the station's last flight report), and
+    ``FIELD_N``, its count, every second."""
     seed = mission.seed if seed is None else seed
     field = mission.build_field(seed)
     lat0, lon0, ce, cn, err = enu_fit(mission)
@@ -142,8 +144,8 @@ def field_script(mission: Mission, seed: int | None = None) -> str:
     return f"""-- econdor: the field of mission {mission.name!r} (model {mission.field_model}, seed {seed})
 -- sensed at the vehicle's position, for ArduPilot SITL. Made by
 -- `econdor export MISSION.yaml --format lua`; not for a real aircraft (it senses nothing).
--- Sends NAMED_VALUE_FLOAT "FIELD" every {period_ms} ms while armed (the autopilot stamps the
--- time it is sent), and "FIELD_N" (how many it sent) every second.
+-- Sends NAMED_VALUE_FLOAT "FIELD" every {period_ms} ms while it flies (the autopilot stamps
+-- the time it is sent), and "FIELD_N" (how many it sent) every second.
 -- Needs SCR_ENABLE 1 (and SCR_VM_I_COUNT >= {max(10000, 40 * _terms(field))}).
 
 local LAT0, LON0 = {lat0}, {lon0}  -- the mission origin, degE7
@@ -164,14 +166,19 @@ local sent = 0
 local last_count_ms = uint32_t(0)
 local due_ms = millis()
 local PERIOD = uint32_t(PERIOD_MS)
+local last_ms = uint32_t(0)
 
 local function update()
-  if arming:is_armed() then
+  if millis() == last_ms then
+    return update, 1  -- one sample per millisecond at most: the stamp tells them apart
+  end
+  if arming:is_armed() and vehicle:get_likely_flying() then
     local loc = ahrs:get_location()
     if loc then
       local x, y = enu(loc)
       gcs:send_named_float("FIELD", field(x, y))
       sent = sent + 1
+      last_ms = millis()
     end
   end
   local now = millis()

@@ -34,6 +34,7 @@ local pin = -2
 local sent = 0
 local last_count_ms = uint32_t(0)
 local due_ms = millis()
+local last_ms = uint32_t(0)
 
 local function period_ms()
   local hz = RATE_HZ:get()
@@ -44,6 +45,9 @@ local function period_ms()
 end
 
 local function update()
+  if millis() == last_ms then
+    return update, 1  -- one sample per millisecond at most: the stamp tells them apart
+  end
   if PIN:get() ~= pin then
     pin = PIN:get()
     if pin >= 0 then
@@ -54,6 +58,7 @@ local function update()
     local volts = chan:voltage_average()
     gcs:send_named_float("FIELD", (volts - OFFSET_V:get()) * SCALE:get())
     sent = sent + 1
+    last_ms = millis()
   end
   local now = millis()
   if now - last_count_ms >= uint32_t(1000) then
