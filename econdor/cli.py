@@ -101,8 +101,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--vehicles", type=_positive_int, default=None)
     run.add_argument("--speedup", type=_positive_float, default=None)
     run.add_argument("--seed", type=int, default=None)
-    run.add_argument("--connect", default=None,
-                     help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
+    run.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                     help="serve vehicles started elsewhere on this link: udpin:HOST:PORT, "
+                          "udpout:HOST:PORT, tcp:HOST:PORT (e.g. ArduPilot SITL), "
+                          "tcpin:HOST:PORT or a serial device DEVICE:BAUD; repeat it for "
+                          "several links")
     run.add_argument("--timeout", type=_positive_float, default=None,
                      help="seconds to wait for vehicles to appear / answer (default 20)")
     run.add_argument("--autopilot", default=None, metavar="KINDS",
@@ -166,7 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("export", help="missions for real aircraft from a run directory or a "
                                        "mission YAML (or a run's flown paths as GeoJSON)")
     ex.add_argument("source", type=Path, help="a run directory or a mission YAML")
-    ex.add_argument("--format", choices=("wpl", "plan", "geojson"), required=True)
+    ex.add_argument("--format", choices=("wpl", "plan", "geojson", "lua"), required=True,
+                    help="lua: a script for ArduPilot SITL that senses the mission's field "
+                         "at the vehicle (from a mission YAML or a run directory)")
     ex.add_argument("--out", required=True,
                     help="a file, or a directory (existing or ending in /) for one file per mission")
     ex.add_argument("--style", choices=("waypoints", "trace"), default="waypoints",
@@ -200,8 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
     up = sub.add_parser("upload", help="upload a mission file to a MAVLink autopilot, read it "
                                        "back and verify it; optionally start it")
     up.add_argument("path", type=Path)
-    up.add_argument("--connect", required=True,
-                    help="GCS endpoint the vehicle talks to, e.g. udpin:0.0.0.0:14550")
+    up.add_argument("--connect", required=True, action="append", metavar="ENDPOINT",
+                    help="the link to the vehicle: udpin:0.0.0.0:14550, udpout:HOST:PORT, "
+                         "tcp:HOST:PORT, tcpin:HOST:PORT or DEVICE:BAUD (e.g. "
+                         "/dev/ttyUSB0:57600)")
     up.add_argument("--sysid", type=_sysid, default=None,
                     help="the vehicle's system id (default: the first that appears)")
     up.add_argument("--start", action="store_true",

@@ -477,10 +477,12 @@ def export_cli(args: argparse.Namespace) -> int:
     [--iteration N|all] [--vehicle S] [--fence-margin-m M]``; prints the paths written."""
     source = Path(args.source)
     fmt = args.format
-    if fmt not in _SUFFIX:
-        raise EcondorError(f"unknown export format {fmt!r} (wpl, plan or geojson)")
+    if fmt not in _SUFFIX and fmt != "lua":
+        raise EcondorError(f"unknown export format {fmt!r} (wpl, plan, geojson or lua)")
     out = Path(args.out)
     to_dir = _is_dir_target(args.out)
+    if fmt == "lua":
+        return _export_lua(source, out / "econdor_field.lua" if to_dir else out)
     iteration = getattr(args, "iteration", None)
     vehicle = getattr(args, "vehicle", None)
     if fmt == "geojson":
@@ -520,6 +522,23 @@ def export_cli(args: argparse.Namespace) -> int:
         written.append(target)
     for p in written:
         print(p)
+    return 0
+
+
+def _export_lua(source: Path, target: Path) -> int:
+    """``--format lua``: the SITL field script of a mission YAML (:mod:`.payload`)."""
+    from .payload import field_script
+
+    if source.is_dir():
+        source = source / "mission.yaml"
+    mission = load_mission(source)
+    text = field_script(mission)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise EcondorError(f"cannot write {target}: {exc.strerror or exc}") from exc
+    print(target)
     return 0
 
 

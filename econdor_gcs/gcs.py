@@ -77,8 +77,9 @@ from .errors import LinkError, ProtocolError, VehicleTimeout
 from .link.autopilots import start_mission
 from .link.codec import mavlink
 from .link.mission import fence_items
-from .link.router import AIRBORNE_ALT_M, Router, VehicleLost
+from .link.router import AIRBORNE_ALT_M, Received, Router, Sample, VehicleLost
 from .link.tlog import TlogWriter
+from .link.vehicles import EVENTS
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
 from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
@@ -139,7 +140,7 @@ def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
 class Station:
     """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
 
-    def __init__(self, endpoint: str, tlog: TlogWriter | None = None,
+    def __init__(self, endpoint: str | Sequence[str], tlog: TlogWriter | None = None,
                  heartbeat_timeout_s: float = 20.0, signing: SigningKey | None = None) -> None:
         self.loop = asyncio.new_event_loop()
         self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s,
@@ -213,9 +214,13 @@ class Station:
 # the executor
 
 
+POSITIONS_PER_SAMPLE = 4
+"""Positions asked for per sensor period: a sample between two positions is placed by linear
+interpolation, and an autopilot's positions are its filter's output, which is not a straight
+line between fixes a sensor period apart (docs/experiments/2026-12-04-sitl.md)."""
+
 #: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
 STREAM_WALL_HZ = {
-    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 4.0,
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
     mavlink.MAVLINK_MSG_ID_ATTITUDE: 1.0,
 }
@@ -286,9 +291,9 @@ class MavlinkExecutor:
                                        self.vehicle_losses, self._until,
                                        lambda: self.aborted)
         """Every sample a vehicle took brought in after each flight (resends)."""
-        self.router.add_sample_handler(self.telemetry.on_sample)
-        self.router.add_message_handler(self.telemetry.on_message)
-        self.router.add_event_handler(self._on_event)
+        self.router.subscribe(Sample, self.telemetry.on_sample)
+        self.router.subscribe(Received, lambda r: self.telemetry.on_message(r.sysid, r.msg))
+        self.router.subscribe(EVENTS, self._on_event)
 
     @property
     def fences_refused(self) -> list[int]:
@@ -350,15 +355,21 @@ class MavlinkExecutor:
                        for v in self.vehicles.values()])
 
     async def _slow_streams(self, sysid: int) -> None:
-        """Ask for the display-only streams at a few Hz of *wall* time.
+        """Ask for the positions at the sensor's rate and the display-only streams at a few
+        Hz of *wall* time.
 
-        The samples (GLOBAL_POSITION_INT + FIELD pairs) are all the DFC needs; at high
-        speed-ups the periodic streams would otherwise arrive at up to 50 Hz per message
-        and vehicle, and ten vehicles then flood the endpoint while the DFC reconstructs.
-        Intervals are in vehicle (sim) time, hence the speed-up factor. A vehicle that
-        does not support the command keeps its default rates.
+        A sample is placed by interpolating the vehicle's positions at its time
+        (:mod:`.link.pairing`), so GLOBAL_POSITION_INT comes at the mission's sample rate,
+        in vehicle time. At high speed-ups the display streams would otherwise arrive at up
+        to 50 Hz per message and vehicle, and ten vehicles then flood the endpoint while the
+        DFC reconstructs. Intervals are in vehicle (sim) time, hence the speed-up factor. A
+        vehicle that does not support the command keeps its default rates.
         """
         speedup = self.mission.vehicles.speedup
+        with contextlib.suppress(LinkError):
+            await self.router.set_message_interval(
+                sysid, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                1.0 / (POSITIONS_PER_SAMPLE * self.mission.vehicles.sample_rate_hz))
         for message_id, wall_hz in STREAM_WALL_HZ.items():
             with contextlib.suppress(LinkError):
                 await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
@@ -390,7 +401,7 @@ class MavlinkExecutor:
         """Whether :meth:`abort_flight` was called."""
         return self._abort.is_set()
 
-    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
+    def sample_accounting(self) -> dict[str, dict[str, int | str | None]]:
         """Per vehicle: samples taken, received, recovered, duplicates, missing
         (:meth:`.recovery.SampleRecovery.sample_accounting`; for summary.json)."""
         return self.recovery.sample_accounting()

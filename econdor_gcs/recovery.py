@@ -2,6 +2,12 @@
 vehicle how many samples it took in the flight's time range, asks again for every gap in what
 arrived, and waits for the resends, until all are in or rounds stop bringing any.
 
+The questions go to the component that sends the samples (the payload: a companion
+computer, or the autopilot itself). One that does not answer them (a stock autopilot with a
+Lua sensor script says MAV_RESULT_UNSUPPORTED) is asked no more: the station keeps what
+arrives, logs it once and says so in ``summary.json`` (``sample_recovery``), and the run
+goes on.
+
 :class:`SampleRecovery` is a part of :class:`~.gcs.MavlinkExecutor`: it shares the
 executor's router, mission, vehicle states and timings, gives up vehicles through its
 :class:`~.losses.VehicleLosses` and waits with the executor's ``until`` (which wakes on
@@ -25,6 +31,8 @@ from .core.tasks import (
     TaskStyle,
     TraceTask,
 )
+from .errors import CommandRejected, VehicleTimeout
+from .link.mission import enum_name
 from .losses import run_all
 
 if TYPE_CHECKING:
@@ -103,10 +111,31 @@ class SampleRecovery:
         self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
             time.monotonic() - t0
 
-    async def _count(self, v: VehicleState, first_ms: int, last_ms: int) -> int:
-        ack = await self.router.command_int(v.sysid, SAMPLE_COUNT_COMMAND, first_ms, last_ms,
-                                            timeout_s=0.3, retries=20)
-        return int(ack.result_param2)
+    def _payload(self, v: VehicleState) -> int:
+        """The component that sends ``v``'s samples (the one asked about them)."""
+        link = self.router.vehicles.get(v.sysid)
+        return link.sample_compid if link is not None and link.sample_compid else 1
+
+    async def _count(self, v: VehicleState, first_ms: int, last_ms: int) -> int | None:
+        """The vehicle's own count of samples in the range; None when its payload does not
+        answer the question (then it is never asked again)."""
+        compid = self._payload(v)
+        try:
+            ack = await self.router.command_int(v.sysid, SAMPLE_COUNT_COMMAND, first_ms,
+                                                last_ms, timeout_s=0.3, retries=20,
+                                                compid=compid)
+        except CommandRejected as exc:
+            why = f"component {compid} answered the sample count with " \
+                  f"{enum_name('MAV_RESULT', exc.result)}"
+        except VehicleTimeout:
+            self.losses.check_lost()  # a vehicle that went silent is given up, not this
+            why = f"component {compid} did not answer the sample count"
+        else:
+            return int(ack.result_param2)
+        v.no_recovery = why
+        log.warning("vehicle %d: %s: lost samples cannot be asked for again; the station "
+                    "keeps what arrives", v.sysid, why)
+        return None
 
     def _gaps(self, v: VehicleState, first_ms: int, last_ms: int) -> list[tuple[int, int]]:
         """Time ranges of [first_ms, last_ms] with no sample here that may hold samples the
@@ -139,12 +168,15 @@ class SampleRecovery:
         link = self.router.vehicles[v.sysid]
         first = v.synced_ms + 1
         last = max(link.time_boot_ms or 0, v.newest_ms)
-        if last < first:
+        if last < first or v.no_recovery is not None:
             return
         n = have = 0
         v.recovering = True
         try:
-            n, have = await self._recover_range(v, first, last)
+            counted = await self._recover_range(v, first, last)
+            if counted is None:
+                return
+            n, have = counted
             # a report may be stamped after the last time we know of (the vehicle's last
             # position report can lag behind its last item): ask up to the end of time
             await self._recover_reports(v, first, 2**31 - 1)
@@ -157,12 +189,16 @@ class SampleRecovery:
                       n - have, n, first, last)
         v.synced_ms = last
 
-    async def _recover_range(self, v: VehicleState, first: int, last: int) -> tuple[int, int]:
+    async def _recover_range(self, v: VehicleState, first: int, last: int
+                             ) -> tuple[int, int] | None:
         n = have = 0
         stalled, best = 0, -1
         for round_no in range(RECOVERY_ROUNDS):
             self.losses.check_lost()
-            n = await self._count(v, first, last)
+            counted = await self._count(v, first, last)
+            if counted is None:
+                return None
+            n = counted
             have = v.count_seen(first, last)
             if have >= n:
                 break
@@ -177,8 +213,10 @@ class SampleRecovery:
             # rotating, so gaps where the vehicle took nothing (a climb) cannot crowd out
             # the others
             k = round_no * RECOVERY_GAPS_PER_ROUND % len(gaps)
+            compid = self._payload(v)
             for a, b in (gaps[k:] + gaps[:k])[:RECOVERY_GAPS_PER_ROUND]:
-                self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b)
+                self.router.send_command_int(v.sysid, SAMPLE_RESEND_COMMAND, a, b,
+                                             compid=compid)
             await self._quiet(v)
         return n, have
 
@@ -197,7 +235,7 @@ class SampleRecovery:
             if not missing:
                 return
             await self.router.command_int(v.sysid, TRACE_RESEND_COMMAND, first, last,
-                                          timeout_s=0.3, retries=20)
+                                          timeout_s=0.3, retries=20, compid=self._payload(v))
             await self._until(functools.partial(_all_in, missing, f.pieces),
                               deadline=time.monotonic() + 1.0)
         log.error("vehicle %d: no TRACE report for pieces %s", v.sysid,
@@ -217,10 +255,11 @@ class SampleRecovery:
 
         await self._until(quiet, tick_s=0.05, deadline=start + 5.0)
 
-    def sample_accounting(self) -> dict[str, dict[str, int | None]]:
+    def sample_accounting(self) -> dict[str, dict[str, int | str | None]]:
         """Per vehicle: samples it took (its own count), received, recovered by resends,
         duplicates dropped, missing (for summary.json)."""
         return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
                                "recovered": v.recovered, "duplicates": v.duplicates,
-                               "missing": v.missing, "lost": v.lost is not None}
+                               "missing": v.missing if v.no_recovery is None else None,
+                               "lost": v.lost is not None, "no_recovery": v.no_recovery}
                 for v in self.vehicles.values()}

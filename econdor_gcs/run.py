@@ -40,12 +40,18 @@ from .gcs import (
 from .link.codec import MAVLinkMessage, mavlink
 from .link.forward import Forwarder
 from .link.router import (
+    ComponentDiscovered,
+    ForeignVehicle,
+    Received,
     Router,
+    TwinRefused,
     VehicleDiscovered,
     VehicleLost,
+    VehicleMoved,
     VehicleRecovered,
 )
 from .link.tlog import TlogWriter
+from .link.vehicles import EVENTS
 from .mission import Mission
 from .rundir import RunDirMode, RunLog, Severity
 from .signing import load_signing_key
@@ -91,7 +97,7 @@ def run_mission(
     vehicles: int | None = None,
     speedup: float | None = None,
     seed: int | None = None,
-    connect: str | None = None,
+    connect: str | Sequence[str] | None = None,
     timeout_s: float = 20.0,
     quiet: bool = True,
     mission_path: Path | None = None,
@@ -206,6 +212,8 @@ def run_mission(
                     raise VehicleTimeout(fleet.explain(str(exc))) from None
             else:
                 sysids = station.call(_wait_count(station.router, n, timeout_s))
+            # the fleet is named: any other system on these links is a stranger from now on
+            station.run_sync(lambda: station.router.expect(sysids))
             t_setup = time.perf_counter() - wall0
             executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
                                        tolerance_m=tolerance_m)
@@ -245,7 +253,9 @@ def run_mission(
                      "fleet": executor.fleet_summary(started),
                      "forward": ({"to": forward, "commands": forward_commands,
                                   **forwarder.stats} if forwarder is not None else None),
-                     "samples_dropped_unpaired": station.router.pairer.dropped,
+                     "samples_dropped_unpaired": station.router.pairer.dropped_total,
+                     "sample_pairing": station.router.pairer.counts(),
+                     "link_conflicts": [c.as_dict() for c in station.router.table.conflicts],
                      "report_errors": executor.report_errors,
                      "sample_recovery": executor.sample_accounting(),
                      "lost_vehicles": executor.losses,
@@ -271,6 +281,7 @@ def run_mission(
             live = None
         msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)
         runlog.add("station", f"run failed: {msg}", Severity.ERROR)
+        base["link_conflicts"] = [c.as_dict() for c in station.router.table.conflicts]
         _write_partial(rd, dfc, executor, base, timings, fill_timings, msg)
         if page is not None:
             page.close({**base, "error": msg})
@@ -333,9 +344,28 @@ def _log_station(router: Router, runlog: RunLog) -> None:
         elif isinstance(event, VehicleDiscovered):
             runlog.add(f"vehicle {event.sysid}", f"discovered at {event.address[0]}:"
                                                  f"{event.address[1]}")
+        elif isinstance(event, ComponentDiscovered):
+            runlog.add(f"vehicle {event.sysid}", f"component {event.compid} (MAV_TYPE "
+                                                 f"{event.mav_type}) at {event.address[0]}:"
+                                                 f"{event.address[1]}")
+        elif isinstance(event, TwinRefused):
+            runlog.add(f"vehicle {event.sysid}", f"refused a second source of its autopilot at "
+                                                 f"{event.address[0]}:{event.address[1]} (a twin: "
+                                                 f"the vehicle speaks from {event.known[0]}:"
+                                                 f"{event.known[1]}; first message "
+                                                 f"{event.message})", Severity.ERROR)
+        elif isinstance(event, ForeignVehicle):
+            runlog.add(f"vehicle {event.sysid}", f"not in this run's fleet: its messages from "
+                                                 f"{event.address[0]}:{event.address[1]} are "
+                                                 f"dropped (first {event.message})",
+                       Severity.WARNING)
+        elif isinstance(event, VehicleMoved):
+            runlog.add(f"vehicle {event.sysid}", f"now speaks from {event.new[0]}:{event.new[1]} "
+                                                 f"(was {event.old[0]}:{event.old[1]})",
+                       Severity.WARNING)
 
-    router.add_message_handler(on_message)
-    router.add_event_handler(on_event)
+    router.subscribe(Received, lambda r: on_message(r.sysid, r.msg))
+    router.subscribe(EVENTS, on_event)
 
 
 class _RunLogHandler(logging.Handler):
@@ -365,7 +395,8 @@ def _logging_to(runlog: RunLog) -> Iterator[None]:
 
 
 def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
-                   connect: str | None = None, timeout_s: float | None = None,
+                   connect: str | Sequence[str] | None = None,
+                   timeout_s: float | None = None,
                    signing_key_file: Path | None = None) -> dict[str, Any]:
     """Continue the MAVLink run recorded in ``out`` after its last finished flight.
 

@@ -252,6 +252,9 @@ class VehicleState:
     """How many samples the vehicle says it took (its count at the last recovery)."""
     missing: int = 0
     """Samples the vehicle took that never arrived, despite the recovery (0 = none lost)."""
+    no_recovery: str | None = None
+    """Why this vehicle's samples cannot be recovered (its payload does not answer the
+    sample count: a stock autopilot's Lua script); None while recovery works."""
 
     def count_seen(self, first_ms: int, last_ms: int) -> int:
         return bisect.bisect_right(self.seen_ms, last_ms) - \

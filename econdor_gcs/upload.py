@@ -8,7 +8,9 @@ mission types FENCE and RALLY. Each is then downloaded and compared item by item
 
 * ArduPilot replaces item 0 with its home position (frame MAV_FRAME_GLOBAL, altitude AMSL),
   reports the float frames (3 for 6, 0 for 5, 10 for 11), keeps altitudes in centimetres and
-  sets autocontinue; every autopilot may report ``current`` its own way;
+  sets autocontinue, and keeps no position for commands that have none (DO_CHANGE_SPEED,
+  RTL, ...: :data:`~.link.autopilots.ARDUPILOT_POSITION_COMMANDS`), which come back with
+  frame 0 and x, y, z = 0; every autopilot may report ``current`` its own way;
 * values travel as float32 (params, altitude) and degE7 integers (latitude/longitude).
 
 Anything else that comes back different is an error naming the item and the field.
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import EcondorError, MissionRejected
-from .link.autopilots import AutopilotKind, start_mission
+from .link.autopilots import ARDUPILOT_POSITION_COMMANDS, AutopilotKind, start_mission
 from .link.codec import mavlink
 from .link.mission import INT_TO_FLOAT_FRAME, MissionItemSpec
 from .link.router import Router
@@ -78,6 +80,15 @@ def compare_items(sent: Sequence[MissionItemSpec], got: Sequence[MissionItemSpec
     []
     >>> [str(m) for m in compare_items(a, b, AutopilotKind.PX4)][:1]
     ['item 0 x: sent 470000000, got back 460000000']
+
+    ArduPilot keeps no frame or position for a command without one:
+
+    >>> from econdor_gcs.link.mission import change_speed_item, rtl_item
+    >>> import dataclasses
+    >>> sent = [change_speed_item(0, 8.0), rtl_item(1)]
+    >>> back = [dataclasses.replace(it, frame=0) for it in sent]
+    >>> compare_items(sent, back, AutopilotKind.ARDUPILOT), len(compare_items(sent, back))
+    ([], 2)
     """
     if len(sent) != len(got):
         return [Mismatch(-1, "count", len(sent), len(got))]
@@ -88,22 +99,29 @@ def compare_items(sent: Sequence[MissionItemSpec], got: Sequence[MissionItemSpec
         mission = a.mission_type == mavlink.MAV_MISSION_TYPE_MISSION
         if ardupilot and mission and a.seq == 0:
             continue  # ArduPilot keeps its home position as item 0
+        # ArduPilot stores no position (nor frame) for a command that has none
+        no_position = ardupilot and mission and a.command not in ARDUPILOT_POSITION_COMMANDS
+        frame_ok = _float_frame(a.frame) == _float_frame(b.frame) or \
+            (no_position and b.frame == mavlink.MAV_FRAME_GLOBAL)
         checks: list[tuple[str, object, object, bool]] = [
             ("seq", a.seq, b.seq, a.seq == b.seq),
             ("command", a.command, b.command, a.command == b.command),
-            ("frame", a.frame, b.frame, _float_frame(a.frame) == _float_frame(b.frame)),
+            ("frame", a.frame, b.frame, frame_ok),
             ("autocontinue", a.autocontinue, b.autocontinue,
              a.autocontinue == b.autocontinue or ardupilot),
         ]
         for name in ("param1", "param2", "param3", "param4"):
             va, vb = getattr(a, name), getattr(b, name)
             checks.append((name, va, vb, _same_float(va, vb)))
-        if is_global_frame(a.frame):
-            checks += [("x", a.x, b.x, a.x == b.x), ("y", a.y, b.y, a.y == b.y)]
+        if no_position and (b.x, b.y, b.z) == (0, 0, 0.0):
+            pass
+        elif is_global_frame(a.frame):
+            checks += [("x", a.x, b.x, a.x == b.x), ("y", a.y, b.y, a.y == b.y),
+                       ("z", a.z, b.z, _same_float(a.z, b.z, z_tol))]
         else:
             checks += [("x", a.x, b.x, _same_float(a.x, b.x)),
-                       ("y", a.y, b.y, _same_float(a.y, b.y))]
-        checks.append(("z", a.z, b.z, _same_float(a.z, b.z, z_tol)))
+                       ("y", a.y, b.y, _same_float(a.y, b.y)),
+                       ("z", a.z, b.z, _same_float(a.z, b.z, z_tol))]
         out += [Mismatch(a.seq, name, va, vb) for name, va, vb, ok in checks if not ok]
     return out
 

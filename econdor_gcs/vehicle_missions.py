@@ -38,8 +38,11 @@ log = logging.getLogger(__name__)
 
 UPLOAD_ATTEMPTS = 3
 """Uploads of one mission to a vehicle that says no transfer is running (MAV_MISSION_RESULT
-INVALID_SEQUENCE) or that gave up on it (ERROR): its answer to an earlier item was lost."""
-RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR})
+INVALID_SEQUENCE, ArduPilot: ERROR) or that gave up on it (ERROR, ArduPilot:
+OPERATION_CANCELLED after 8 s of its time without an item): its answer to an earlier item
+was lost, or the station was too slow for a vehicle running faster than real time."""
+RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR,
+                             mavlink.MAV_MISSION_OPERATION_CANCELLED})
 """MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
 
 

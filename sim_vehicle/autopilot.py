@@ -110,6 +110,11 @@ class Autopilot:
     """True: only HEARTBEAT until a GCS asks for streams (ArduPilot)."""
     prearm_s = 0.0
     """Default wall seconds after boot during which arming is refused."""
+    lua_payload = False
+    """True: without a companion the samples come from a Lua script on the autopilot
+    (stamped when sent, positions only at the rate asked for; ArduPilot)."""
+    no_fix_until_prearm = False
+    """True: positions are latitude = longitude = 0 until the pre-arm checks pass."""
 
     def __init__(self, field: Callable[[float, float], float], region: Region, origin: Origin,
                  settings: VehicleSettings, home: tuple[float, float, float],
@@ -128,6 +133,9 @@ class Autopilot:
                                    self.mode_flow)
         self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line,
                                    streams_on_request=self.streams_on_request)
+        self.outbox.lua_payload = self.lua_payload and not settings.companion
+        self.telemetry.no_fix_until_prearm = self.no_fix_until_prearm
+        self.telemetry.positions_at_sensor_rate()
         self.activity: Activity | None = None
         self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
                                          "commands_repeated": 0}
@@ -304,8 +312,14 @@ class Autopilot:
         result = self._command(msg, msg.command, params)
         self._last_command = (key, result)
 
+    @property
+    def answers_sample_commands(self) -> bool:
+        """Whether the sample recovery commands are known here (the payload answers them)."""
+        return True
+
     def _on_command_int(self, msg: Any) -> None:
-        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND):
+        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND) \
+                and self.answers_sample_commands:
             self._sample_command(msg)
             return
         self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,

@@ -9,7 +9,13 @@ from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import DEMO, item_int
 
 from econdor_gcs.mission import load_mission
-from sim_vehicle.ardupilot import COPTER_AUTO, COPTER_GUIDED, COPTER_STABILIZE, ArduCopterAutopilot
+from sim_vehicle.ardupilot import (
+    COPTER_AUTO,
+    COPTER_GUIDED,
+    COPTER_STABILIZE,
+    NO_SPACE_AFTER_BOOT_S,
+    ArduCopterAutopilot,
+)
 from sim_vehicle.px4 import PX4_MODES, Px4Autopilot
 from sim_vehicle.state import FlightMode, VehicleSettings
 
@@ -26,8 +32,11 @@ def rx(msg):
 def make(cls=Px4Autopilot, now=0.0, **kw):
     settings = VehicleSettings(sysid=1, **kw)
     o = MISSION.origin
-    return cls(MISSION.build_field(), MISSION.region, o, settings,
-               (o.lat_deg, o.lon_deg, o.alt_m), now=now)
+    ap = cls(MISSION.build_field(), MISSION.region, o, settings,
+             (o.lat_deg, o.lon_deg, o.alt_m), now=now)
+    if cls is ArduCopterAutopilot:  # it takes uploads 3 s (of its time) after boot
+        ap.skip_parked(round(NO_SPACE_AFTER_BOOT_S / ap.state.body.dt_s))
+    return ap
 
 
 def command(ap, cmd, *params, now=0.0):
@@ -246,7 +255,9 @@ def test_ardupilot_arm_then_mission_start_and_its_refusals():
     assert ap.do_set_mode(1, 42, 0) == mavlink.MAV_RESULT_FAILED  # no such mode
     assert ap.do_set_mode(1, COPTER_GUIDED, 0) == 0
     assert command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)[0] == 0
-    assert command(ap, mavlink.MAV_CMD_MISSION_START, 1, 0)[0] == 0
+    # ArduCopter (SITL): "first-item/last item not supported": only (0, 0) starts it
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, 1, 0)[0] == mavlink.MAV_RESULT_DENIED
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, 0, 0)[0] == 0
     assert ap.custom_mode() == COPTER_AUTO
     msgs = run_until(ap, lambda ms: ap.state.mission_complete)
     assert [m.seq for m in msgs if m.get_type() == "MISSION_ITEM_REACHED"] == [1, 2]

@@ -296,11 +296,13 @@ def test_mixed_fleet_started_by_the_run(tmp_path: Path,
                     if st != "unreported")
     assert accounted == sum(fleet[s]["tasks_flown"][w] for s in (1, 2)
                             for w in ("trace", "waypoints")) > 0
-    # all samples: each vehicle's own count arrived, and is in samples.csv
+    # all samples: the tracer's own count arrived; the stock ArduPilot's payload is a Lua
+    # script that does not answer the count (as on SITL): said so, what arrived is kept
     rec = summary["sample_recovery"]
-    for sysid in ("1", "2"):
-        assert rec[sysid]["missing"] == 0 and not rec[sysid]["lost"], rec[sysid]
-        assert rec[sysid]["received"] == rec[sysid]["vehicle_count"] > 0, rec[sysid]
+    assert rec["2"]["missing"] == 0 and not rec["2"]["lost"], rec["2"]
+    assert rec["2"]["received"] == rec["2"]["vehicle_count"] > 0, rec["2"]
+    assert "UNSUPPORTED" in rec["1"]["no_recovery"] and rec["1"]["missing"] is None
+    assert rec["1"]["received"] > 0 and not rec["1"]["lost"]
     n_samples = sum(rec[s]["received"] for s in ("1", "2"))
     assert len(csv_rows(out / "samples.csv")) == n_samples == summary["samples"]
     assert math.isfinite(summary["final_mae_db"])

@@ -32,7 +32,7 @@ from econdor_gcs.gcs import (
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.mission import build_mission, plan_mission
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
-from econdor_gcs.link.router import Sample, VehicleLink, VehicleLost
+from econdor_gcs.link.router import Received, Sample, VehicleLink, VehicleLost
 from econdor_gcs.mission import parse_mission
 from econdor_gcs.telemetry import Flight
 
@@ -223,14 +223,14 @@ class FakeRouter:
         self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1)) for s in (1, 2)}
         self.handlers: dict[str, Any] = {}
 
-    def add_sample_handler(self, h: Any) -> None:
-        self.handlers["sample"] = h
-
-    def add_message_handler(self, h: Any) -> None:
-        self.handlers["message"] = h
-
-    def add_event_handler(self, h: Any) -> None:
-        self.handlers["event"] = h
+    def subscribe(self, kinds: Any, h: Any) -> None:
+        kinds = kinds if isinstance(kinds, tuple) else (kinds,)
+        if Sample in kinds:
+            self.handlers["sample"] = h
+        elif Received in kinds:
+            self.handlers["message"] = lambda sysid, msg: h(Received(sysid, msg))
+        else:
+            self.handlers["event"] = h
 
 
 def _mission() -> Any:

@@ -28,15 +28,17 @@ class ScriptedVehicle:
         self.state = state
         self.lost_answers = lost_answers
         self.requests = 0
-        self.vehicles = {state.sysid: SimpleNamespace(time_boot_ms=TAKEN_MS[-1])}
+        self.vehicles = {state.sysid: SimpleNamespace(time_boot_ms=TAKEN_MS[-1],
+                                                      sample_compid=1)}
 
     async def command_int(self, sysid: int, command: int, x: int, y: int, *,
-                          timeout_s: float, retries: int) -> Any:
-        assert command == SAMPLE_COUNT_COMMAND
+                          timeout_s: float, retries: int, compid: int = 1) -> Any:
+        assert command == SAMPLE_COUNT_COMMAND and compid == 1  # the payload's component
         return SimpleNamespace(result_param2=sum(x <= t <= y for t in TAKEN_MS))
 
-    def send_command_int(self, sysid: int, command: int, x: int, y: int) -> None:
-        assert command == SAMPLE_RESEND_COMMAND
+    def send_command_int(self, sysid: int, command: int, x: int, y: int, *,
+                         compid: int = 1) -> None:
+        assert command == SAMPLE_RESEND_COMMAND and compid == 1
         if not x <= MISSING_MS <= y:
             return
         self.requests += 1

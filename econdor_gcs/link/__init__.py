@@ -1,4 +1,11 @@
-"""The ground station's MAVLink layer: codec, tlog, protocol state machines, UDP router."""
+"""The ground station's MAVLink layer.
+
+``codec`` (pymavlink as a codec), ``transports`` (UDP, TCP, serial links), ``vehicles`` (the
+sans-IO vehicle table: routes, companions, twins, strangers, liveness), ``pairing`` (samples
+placed on each vehicle's position track), ``mission`` (protocol state machines),
+``commands`` (the command vocabulary), ``router`` (the thin asyncio shell over them),
+``autopilots`` (per-family procedures), ``tlog``, ``forward``, ``relay``.
+"""
 
 from .codec import Codec, Parser, mavlink
 from .mission import (
@@ -9,18 +16,18 @@ from .mission import (
     MissionUploader,
     build_mission,
 )
-from .router import (
+from .pairing import Sample, SamplePairer
+from .router import Received, Router
+from .tlog import TlogWriter, read_tlog
+from .vehicles import (
     MissionItemReached,
-    Router,
-    Sample,
-    SamplePairer,
     StatusText,
     VehicleDiscovered,
     VehicleLink,
     VehicleLost,
     VehicleRecovered,
+    VehicleTable,
 )
-from .tlog import TlogWriter, read_tlog
 
 __all__ = [
     "Codec",
@@ -31,6 +38,7 @@ __all__ = [
     "MissionItemSpec",
     "MissionUploader",
     "Parser",
+    "Received",
     "Router",
     "Sample",
     "SamplePairer",
@@ -40,6 +48,7 @@ __all__ = [
     "VehicleLink",
     "VehicleLost",
     "VehicleRecovered",
+    "VehicleTable",
     "build_mission",
     "mavlink",
     "read_tlog",

@@ -59,11 +59,13 @@ class Codec:
 
 
 class Parser:
-    """Datagram bytes -> MAVLink messages, robustly.
+    """Datagram or stream bytes -> MAVLink messages, robustly.
 
-    Every call to :meth:`feed` is one datagram: a packet cut off at the end of a datagram is
-    discarded rather than glued to the next one (UDP keeps packets whole, so a fragment can only
-    be damage).  Counters:
+    A call to :meth:`feed` without ``stream`` is one datagram: a packet cut off at the end of
+    a datagram is discarded rather than glued to the next one (UDP keeps packets whole, so a
+    fragment can only be damage). With ``stream`` (any hashable key, e.g. a TCP peer) the
+    bytes continue that stream, and a packet split across reads is put back together.
+    Counters:
 
     ``packets``
         messages decoded and returned
@@ -79,7 +81,8 @@ class Parser:
     def __init__(self, signing: SigningKey | None = None) -> None:
         self.signing = signing
         self._signing_state: mavlink.MAVLinkSigning | None = None
-        self._new_mav()
+        self._mav = self._new_mav()
+        self._streams: dict[object, mavlink.MAVLink] = {}
         self.packets = 0
         self.bad_packets = 0
         self.unknown_packets = 0
@@ -87,28 +90,42 @@ class Parser:
         self.bad_signature_packets = 0
         self.bytes = 0
 
-    def _new_mav(self) -> None:
-        self._mav = mavlink.MAVLink(None)
-        self._mav.robust_parsing = True
+    def _new_mav(self) -> mavlink.MAVLink:
+        mav = mavlink.MAVLink(None)
+        mav.robust_parsing = True
         if self.signing is not None:
             if self._signing_state is None:
-                self.signing.apply(self._mav, sign_outgoing=False)
-                self._signing_state = self._mav.signing
+                self.signing.apply(mav, sign_outgoing=False)
+                self._signing_state = mav.signing
             else:  # a fresh parser keeps the streams' timestamps: replays stay refused
-                share_signing(self._mav, self._signing_state)
+                share_signing(mav, self._signing_state)
+        return mav
 
-    def feed(self, data: bytes) -> list[MAVLinkMessage]:
-        """Decode every packet in one datagram; never raises."""
+    def forget(self, stream: object) -> None:
+        """Drop what is buffered of ``stream`` (its connection closed)."""
+        self._streams.pop(stream, None)
+
+    def feed(self, data: bytes, stream: object = None) -> list[MAVLinkMessage]:
+        """Decode every packet in one datagram, or in ``stream`` so far; never raises."""
         self.bytes += len(data)
         out: list[MAVLinkMessage] = []
-        sig = self._mav.signing
+        if stream is None:
+            mav = self._mav
+        else:
+            mav = self._streams.get(stream)
+            if mav is None:
+                mav = self._streams[stream] = self._new_mav()
+        sig = mav.signing
         before = refusal_counts(sig)
         try:
-            found = self._mav.parse_buffer(data) or []
+            found = mav.parse_buffer(data) or []
         except (mavlink.MAVError, struct.error, IndexError, ValueError, UnboundLocalError):
             # robust_parsing covers almost everything; whatever slips through is damage.
             self.bad_packets += 1
-            self._new_mav()
+            if stream is None:
+                self._mav = self._new_mav()
+            else:
+                self._streams[stream] = self._new_mav()
             return out
         wrong, unsigned = refused(sig, before)  # these came back as BAD_DATA too
         self.bad_signature_packets += wrong
@@ -126,7 +143,7 @@ class Parser:
             else:
                 self.packets += 1
                 out.append(msg)
-        if self._mav.buf_len() > 0:  # a truncated packet at the end of the datagram
+        if stream is None and mav.buf_len() > 0:  # a truncated packet ends the datagram
             self.bad_packets += 1
-            self._new_mav()
+            self._mav = self._new_mav()
         return out

@@ -8,7 +8,7 @@ from typing import Any
 from ..control import ControlState, RunControl
 from ..core.tasks import SampleLog
 from ..dfc import DfcEvent
-from ..link.router import Router
+from ..link.router import Router, Sample
 from ..mission import Mission
 from ..rundir import RunLog
 from .feed import LiveFeed, StatusSource
@@ -65,7 +65,7 @@ class LiveWeb:
         ``on_stop`` ends the flight in progress when the operator stops the run."""
         self._on_stop = on_stop
         self.feed.attach(status, sysids)
-        router.add_sample_handler(self.feed.on_sample)
+        router.subscribe(Sample, self.feed.on_sample)
 
     def progress(self, event: DfcEvent) -> None:
         self.feed.progress(event)
