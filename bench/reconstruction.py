@@ -50,11 +50,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from econdor_gcs.core.geometry import Grid, Region  # noqa: E402
-from econdor_gcs.core.spline import (  # noqa: E402
-    FastBiharmonicSpline,
-    _thin_pick,
-    reconstruct,
-)
+from econdor_gcs.core.samples import _thin_pick  # noqa: E402
+from econdor_gcs.core.spline import FastBiharmonicSpline, reconstruct  # noqa: E402
 
 DATA = sorted((REPO / "bench" / "data").glob("*.npz"))
 BASELINE_REV = "6c88af8"  # the fast spline before issue 7 (thinning, coarse spline, 10 m tiles)
