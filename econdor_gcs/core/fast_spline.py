@@ -36,6 +36,7 @@ from econdor_gcs.errors import ReconstructionError
 
 __all__ = ["DEFAULT_LEVELS", "FastBiharmonicSpline", "Tile", "TileLevel"]
 
+# Where a level's blending weights add up to less than this, its correction fades to zero.
 _PHI_FLOOR = 0.1
 
 # A tile spline that reaches this many times the range of its data on the edge of its

@@ -119,7 +119,6 @@ def _evaluate(
     return out
 
 
-
 # --------------------------------------------------------------------------- #
 # The fast method's kernels: small blocks of point pairs, in scratch memory
 # --------------------------------------------------------------------------- #
@@ -128,7 +127,7 @@ def _evaluate(
 _BLOCK_PAIRS = 131_072
 _INV_E = float(np.exp(-1.0))
 _G_PER_H = 0.5 * float(np.exp(2.0))  # g = _G_PER_H * h (see _Blocks)
-# Where a level's blending weights add up to less than this, its correction fades to zero.
+
 
 @dataclass(frozen=True)
 class _Solution:
