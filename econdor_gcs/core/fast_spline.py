@@ -195,6 +195,10 @@ class FastBiharmonicSpline(_Spline):
         :data:`DEFAULT_LEVELS`).
     warm_start : bool
         Reuse the tiles of the previous :meth:`fit` whose samples did not change.
+    noise_std : float or None
+        Standard deviation of the samples' noise: ``None`` estimates it, ``0`` interpolates
+        every sample exactly (see :meth:`fit`: noisy samples are smoothed before they are
+        thinned and interpolated).
 
     Attributes
     ----------
@@ -216,6 +220,9 @@ class FastBiharmonicSpline(_Spline):
         Tiles whose weights were kept as they were (warm start).
     n_dropped_ : int
         Ill-conditioned tiles left out (see above).
+    noise_std_, noise_, damping_m2_
+        The noise the fit assumed and the smoothing's damping per tile, as
+        :class:`~econdor_gcs.core.exact_spline.BiharmonicSpline` has them.
 
     References
     ----------
@@ -240,6 +247,7 @@ class FastBiharmonicSpline(_Spline):
         coarse_max_samples: int = 300,
         levels: tuple[TileLevel, ...] = DEFAULT_LEVELS,
         warm_start: bool = False,
+        noise_std: float | None = None,
     ) -> None:
         self.cell_size = cell_size
         self.thinning = thinning
@@ -247,6 +255,7 @@ class FastBiharmonicSpline(_Spline):
         self.coarse_max_samples = coarse_max_samples
         self.levels = levels
         self.warm_start = warm_start
+        self.noise_std = noise_std
 
     # -- fitting --------------------------------------------------------------------------
     def _fit_checked(

@@ -138,6 +138,22 @@ def _block_mean(
     )
 
 
+def _block_mean_counts(
+    x: FloatArray, y: FloatArray, v: FloatArray, cell: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`_block_mean`, and how many samples each mean is of."""
+    key, _ = _cell_keys(x, y, cell)
+    _, inverse = np.unique(key, return_inverse=True)
+    inverse = inverse.ravel()
+    counts = np.bincount(inverse).astype(np.float64)
+    return (
+        np.bincount(inverse, weights=x) / counts,
+        np.bincount(inverse, weights=y) / counts,
+        np.bincount(inverse, weights=v) / counts,
+        counts,
+    )
+
+
 class _RectIndex:
     """Points sorted by x, for the points inside axis-aligned rectangles."""
 
