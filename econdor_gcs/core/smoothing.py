@@ -79,8 +79,8 @@ class SmoothingParams:
     """
 
     thin_cell_m: float = 0.5
-    tile_m: float = 8.0
-    margin_m: float = 4.0
+    tile_m: float = 10.0
+    margin_m: float = 5.0
     overlap_m: float = 2.5
     min_samples: int = 20
     max_samples: int = 300
@@ -88,6 +88,7 @@ class SmoothingParams:
     select_samples: int = 80
     damping_range_m2: tuple[float, float] = (1e-2, 1e6)
     n_damping: int = 65
+    df_penalty: float = 1.4
 
     def __post_init__(self) -> None:
         if not (self.tile_m > 0 and 0 < self.overlap_m <= self.margin_m):
@@ -220,13 +221,13 @@ def smooth_samples(x: FloatArray, y: FloatArray, v: FloatArray, noise_std: float
     num = np.zeros(v.size)
     den = np.zeros(v.size)
     with _one_blas_thread():
-        windows = _windows(x, y, _RectIndex(x, y), p)
-        picks = [_spread(w.sel, p.select_samples) for w in windows]
-        problems = [_Selection(blocks, pts[k], v[k], weight[k]) for k in picks]
-        damping = _choose_damping(problems, noise_std, grid)
-        for w, k, prob, lam in zip(windows, picks, problems, damping, strict=True):
-            if k.size == w.sel.size:  # the selection saw the whole window
-                fitted = prob.fitted(lam)
+        windows, selections = _windows(x, y, _RectIndex(x, y), p)
+        problems = [_Selection(blocks, pts[k], v[k], weight[k]) for k in selections]
+        damping = _choose_damping(problems, noise_std, grid, p.df_penalty)
+        for w in windows:
+            lam = float(damping[w.group])
+            if selections[w.group] is w.sel:  # the selection saw the whole window
+                fitted = problems[w.group].fitted(lam)
             else:
                 fitted = _solve_smoothing(blocks, pts[w.sel], v[w.sel], weight[w.sel], lam)
             phi = _bump(x[w.sel], w.x0 - w.overlap, w.x1 + w.overlap)
@@ -240,7 +241,8 @@ def smooth_samples(x: FloatArray, y: FloatArray, v: FloatArray, noise_std: float
 
 @dataclass(frozen=True)
 class _Window:
-    """A tile ``[x0, x1] x [y0, y1]``, its blending overlap and the samples it smooths."""
+    """A tile ``[x0, x1] x [y0, y1]``, its blending overlap, the samples it smooths and the
+    damping selection it takes its damping from."""
 
     x0: float
     x1: float
@@ -248,6 +250,7 @@ class _Window:
     y1: float
     overlap: float
     sel: NDArray[np.intp]
+    group: int
 
 
 def _spread(sel: NDArray[np.intp], k: int) -> NDArray[np.intp]:
@@ -286,8 +289,8 @@ class _Selection:
         return self.v - (self.q2 @ (self.u[:k] @ (shrink * self.c))) / self.root
 
 
-def _choose_damping(problems: list[_Selection], noise_std: float, grid: FloatArray
-                    ) -> FloatArray:
+def _choose_damping(problems: list[_Selection], noise_std: float, grid: FloatArray,
+                    df_penalty: float) -> FloatArray:
     """Each problem's damping of ``grid`` with the least estimated risk.
 
     The projected matrices are decomposed in one batched call, padded to one size with
@@ -311,24 +314,32 @@ def _choose_damping(problems: list[_Selection], noise_std: float, grid: FloatArr
     out = np.empty(len(problems))
     for i, pr in enumerate(problems):
         shrink = grid[:, None] / (mu[i][None, :] + grid[:, None])  # lambda / (mu + lambda)
-        risk = np.square(shrink * c[i]).sum(axis=1) - 2.0 * noise_std**2 * shrink.sum(axis=1)
+        risk = (np.square(shrink * c[i]).sum(axis=1)
+                - 2.0 * df_penalty * noise_std**2 * shrink.sum(axis=1))
         out[i] = grid[int(np.argmin(risk))]
         pr.mu, pr.u, pr.c = mu[i], u[i], c[i]
     return out
 
 
 def _windows(x: FloatArray, y: FloatArray, index: _RectIndex, p: SmoothingParams
-             ) -> list[_Window]:
-    """The tiles with samples of their own, and the samples each smooths."""
+             ) -> tuple[list[_Window], list[NDArray[np.intp]]]:
+    """The tiles with samples of their own and the samples each smooths; and the samples
+    each damping selection is made on.
+
+    The damping is selected once per tile of the lattice, on ``select_samples`` of its
+    window; the quarters a crowded tile is split into take its damping (the field's
+    roughness does not change at the scale of a split, only the density of samples).
+    """
     tile = float(p.tile_m)
     i0, i1 = int(np.floor(x.min() / tile)), int(np.floor(x.max() / tile))
     j0, j1 = int(np.floor(y.min() / tile)), int(np.floor(y.max() / tile))
-    stack = [(i * tile, (i + 1) * tile, j * tile, (j + 1) * tile, 1.0)
+    stack = [(i * tile, (i + 1) * tile, j * tile, (j + 1) * tile, 1.0, -1)
              for j in range(j1, j0 - 1, -1) for i in range(i1, i0 - 1, -1)]
     n_min = min(p.min_samples, x.size)
-    out = []
+    windows: list[_Window] = []
+    selections: list[NDArray[np.intp]] = []
     while stack:
-        tx0, tx1, ty0, ty1, scale = stack.pop()
+        tx0, tx1, ty0, ty1, scale, group = stack.pop()
         if index.inside(tx0, tx1, ty0, ty1).size == 0:
             continue  # no sample of its own to smooth
         margin = max(p.margin_m * scale, min(p.min_margin_m, p.margin_m))
@@ -339,13 +350,20 @@ def _windows(x: FloatArray, y: FloatArray, index: _RectIndex, p: SmoothingParams
                 break
             margin *= 1.5
             widened = True
+        sel = np.sort(sel)
+        if group < 0:
+            group = len(selections)
+            selections.append(_spread(sel, p.select_samples))
         if sel.size > p.max_samples and not widened and scale > 1.0 / 16:
             xm, ym, half = 0.5 * (tx0 + tx1), 0.5 * (ty0 + ty1), 0.5 * scale
-            stack += [(xm, tx1, ym, ty1, half), (tx0, xm, ym, ty1, half),
-                      (xm, tx1, ty0, ym, half), (tx0, xm, ty0, ym, half)]
+            stack += [(xm, tx1, ym, ty1, half, group), (tx0, xm, ym, ty1, half, group),
+                      (xm, tx1, ty0, ym, half, group), (tx0, xm, ty0, ym, half, group)]
             continue
-        out.append(_Window(tx0, tx1, ty0, ty1, min(p.overlap_m * scale, margin), np.sort(sel)))
-    return out
+        if selections[group].size == sel.size and scale == 1.0:
+            sel = selections[group]  # the same indices: the selection saw the whole window
+        windows.append(_Window(tx0, tx1, ty0, ty1, min(p.overlap_m * scale, margin), sel,
+                               group))
+    return windows, selections
 
 
 def _plane_basis(pts: FloatArray, root: FloatArray | None = None) -> FloatArray:
