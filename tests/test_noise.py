@@ -246,3 +246,16 @@ def test_the_dfc_records_the_noise_it_estimated(noise):
     else:
         assert estimates[-1] == pytest.approx(noise, rel=0.1)
     assert result.summary()["noise_std"] == estimates[-1]
+
+
+@pytest.mark.parametrize("name", ["plume-noise1-s900", "plume-noise3-s900", "paper-noise1-s0",
+                                  "paper-noise3-s0"])
+def test_recorded_noisy_runs_have_their_sensor_noise_estimated(name):
+    """Real runs with noise (the adaptive planner's and E-CONDOR's traces, searches,
+    transits): the estimate is within a few per cent of the sensor's noise."""
+    import json
+
+    with np.load(BENCH_DATA / f"{name}.npz") as d:
+        est = estimate_noise(d["x_m"], d["y_m"], d["value"])
+        sensor = json.loads(str(d["meta"]))["noise_std"]
+    assert est.noise_std == pytest.approx(sensor, rel=0.05)
