@@ -120,6 +120,7 @@ def load_baseline(rev: str) -> ModuleType | None:
     spec = importlib.util.spec_from_file_location(f"spline_{rev}", path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
