@@ -185,9 +185,9 @@ def fit_matern(
     sigma_f)^2``, so the amplitude no longer profiles out: ``(log l, log sigma_f)`` are
     found together (L-BFGS-B from three starting lengths; the mean still in closed
     form). A nugget fitted by likelihood alone on a few hundred points a few metres apart
-    came out 15-25 % low on survey samples of plumes (the field's short-range variation
-    and the noise look alike at that spacing); the noise seen between neighbouring
-    samples along a track is the better-founded number.
+    comes out low (the field's short-range variation and the noise look alike at that
+    spacing); the noise seen between neighbouring samples along a track is the
+    better-founded number.
 
     Parameters
     ----------
