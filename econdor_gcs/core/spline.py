@@ -28,8 +28,11 @@ state in attributes ending in ``_``):
   With ``warm_start=True`` a refit keeps the factorisations (and, when their
   data did not change, the weights) of tiles whose samples did not change.
 
-:func:`reconstruct` is the entry point the rest of econdor calls. The pieces live in
-their own modules: the Green's function and dense kernels (:mod:`.greens`), sample
+:func:`fit_field` (and :func:`reconstruct`, its values alone) is the entry point the rest
+of econdor calls. Samples with sensor noise are not interpolated as they are: the noise is
+estimated from the samples (:mod:`.noise`) and they are smoothed first by local smoothing
+splines (:mod:`.smoothing`); exact samples are interpolated. The pieces live in their own
+modules: the Green's function and dense kernels (:mod:`.greens`), sample
 checks and thinning (:mod:`.samples`), the exact solve (:mod:`.exact_spline`) and the
 fast method (:mod:`.fast_spline`); this module holds the choice between them.
 
@@ -169,7 +172,8 @@ def fit_field(
     estimator : FastBiharmonicSpline, optional
         The fast estimator to fit when the fast method is chosen: for example
         one with ``warm_start=True`` kept between calls on a growing sample set,
-        which then reuses the tiles whose samples did not change. Default: a
+        which then reuses the tiles whose samples did not change (its own
+        ``noise_std`` is not used: this function's is). Default: a
         new :class:`FastBiharmonicSpline` (thinning smoothed samples to
         :data:`SMOOTHED_CELL_M`).
     noise_std : float or None
