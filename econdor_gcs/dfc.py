@@ -39,7 +39,6 @@ from .core.adaptive import AdaptiveParams, AdaptivePlanner
 from .core.assignment import assign_jobs
 from .core.fields import Field
 from .core.geometry import FloatArray, Grid
-from .core.gp import kriging_reconstruct
 from .core.planners import (
     Batch,
     ContourPlanner,
@@ -49,7 +48,7 @@ from .core.planners import (
     diagonal_jobs,
     survey_jobs,
 )
-from .core.spline import reconstruct
+from .core.spline import fit_field
 from .core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
 from .errors import MissionError, RunError
 from .mission import Mission
@@ -94,6 +93,9 @@ class IterationRecord:
     outcomes: dict[str, int] = field(default_factory=dict)
     isoline_error_m: dict[str, float] = field(default_factory=dict)
     forced: int = 0
+    noise_std: float = math.nan
+    """The samples' noise as this iteration's reconstruction estimated it (field units; 0:
+    taken as exact and interpolated; the previous iteration's when nothing new was flown)."""
 
     CSV_COLUMNS = (
         "iteration", "levels_planned", "levels_traced", "kappa", "delta", "learning_error",
@@ -168,6 +170,7 @@ class RunResult:
             "wall_s": self.wall_s,
             "sim_s": self.sim_s,
             "reconstruction_s": self.reconstruction_s,
+            "noise_std": last.noise_std if last else math.nan,
             "vehicles": self.vehicles,
             "isoline_error_m": self.isoline_error_m,
             **self.mission,
@@ -304,6 +307,8 @@ class Dfc:
         self.recon_s = 0.0
         self._last_recon_s = 0.0
         self.return_m = 0.0
+        self.noise_std = math.nan
+        """The samples' noise as the last reconstruction estimated it (field units)."""
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -320,13 +325,11 @@ class Dfc:
         # with its other runs); idle BLAS threads spin and slow every process down.
         method = self.mission.algorithm.reconstruction
         with threadpool_limits(limits=1, user_api="blas"):
-            if method == "kriging":
-                est = kriging_reconstruct(s.x_m, s.y_m, s.value, self.grid)
-            else:
-                est = reconstruct(s.x_m, s.y_m, s.value, self.grid, method=method)
+            rec = fit_field(s.x_m, s.y_m, s.value, self.grid, method=method)
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
-        return est
+        self.noise_std = rec.noise_std
+        return rec.values
 
     def _account(self, reports: list[FlightReport], batch: Batch | None = None) -> None:
         """Add a flight's samples and distances to the run's totals.
@@ -458,6 +461,7 @@ class Dfc:
             outcomes=outcomes,
             isoline_error_m=iso,
             forced=batch.forced if batch else 0,
+            noise_std=self.noise_std,
         )
         self.records.append(rec)
         self.progress(IterationDone(rec, estimate))
