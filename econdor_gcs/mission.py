@@ -19,7 +19,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
                 max_trace_length_m, stop_lambda, min_iterations, flight_budget_m,
                 lloyd_bins, lloyd_iterations, lloyd_variant, reconstruction,
                 min_piece_length_m, keep_diagonals, max_idle_iterations, target_levels}
-    lawnmower: {spacing_m, budget_m}
+    lawnmower: {spacing_m, budget_m, lines}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
                line_orientation, start, start_lines, start_step_m, model, length_m,
                fit_length, floor, gradient_gain_m, power, plan_spacing_m, search_radius_m,
@@ -136,6 +136,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
     "lawnmower": {
         "spacing_m": (float, 0.0, _non_negative),
         "budget_m": (float, 0.0, _non_negative),
+        "lines": (int, 0, _range(0, 100000)),
     },
     "adaptive": _from_params(AdaptiveParams, {
         "batch_m": _positive,
@@ -333,6 +334,7 @@ class AlgorithmConfig:
 class LawnmowerConfig:
     spacing_m: float
     budget_m: float
+    lines: int = 0
 
 
 @dataclass(frozen=True)
@@ -478,6 +480,11 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
     algo = sec["algorithm"]
     if algo["min_iterations"] > algo["max_iterations"]:
         raise MissionError("algorithm.min_iterations: must be <= algorithm.max_iterations")
+    lm = sec["lawnmower"]
+    if lm["lines"] == 1:
+        raise MissionError("lawnmower.lines: must be 0 (not set) or >= 2, got 1")
+    if lm["lines"] and lm["budget_m"]:
+        raise MissionError("lawnmower.lines: give lines or budget_m, not both")
     veh = sec["vehicles"]
     if veh["speed_mps"] > veh["max_speed_mps"]:
         raise MissionError("vehicles.speed_mps: must be <= vehicles.max_speed_mps")
