@@ -41,7 +41,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .core import metrics
-from .core.adaptive import AdaptiveParams, AdaptivePlanner
+from .core.adaptive import AdaptiveParams, adaptive_planner
 from .core.assignment import assign_jobs
 from .core.fields import Field
 from .core.geometry import FloatArray, Grid
@@ -206,7 +206,7 @@ def _contour_planner(sg: bool) -> PlannerFactory:
 def _adaptive_planner(mission: Mission) -> Planner:
     params = AdaptiveParams(**asdict(mission.adaptive),
                             target_levels=mission.algorithm.target_levels)
-    return AdaptivePlanner(params, seed=mission.seed)
+    return adaptive_planner(params, seed=mission.seed)
 
 
 def _lawnmower_planner(mission: Mission) -> Planner:

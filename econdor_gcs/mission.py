@@ -32,6 +32,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import typing
 from collections.abc import Callable, Iterable, Mapping
@@ -41,7 +42,16 @@ from typing import Any
 
 import yaml
 
-from .core.adaptive import AdaptiveParams
+from .core.adaptive import (
+    AdaptiveParams,
+    Explore,
+    FirstOrder,
+    LineOrientation,
+    LineWeight,
+    Model,
+    OpenEntry,
+    Start,
+)
 from .core.geodesy import Origin
 from .core.geometry import Grid, Region
 from .core.planners import PLANNER_NAMES
@@ -146,11 +156,11 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "leg_m": _positive,
         "legs": _range(0, 10000),
         "line_spacing_m": _non_negative,
-        "line_orientation": _one_of("ns", "ew", "both"),
-        "start": _one_of("auto", "diagonals", "perimeter", "plan", "survey"),
+        "line_orientation": None,  # its enum has the values
+        "start": None,  # its enum has the values
         "start_lines": _range(0, 1000),
         "start_step_m": _non_negative,
-        "model": _one_of("auto", "gp", "proxy"),
+        "model": None,  # its enum has the values
         "length_m": _positive,
         "fit_length": None,
         "floor": _non_negative,
@@ -164,18 +174,18 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "level_tol": _range(0.0, 0.5),
         "threshold_batch_m": _positive,
         "crossings_first": None,
-        "first_order": _one_of("crossings", "nearest"),
-        "open_entry": _one_of("auto", "end", "crossing"),
+        "first_order": None,  # its enum has the values
+        "open_entry": None,  # its enum has the values
         "probes": None,
         "probe_climb": None,
         "probe_m": _positive,
         "probe_prominence": _range(0.0, 1.0),
         "probe_reach": _non_negative,
         "sweeps": None,
-        "explore": _one_of("auto", "legs", "lines"),
+        "explore": None,  # its enum has the values
         "line_step_m": _positive,
         "rays": _range(0, 3600),
-        "line_weight": _one_of("none", "p"),
+        "line_weight": None,  # its enum has the values
         "probe_length_m": _non_negative,
     }),
 }
@@ -238,6 +248,10 @@ def _coerce(where: str, value: Any, typ: type | tuple[type, ...]) -> Any:
         if not isinstance(value, str):
             raise MissionError(f"{where}: expected a string, got {value!r}")
         return value
+    if isinstance(typ, type) and issubclass(typ, enum.StrEnum):  # a mode: one of its values
+        if not isinstance(value, str) or value not in set(typ):
+            raise MissionError(f"{where}: must be one of {', '.join(typ)}; got {value!r}")
+        return typ(value)
     if typ is tuple:  # a list of numbers
         if not isinstance(value, list | tuple):
             raise MissionError(f"{where}: expected a list of numbers, got {value!r}")
@@ -348,11 +362,11 @@ class AdaptiveConfig:
     leg_m: float
     legs: int
     line_spacing_m: float
-    line_orientation: str
-    start: str
+    line_orientation: LineOrientation
+    start: Start
     start_lines: int
     start_step_m: float
-    model: str
+    model: Model
     length_m: float
     fit_length: bool
     floor: float
@@ -366,18 +380,18 @@ class AdaptiveConfig:
     level_tol: float
     threshold_batch_m: float
     crossings_first: bool
-    first_order: str
-    open_entry: str
+    first_order: FirstOrder
+    open_entry: OpenEntry
     probes: bool
     probe_climb: bool
     probe_m: float
     probe_prominence: float
     probe_reach: float
     sweeps: bool
-    explore: str
+    explore: Explore
     line_step_m: float
     rays: int
-    line_weight: str
+    line_weight: LineWeight
     probe_length_m: float
 
 

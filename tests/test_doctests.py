@@ -8,7 +8,9 @@ import importlib
 import pytest
 
 MODULES = ["econdor_gcs.core.gp", "econdor_gcs.core.uncertainty", "econdor_gcs.core.levels",
-           "econdor_gcs.core.adaptive", "econdor_gcs.core.candidates", "econdor_gcs.core.tasks"]
+           "econdor_gcs.core.adaptive", "econdor_gcs.core.adaptive.base",
+           "econdor_gcs.core.adaptive.threshold", "econdor_gcs.core.candidates",
+           "econdor_gcs.core.tasks"]
 
 
 @pytest.mark.parametrize("name", MODULES)
