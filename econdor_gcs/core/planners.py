@@ -178,8 +178,9 @@ def survey_jobs(region: Region, xs: FloatArray) -> list[Job]:
 
 TURN_BRAKING_SHARE = 0.4
 """A survey's turn is charged this share of the vehicle's braking distance ``v^2 / 2a``
-(:func:`survey_turn_m`): the simulated vehicle, at any speed, acceleration and turn rate
-of the mission schema tried, flies at most 0.3 of it beyond a right-angle corner."""
+(:func:`survey_turn_m`): the simulated vehicle flies up to a third of it beyond a
+right-angle corner, at every speed, acceleration and turn rate tried (the experiment log
+of 2026-12-04, ``docs/experiments/``)."""
 
 
 def survey_turn_m(speed_mps: float, max_accel_mps2: float) -> float:
