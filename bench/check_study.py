@@ -75,8 +75,9 @@ def study(raw: dict, seeds: list[int], planner: str, out: Path) -> list[dict[str
     cmd = [sys.executable, "-m", "econdor", "study", str(path), "--seeds",
            ",".join(map(str, seeds)), "--planner", planner, "--out", str(out / "study"),
            "--workers", "1", "--quiet", "--no-figures"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, check=False)
     if proc.returncode != 0:
         raise SystemExit(f"econdor study failed ({shlex.join(cmd)}): {proc.stderr.strip()}")
     with (out / "study" / "study.csv").open(encoding="utf-8") as f:

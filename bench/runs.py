@@ -157,7 +157,10 @@ def row_of(rec: Any) -> dict[str, Any]:
 
 def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]
                 ) -> dict[str, Any]:
-    """One budget-true run: a row per estimate, and the plume sources missed by then."""
+    """One budget-true run: a row per estimate, and the plume sources missed by then; in
+    threshold mode also the metres flown by kind of job (``bench/anatomy.py``)."""
+    from anatomy import instrument
+
     field, seed, label, budget_m, recon, threshold, adaptive = args
     planner, variant = split_variant(label)
     adaptive = {**adaptive, **variant}
@@ -165,13 +168,17 @@ def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]
     mission = mission_for(field, budget_m, planner, recon, targets, adaptive=adaptive)
     truth = mission.build_field(seed)
     t0 = time.perf_counter()
-    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner=planner,
-              truth=truth, seed=seed).run()
+    dfc = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner=planner,
+              truth=truth, seed=seed)
+    metres = instrument(dfc) if threshold and planner == "adaptive" else {}
+    res = dfc.run()
     rows = [row_of(rec) for rec in res.records]
     s = res.samples
-    for row in rows:
+    for rec, row in zip(res.records, rows, strict=True):
         n = row["samples"]
         row["missed"] = sources_missed(truth, s.x_m[:n], s.y_m[:n])
+        if metres:
+            row["metres"] = metres.get(rec.iteration, {})
     return {"field": field, "seed": seed, "planner": label + (":threshold" if threshold else ""),
             "rows": rows, "stop": res.stop_reason, "wall_s": time.perf_counter() - t0,
             "target": targets[0] if targets else math.nan, "return_m": res.return_m}
