@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from ..candidates import Candidate, CandidateKind, leg_candidates, line_candidates
 from ..geometry import FloatArray, Grid, Region, path_length
@@ -144,13 +145,19 @@ class AdaptivePlanner:
             n = xx.size
             return UncertaintyMap(xx.ravel(), yy.ravel(), np.ones(n), np.full(n, p.floor or 1.0),
                                   np.zeros(n), "proxy", p.length_m, None, plan_grid), plan_grid
-        if p.model == Model.GP:
-            self.hyper = fit_matern(s.x_m, s.y_m, s.value, seed=self.seed + context.iteration)
-            if not p.fit_length:
-                self.hyper = dataclasses.replace(self.hyper, length_m=p.length_m)
-        umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid, plan_grid,
-                               model=p.model, length_m=p.length_m, floor=p.floor or None,
-                               gradient_gain_m=p.gradient_gain_m, hyper=self.hyper)
+        # One BLAS thread, as for the DFC's reconstruction: the planner shares the cores
+        # with the vehicles (and a study with its other runs), and idle BLAS threads
+        # spinning on a busy machine slow the GP's dense solves down many times.
+        with threadpool_limits(limits=1, user_api="blas"):
+            if p.model == Model.GP:
+                self.hyper = fit_matern(s.x_m, s.y_m, s.value,
+                                        seed=self.seed + context.iteration)
+                if not p.fit_length:
+                    self.hyper = dataclasses.replace(self.hyper, length_m=p.length_m)
+            umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid,
+                                   plan_grid, model=p.model, length_m=p.length_m,
+                                   floor=p.floor or None, gradient_gain_m=p.gradient_gain_m,
+                                   hyper=self.hyper)
         return umap, plan_grid
 
     def _plan(self, context: PlanContext, umap: UncertaintyMap, cands: list[Candidate],
