@@ -36,7 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from efficiency import ISO_TARGET_M, SurveyScan, mid_level, mission_for  # noqa: E402
+from report import ISO_TARGET_M  # noqa: E402
+from runs import mid_level, mission_for  # noqa: E402
+from surveys import SurveyScan  # noqa: E402
 
 from econdor_gcs.core.contours import contour_pieces  # noqa: E402
 from econdor_gcs.core.geometry import path_length  # noqa: E402
@@ -168,7 +170,7 @@ class IdealRun:
 def one(args: tuple[str, int, bool, bool, str | None]) -> tuple[int, float, float]:
     field, seed, stepped, oracle_ends, cache = args
     scan = SurveyScan(field, seed, "auto", Path(cache) if cache else None)
-    row = scan.first_reaching(lambda row: row["iso"][1] <= ISO_TARGET_M, 29)
+    row = scan.shortest_reaching(lambda row: row["iso"][1] <= ISO_TARGET_M, 3000.0)
     survey_m = row["flight_m"] if row else math.nan
     return seed, IdealRun(field, seed, stepped, oracle_ends).run(), survey_m
 

@@ -254,7 +254,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
                                 progress=tick, figures=not args.no_figures)
     for planner, agg in summary["by_planner"].items():
         print(f"{planner:>9}: median final MAE {agg['median_final_mae_db']:.1f} dB over "
-              f"{agg['runs']} runs, median flown {agg['median_flight_distance_m']:.0f} m")
+              f"{agg['runs']} runs, median flown {agg['median_flight_distance_m']:.0f} m "
+              "(to the last estimate, without the way home)")
     print(f"wrote {args.out / 'study.csv'}")
     return 0
 

@@ -20,6 +20,12 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
   with no place left where an iso-line could be): reason ``planner_done``;
 * the ``checkpoint`` asked before each iteration says stop (``stop_reason = "stopped"``,
   e.g. an operator's stop on the web page); it may also hold the loop there (pause).
+
+Distances are booked the same way for every planner: a row of ``metrics.csv`` (and of a
+study's ``study.csv``) holds the flight and the samples behind its estimate. The flight
+home after the last iteration is behind no estimate: it is in no row, nor in the
+summary's ``flight_distance_m`` (the last row's), but in its ``return_m`` and
+``total_flown_m``.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .core import metrics
-from .core.adaptive import AdaptiveParams, AdaptivePlanner
+from .core.adaptive import AdaptiveParams, adaptive_planner
 from .core.assignment import assign_jobs
 from .core.fields import Field
 from .core.geometry import FloatArray, Grid
@@ -47,6 +53,7 @@ from .core.planners import (
     Planner,
     diagonal_jobs,
     survey_jobs,
+    survey_turn_m,
 )
 from .core.spline import fit_field
 from .core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
@@ -148,8 +155,13 @@ class RunResult:
     isoline_error_m: dict[str, float] = field(default_factory=dict)
     mission: dict[str, Any] = field(default_factory=dict)
     return_m: float = 0.0
-    """Flight home after the last iteration (included in ``flight_distance_m`` and in the
-    last record's, but not part of any estimate)."""
+    """Flight home after the last iteration: flown, but behind no estimate, so neither in
+    ``flight_distance_m`` nor in any record's (``total_flown_m`` has it)."""
+
+    @property
+    def total_flown_m(self) -> float:
+        """Everything flown: ``flight_distance_m`` and the flight home."""
+        return self.flight_distance_m + self.return_m
 
     def summary(self) -> dict[str, Any]:
         last = self.records[-1] if self.records else None
@@ -163,6 +175,7 @@ class RunResult:
             "span_ratio": last.span_ratio if last else math.nan,
             "flight_distance_m": self.flight_distance_m,
             "return_m": self.return_m,
+            "total_flown_m": self.total_flown_m,
             "contour_distance_m": self.contour_distance_m,
             "samples": len(self.samples),
             "converged": self.converged,
@@ -196,13 +209,22 @@ def _contour_planner(sg: bool) -> PlannerFactory:
 def _adaptive_planner(mission: Mission) -> Planner:
     params = AdaptiveParams(**asdict(mission.adaptive),
                             target_levels=mission.algorithm.target_levels)
-    return AdaptivePlanner(params, seed=mission.seed)
+    return adaptive_planner(params, seed=mission.seed)
+
+
+def _lawnmower_planner(mission: Mission) -> Planner:
+    lm, v = mission.lawnmower, mission.vehicles
+    try:
+        return LawnmowerPlanner(mission.region, lm.spacing_m, lm.budget_m, lm.lines,
+                                turn_m=survey_turn_m(v.speed_mps, v.max_accel_mps2))
+    except ValueError as exc:
+        raise MissionError(str(exc)) from exc
 
 
 PLANNERS: dict[str, PlannerFactory] = {
     "econdor": _contour_planner(sg=True),
     "no-sg": _contour_planner(sg=False),
-    "lawnmower": lambda m: LawnmowerPlanner(m.region, m.lawnmower.spacing_m, m.lawnmower.budget_m),
+    "lawnmower": _lawnmower_planner,
     "adaptive": _adaptive_planner,
 }
 """Every planner a mission may name (``core.planners.PLANNER_NAMES``), built from the mission."""
@@ -533,13 +555,10 @@ class Dfc:
             home = self.executor.finish()
             if self.on_flight is not None:
                 self.on_flight(FlightRecord(FINISH, [], home, before))
-        if home:
+        if home:  # flown, and its samples kept, but behind no estimate: no row's
             flown_before = self.flight_m
             self._account(home)
             self.return_m = self.flight_m - flown_before
-            if self.records:
-                self.records[-1].flight_distance_m = self.flight_m
-                self.records[-1].samples = sum(len(s) for s in self.logs)
         result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
         self.progress(RunDone(result.summary()))
         return result
@@ -585,7 +604,7 @@ class Dfc:
             samples=self._samples(), grid=self.grid, estimate=estimate, truth=self.truth,
             converged=converged, stop_reason=reason, vehicles=self.executor.n_vehicles,
             sim_s=self.sim_s, wall_s=wall_s, reconstruction_s=self.recon_s,
-            flight_distance_m=self.flight_m,
+            flight_distance_m=self.flight_m - self.return_m,
             contour_distance_m=self.contour_m,
             isoline_error_m=iso,
             return_m=self.return_m,

@@ -19,7 +19,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
                 max_trace_length_m, stop_lambda, min_iterations, flight_budget_m,
                 lloyd_bins, lloyd_iterations, lloyd_variant, reconstruction,
                 min_piece_length_m, keep_diagonals, max_idle_iterations, target_levels}
-    lawnmower: {spacing_m, budget_m}
+    lawnmower: {spacing_m, budget_m, lines}
     adaptive: {batch_m, batch_growth, levels, piece_m, leg_m, legs, line_spacing_m,
                line_orientation, start, start_lines, start_step_m, model, length_m,
                fit_length, floor, gradient_gain_m, power, plan_spacing_m, search_radius_m,
@@ -32,6 +32,7 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import typing
 from collections.abc import Callable, Iterable, Mapping
@@ -41,7 +42,16 @@ from typing import Any
 
 import yaml
 
-from .core.adaptive import AdaptiveParams
+from .core.adaptive import (
+    AdaptiveParams,
+    Explore,
+    FirstOrder,
+    LineOrientation,
+    LineWeight,
+    Model,
+    OpenEntry,
+    Start,
+)
 from .core.geodesy import Origin
 from .core.geometry import Grid, Region
 from .core.planners import PLANNER_NAMES
@@ -136,6 +146,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
     "lawnmower": {
         "spacing_m": (float, 0.0, _non_negative),
         "budget_m": (float, 0.0, _non_negative),
+        "lines": (int, 0, _range(0, 100000)),
     },
     "adaptive": _from_params(AdaptiveParams, {
         "batch_m": _positive,
@@ -145,11 +156,11 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "leg_m": _positive,
         "legs": _range(0, 10000),
         "line_spacing_m": _non_negative,
-        "line_orientation": _one_of("ns", "ew", "both"),
-        "start": _one_of("auto", "diagonals", "perimeter", "plan", "survey"),
+        "line_orientation": None,  # its enum has the values
+        "start": None,  # its enum has the values
         "start_lines": _range(0, 1000),
         "start_step_m": _non_negative,
-        "model": _one_of("auto", "gp", "proxy"),
+        "model": None,  # its enum has the values
         "length_m": _positive,
         "fit_length": None,
         "floor": _non_negative,
@@ -163,18 +174,18 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
         "level_tol": _range(0.0, 0.5),
         "threshold_batch_m": _positive,
         "crossings_first": None,
-        "first_order": _one_of("crossings", "nearest"),
-        "open_entry": _one_of("auto", "end", "crossing"),
+        "first_order": None,  # its enum has the values
+        "open_entry": None,  # its enum has the values
         "probes": None,
         "probe_climb": None,
         "probe_m": _positive,
         "probe_prominence": _range(0.0, 1.0),
         "probe_reach": _non_negative,
         "sweeps": None,
-        "explore": _one_of("auto", "legs", "lines"),
+        "explore": None,  # its enum has the values
         "line_step_m": _positive,
         "rays": _range(0, 3600),
-        "line_weight": _one_of("none", "p"),
+        "line_weight": None,  # its enum has the values
         "probe_length_m": _non_negative,
     }),
 }
@@ -237,6 +248,10 @@ def _coerce(where: str, value: Any, typ: type | tuple[type, ...]) -> Any:
         if not isinstance(value, str):
             raise MissionError(f"{where}: expected a string, got {value!r}")
         return value
+    if isinstance(typ, type) and issubclass(typ, enum.StrEnum):  # a mode: one of its values
+        if not isinstance(value, str) or value not in set(typ):
+            raise MissionError(f"{where}: must be one of {', '.join(typ)}; got {value!r}")
+        return typ(value)
     if typ is tuple:  # a list of numbers
         if not isinstance(value, list | tuple):
             raise MissionError(f"{where}: expected a list of numbers, got {value!r}")
@@ -333,6 +348,7 @@ class AlgorithmConfig:
 class LawnmowerConfig:
     spacing_m: float
     budget_m: float
+    lines: int = 0
 
 
 @dataclass(frozen=True)
@@ -346,11 +362,11 @@ class AdaptiveConfig:
     leg_m: float
     legs: int
     line_spacing_m: float
-    line_orientation: str
-    start: str
+    line_orientation: LineOrientation
+    start: Start
     start_lines: int
     start_step_m: float
-    model: str
+    model: Model
     length_m: float
     fit_length: bool
     floor: float
@@ -364,18 +380,18 @@ class AdaptiveConfig:
     level_tol: float
     threshold_batch_m: float
     crossings_first: bool
-    first_order: str
-    open_entry: str
+    first_order: FirstOrder
+    open_entry: OpenEntry
     probes: bool
     probe_climb: bool
     probe_m: float
     probe_prominence: float
     probe_reach: float
     sweeps: bool
-    explore: str
+    explore: Explore
     line_step_m: float
     rays: int
-    line_weight: str
+    line_weight: LineWeight
     probe_length_m: float
 
 
@@ -478,6 +494,11 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
     algo = sec["algorithm"]
     if algo["min_iterations"] > algo["max_iterations"]:
         raise MissionError("algorithm.min_iterations: must be <= algorithm.max_iterations")
+    lm = sec["lawnmower"]
+    if lm["lines"] == 1:
+        raise MissionError("lawnmower.lines: must be 0 (not set) or >= 2, got 1")
+    if lm["lines"] and lm["budget_m"]:
+        raise MissionError("lawnmower.lines: give lines or budget_m, not both")
     veh = sec["vehicles"]
     if veh["speed_mps"] > veh["max_speed_mps"]:
         raise MissionError("vehicles.speed_mps: must be <= vehicles.max_speed_mps")

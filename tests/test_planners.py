@@ -165,7 +165,8 @@ def test_lawnmower_refines_and_fits_budget():
     budget = LawnmowerPlanner(REGION, budget_m=1100.0)
     b = budget.next_batch(ctx())
     assert len(b.jobs) == 10
-    assert budget.next_batch(ctx()).jobs == []
+    last = budget.next_batch(ctx())
+    assert last.jobs == [] and last.done
 
 
 def test_authors_lloyd_variant_moves_the_outer_levels_inward():

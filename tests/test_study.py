@@ -11,7 +11,7 @@ import pytest
 from econdor.cli import main
 from econdor_gcs.dfc import IterationRecord
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.mission import load_mission
+from econdor_gcs.mission import Mission, load_mission
 from econdor_lab.inprocess import InProcessExecutor
 from econdor_lab.study import parse_seeds, run_seed, run_study
 
@@ -39,7 +39,9 @@ def test_econdor_run_improves_at_every_iteration_with_real_tracing(demo, tmp_pat
         assert b["samples"] >= a["samples"]
     assert 0 < rows[-1]["contour_distance_m"] < rows[-1]["flight_distance_m"]
     s = r["summary"]
-    assert s["samples"] == rows[-1]["samples"]
+    # every sample is on disk; the last row's are those behind its estimate (not the way home)
+    assert s["samples"] > rows[-1]["samples"]
+    assert s["flight_distance_m"] == pytest.approx(rows[-1]["flight_distance_m"])
     assert s["final_mae"] == pytest.approx(maes[-1])
     run_dir = Path(r["run_dir"])
     with (run_dir / "samples.csv").open() as f:
@@ -268,3 +270,77 @@ def test_samples_of_a_run_still_writing_are_read_up_to_the_last_whole_line(tmp_p
                     encoding="utf-8")
     s = read_samples(path)
     assert len(s) == 2 and s.phase.tolist() == [2, 2] and s.value.tolist() == [4.25, 4.25]
+
+
+def _survey_mission(vehicles: dict | None = None, **lawnmower) -> Mission:
+    """The paper mission (8 iterations) flying one survey given by ``lawnmower``."""
+    import yaml
+
+    from econdor_gcs.mission import parse_mission
+
+    raw = yaml.safe_load((ROOT / "missions" / "paper.yaml").read_text(encoding="utf-8"))
+    raw["algorithm"]["planner"] = "lawnmower"
+    raw["lawnmower"] = lawnmower
+    raw["vehicles"].update(vehicles or {})
+    return parse_mission(raw, base_dir=ROOT / "missions")
+
+
+def test_a_survey_sized_by_its_budget_ends_done_and_books_no_way_home(tmp_path):
+    """In a mission of 8 iterations, a survey sized by ``lawnmower.budget_m`` is one row of
+    study.csv and the run stops because the survey is complete (not after empty iterations,
+    ``stalled``); the flight home is in no row and not in ``flight_distance_m``, so the
+    summary, its median and the row agree."""
+    mission = _survey_mission(budget_m=1100.0)
+    assert mission.algorithm.max_iterations == 8
+    summary = run_study(mission, [0], ["lawnmower"], tmp_path, workers=1, figures=False)
+    with (tmp_path / "study.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    run = summary["runs"][0]
+    assert [int(r["iteration"]) for r in rows] == [0]
+    assert run["stop_reason"] == "planner_done"
+    flown = float(rows[0]["flight_distance_m"])
+    assert 900.0 < flown <= 1100.0
+    assert run["flight_distance_m"] == pytest.approx(flown)
+    assert summary["by_planner"]["lawnmower"]["median_flight_distance_m"] == pytest.approx(flown)
+    assert run["return_m"] > 100.0  # 9 lines end in the far corner
+    assert run["total_flown_m"] == pytest.approx(flown + run["return_m"])
+    assert int(rows[0]["samples"]) < run["samples"]  # the flight home sampled too, in no row
+
+
+@pytest.mark.parametrize(("budget_m", "vehicles"), [
+    (1000.0, {}), (2000.0, {}), (4000.0, {}),
+    (2000.0, {"speed_mps": 12.0, "max_accel_mps2": 3.0, "max_turn_rate_dps": 90.0}),
+])
+def test_a_survey_sized_by_its_budget_flies_within_it(budget_m, vehicles):
+    """The line-count rule counts the turns (the vehicle overshoots every corner): the
+    survey flies within ``budget_m``, and not much less (the turns are charged, at most,
+    twice what the vehicle flies beyond its corners)."""
+    from econdor_gcs.dfc import Dfc
+
+    mission = _survey_mission(vehicles, budget_m=budget_m)
+    field = mission.build_field(0)
+    result = Dfc(mission, InProcessExecutor(mission, field, seed=0), planner="lawnmower",
+                 truth=field, seed=0).run()
+    flown = result.records[0].flight_distance_m
+    assert 0.85 * budget_m < flown <= budget_m
+
+
+def test_a_survey_of_given_lines(tmp_path):
+    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.errors import MissionError
+
+    mission = _survey_mission(lines=12)
+    field = mission.build_field(0)
+    result = Dfc(mission, InProcessExecutor(mission, field, seed=0), planner="lawnmower",
+                 truth=field, seed=0).run()
+    assert len(result.records) == 1 and result.stop_reason == "planner_done"
+    s = result.samples
+    n = result.records[0].samples
+    ends = np.sign(s.y_m[:n] - 50.0)[np.abs(s.y_m[:n] - 50.0) > 45.0]  # -1 south, +1 north
+    assert np.count_nonzero(np.diff(ends)) == 12  # one end-to-end passage per line
+    with pytest.raises(MissionError, match="lawnmower.lines: give lines or budget_m"):
+        _survey_mission(lines=12, budget_m=2000.0)
+    with pytest.raises(MissionError, match="lawnmower.lines"):
+        _survey_mission(lines=1)
+    with pytest.raises(MissionError, match="lawnmower.budget_m: 250 m holds no survey"):
+        Dfc(_survey_mission(budget_m=250.0), InProcessExecutor(mission, field), planner="lawnmower")

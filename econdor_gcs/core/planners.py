@@ -27,7 +27,8 @@ The planners:
 * ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
-  flying the lines in between (or one survey sized for ``budget_m``).
+  flying the lines in between (or one survey of ``lines`` lines, or sized for
+  ``budget_m`` with its turns counted, after which it is done).
 * ``adaptive`` — uncertainty-driven candidates picked by uncertainty removed per metre,
   or threshold mapping of given levels (:mod:`econdor_gcs.core.adaptive`).
 """
@@ -175,10 +176,49 @@ def survey_jobs(region: Region, xs: FloatArray) -> list[Job]:
     return jobs
 
 
-def lawnmower_lines_for_budget(region: Region, budget_m: float) -> int:
-    """How many north-south lines fit a flight budget (lines plus the cross-track legs)."""
-    n = int((budget_m - region.width_m) // region.height_m)
-    return max(2, n)
+TURN_BRAKING_SHARE = 0.4
+"""A survey's turn is charged this share of the vehicle's braking distance ``v^2 / 2a``
+(:func:`survey_turn_m`): the simulated vehicle flies up to a third of it beyond a
+right-angle corner, at every speed, acceleration and turn rate tried (the experiment log
+of 2026-12-04, ``docs/experiments/``)."""
+
+
+def survey_turn_m(speed_mps: float, max_accel_mps2: float) -> float:
+    """What one turn at a survey line's end is charged beyond the planned corner (m).
+
+    >>> round(survey_turn_m(8.0, 5.0), 2)
+    2.56
+    """
+    return TURN_BRAKING_SHARE * speed_mps**2 / (2.0 * max_accel_mps2)
+
+
+def survey_length_m(region: Region, lines: int, turn_m: float = 0.0) -> float:
+    """The flight of a survey of ``lines`` north-south lines from the area's west to its
+    east edge (:func:`survey_jobs` at even eastings), entered at its first line's start:
+    the lines, the cross-track legs and ``turn_m`` for each of the two turns per leg.
+
+    >>> survey_length_m(Region(0.0, 100.0, 0.0, 100.0), 9, 2.5)
+    1040.0
+    """
+    if lines < 1:
+        return 0.0
+    legs = lines - 1
+    return lines * region.height_m + (region.width_m if legs else 0.0) + 2 * legs * turn_m
+
+
+def lawnmower_lines_for_budget(region: Region, budget_m: float, turn_m: float = 0.0) -> int:
+    """The most north-south lines whose survey (:func:`survey_length_m`, each turn charged
+    ``turn_m``) fits a flight budget; never fewer than two.
+
+    >>> lawnmower_lines_for_budget(Region(0.0, 100.0, 0.0, 100.0), 1000.0)
+    9
+    >>> lawnmower_lines_for_budget(Region(0.0, 100.0, 0.0, 100.0), 1000.0, turn_m=2.56)
+    8
+    """
+    n = max(2, int((budget_m - region.width_m) // region.height_m))
+    while n > 2 and survey_length_m(region, n, turn_m) > budget_m:
+        n -= 1
+    return n
 
 
 class ContourPlanner:
@@ -281,13 +321,43 @@ class ContourPlanner:
 
 
 class LawnmowerPlanner:
-    """Boustrophedon survey refined each iteration (spacing halves), or sized for a budget."""
+    """Boustrophedon survey refined each iteration (spacing halves), or one survey of a
+    given number of lines or sized for a budget.
+
+    Parameters
+    ----------
+    region : Region
+    spacing_m : float
+        Line spacing of the first survey, halved each iteration (0: a quarter of the
+        area's width).
+    budget_m : float
+        One survey, of the most lines whose flight fits this (m), each turn charged
+        ``turn_m``: then the planner is done.
+    lines : int
+        One survey of this many lines (from the west edge to the east edge), then done.
+    turn_m : float
+        What a turn at a line's end is charged beyond the planned corner
+        (:func:`survey_turn_m`: the vehicle overshoots each corner a little).
+    """
 
     name = "lawnmower"
 
-    def __init__(self, region: Region, spacing_m: float = 0.0, budget_m: float = 0.0) -> None:
+    def __init__(self, region: Region, spacing_m: float = 0.0, budget_m: float = 0.0,
+                 lines: int = 0, turn_m: float = 0.0) -> None:
+        if lines and budget_m:
+            raise ValueError("lawnmower: give lines or budget_m, not both")
+        if lines == 1 or lines < 0:
+            raise ValueError(f"lawnmower.lines: a survey needs at least 2 lines, got {lines}")
+        if budget_m and survey_length_m(region, 2, turn_m) > budget_m:
+            raise ValueError(f"lawnmower.budget_m: {budget_m:g} m holds no survey (two lines "
+                             f"need {survey_length_m(region, 2, turn_m):.0f} m with the turns)")
         self.region = region
         self.budget_m = budget_m
+        self.turn_m = turn_m
+        self.fixed_lines = lines or (
+            lawnmower_lines_for_budget(region, budget_m, turn_m) if budget_m > 0 else 0)
+        """The line count of a single survey (``lines`` or sized for ``budget_m``); 0 when
+        the survey is refined each iteration."""
         self.spacing_m = spacing_m or region.width_m / 4
         self.flown_x: set[float] = set()
         self.iteration = 0
@@ -301,11 +371,10 @@ class LawnmowerPlanner:
 
     def lines(self) -> FloatArray:
         r = self.region
-        if self.budget_m > 0:
-            n = lawnmower_lines_for_budget(r, self.budget_m)
+        if self.fixed_lines:
             if self.iteration > 0:
                 return np.zeros(0)
-            return np.linspace(r.xmin, r.xmax, n)
+            return np.linspace(r.xmin, r.xmax, self.fixed_lines)
         s = self.spacing_m / 2**self.iteration
         xs = np.arange(r.xmin, r.xmax + 1e-9, s)
         if xs[-1] < r.xmax - 1e-9:
@@ -313,8 +382,11 @@ class LawnmowerPlanner:
         return np.array([x for x in np.round(xs, 6) if x not in self.flown_x])
 
     def next_batch(self, context: PlanContext | None = None) -> Batch:
+        """The next lines; a single survey, once flown, is done (the loop stops with
+        ``planner_done``, not with empty iterations until it stalls)."""
         xs = self.lines()
         self.iteration += 1
         self.flown_x.update(float(x) for x in xs)
         jobs = survey_jobs(self.region, xs)
-        return Batch(jobs, levels_planned=0, survey_m=sum(j.length_m for j in jobs))
+        return Batch(jobs, levels_planned=0, survey_m=sum(j.length_m for j in jobs),
+                     done=bool(self.fixed_lines) and not jobs)
