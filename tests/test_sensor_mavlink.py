@@ -82,7 +82,8 @@ def test_sensor_parameters_are_checked_and_applied(vehicle, gcs):
 
 
 def fly_legs(gcs: GcsLink, legs: list[tuple[float, float]], first: bool) -> np.ndarray:
-    """Fly waypoints; the samples received as ``(t_s, x_m, y_m, value)`` rows."""
+    """Fly waypoints; the samples received as ``(t_s, x_m, y_m, value, ve_mps, vn_mps)``
+    rows."""
     items = [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=20, current=1)] if first else []
     items += [item_int(len(items) + k, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(*p), 20)
               for k, p in enumerate(legs)]
@@ -102,7 +103,8 @@ def fly_legs(gcs: GcsLink, legs: list[tuple[float, float]], first: bool) -> np.n
             assert prev.get_type() == "GLOBAL_POSITION_INT"
             assert prev.time_boot_ms == m.time_boot_ms
             x, y, _ = ORIGIN.to_local(prev.lat / 1e7, prev.lon / 1e7)
-            rows.append((m.time_boot_ms / 1000.0, x, y, m.value))
+            rows.append((m.time_boot_ms / 1000.0, x, y, m.value, prev.vy / 100.0,
+                         prev.vx / 100.0))
     return np.asarray(rows)
 
 
@@ -141,3 +143,10 @@ def test_samples_over_mavlink_follow_the_sensor_model(vehicle, gcs):
     assert abs(e.std() - 1.0) < 4.0 / math.sqrt(2 * n_eff)
     phi = float(np.dot(e[1:], e[:-1]) / np.dot(e[:-1], e[:-1]))
     assert -0.1 / math.log(phi) == pytest.approx(1.0, rel=0.2)
+    # the velocity reported is the true one (GNSS Doppler): steady at cruise, while the
+    # believed positions jump by the error's steps
+    ve = rows[:, 4]
+    cruise = np.abs(np.abs(ve) - 8.0) < 0.05
+    assert cruise.sum() > 0.8 * len(ve)
+    jumps = np.abs(np.diff(rows[:, 1]) / np.diff(rows[:, 0]) - ve[1:])[cruise[1:]]
+    assert np.median(jumps) > 0.3
