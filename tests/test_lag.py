@@ -138,3 +138,18 @@ def test_the_station_uses_each_flight_corrected_and_records_it_as_received(tmp_p
     plain = run_inprocess(_lagging_mission("none"), tmp_path / "plain")
     received = np.loadtxt(tmp_path / "plain" / "samples.csv", delimiter=",", skiprows=1)
     assert np.array_equal(plain.samples.value, received[:, 3])
+
+
+def test_a_broad_field_is_not_mistaken_for_noise():
+    """On a broad, smooth field the lagged readings' curvature is signal: the correction
+    stays at its narrowest window (a smoothing window would bend the field)."""
+    def broad(x, y):
+        return 50.0 + 30.0 * np.sin(np.asarray(x) / 9.0) * np.cos(np.asarray(y) / 13.0)
+
+    legs = [(1100.0, 900.0 + 4.0 * k) if k % 2 == 0 else (900.0, 900.0 + 4.0 * k)
+            for k in range(6)]
+    _, s = fly(SensorModel(lag_s=1.0), field=broad, start=(900.0, 900.0), legs=legs)
+    truth = broad(s.x_m, s.y_m)
+    fixed = correct_lag(s, 1.0)
+    assert np.sqrt(np.mean((s.value - truth) ** 2)) > 5.0
+    assert np.sqrt(np.mean((fixed.value - truth) ** 2)) < 0.02

@@ -257,3 +257,11 @@ def test_plume_noisy_mission():
     s = m.vehicles.sensor
     assert (s.noise_std, s.lag_s, s.position_std_m, s.position_tau_s) == (1.0, 0.5, 1.0, 10.0)
     assert m.field_params == plume.field_params and m.algorithm == plume.algorithm
+
+
+def test_a_noise_only_sensor_draws_what_it_always_drew():
+    """``noise_std`` alone: the readings carry the body generator's normal draws in order,
+    as before the sensor model existed (noisy runs of earlier versions reproduce)."""
+    _, s = fly(SensorModel(noise_std=0.7), seed=11)
+    want = np.random.default_rng(11).normal(0.0, 0.7, size=len(s))
+    assert np.array_equal(s.value - s.x_m, (s.x_m + want) - s.x_m)

@@ -9,15 +9,16 @@ station undoes it along each vehicle's track.
 
 The correction (:class:`LagCorrection` ``deconvolve``) inverts the sensor's equation:
 ``g = y + tau * dy/dt`` at each sample, its own position kept. The derivative is a local
-linear fit of the readings against time whose window is chosen per sample by the
+polynomial fit of the readings against time whose window is chosen per sample by the
 intersection-of-confidence-intervals rule (Katkovnik, "A new method for varying adaptive
-bandwidth selection", IEEE Trans. Signal Process. 47(9), 1999; Lepski's method): the widest
-window in a ladder whose slope still agrees with every narrower one within ``ICI_GAMMA``
+bandwidth selection", IEEE Trans. Signal Process. 47(9), 1999; Lepski's method): of a ladder
+of estimates -- a cubic through five samples, then straight lines over 1 to 32 samples each
+side -- the widest whose slope still agrees with every narrower one within ``ICI_GAMMA``
 standard errors. Where the readings are clean or change fast it stays narrow (the exact
 inverse up to the sampling), where noise dominates it widens, so the correction does not
 multiply the noise by ``tau / dt``. The noise level it needs is estimated from the readings
-themselves (the median absolute second difference; the lagged signal is smooth at the
-sample rate).
+themselves (:func:`noise_std`: the lagged signal is smooth at the sample rate, the read-out
+noise is not).
 
 The other classic correction, moving each reading to where the vehicle was ``tau`` earlier
 (the first moment of the response), is not offered: it leaves the smear (the response's
@@ -59,42 +60,70 @@ class LagCorrection(StrEnum):
     NONE = "none"
 
 
-def _second_differences(values: FloatArray) -> FloatArray:
-    v = np.asarray(values, dtype=float)
-    return v[2:] - 2.0 * v[1:-1] + v[:-2]
+NOISE_DIFFERENCE = 4
+"""The order of the differences the read-out noise is estimated from."""
 
 
 def noise_std(*stretches: FloatArray) -> float:
     """A robust estimate of the white read-out noise in stretches of readings sampled
-    evenly: the median absolute second difference over ``0.6745 * sqrt(6)``.
+    evenly: the median absolute fourth difference over ``0.6745 * sqrt(70)``.
 
-    A lagged sensor's own signal hardly changes its slope between two samples, so the
-    second differences are the noise's (``var = 6 sigma^2``) except on the few samples
-    where the slope turns fast; the median ignores those.
+    Differences of white noise keep it (the fourth's variance is ``70 sigma^2``) while a
+    smooth signal's shrink with each order by the sample period -- and a lagged sensor's
+    signal is smooth at the sample rate. Second differences would still count the
+    curvature of a broad field as noise; the median ignores the few samples where the
+    signal turns fast.
 
     >>> rng = np.random.default_rng(0)
-    >>> round(noise_std(np.linspace(0, 50, 4000) + rng.normal(0, 2.0, 4000)), 1)
+    >>> t = np.linspace(0, 400, 4000)
+    >>> round(noise_std(30 * np.sin(t / 5) + rng.normal(0, 2.0, 4000)), 1)
     2.0
+    >>> noise_std(30 * np.sin(t / 5)) < 1e-3
+    True
     """
-    d2 = np.concatenate([_second_differences(v) for v in stretches if len(v) >= 3]
-                        or [np.zeros(0)])
-    if len(d2) == 0:
+    k = NOISE_DIFFERENCE
+    d = np.concatenate([np.diff(np.asarray(v, dtype=float), n=k) for v in stretches
+                        if len(v) > k] or [np.zeros(0)])
+    if len(d) == 0:
         return 0.0
-    return float(np.median(np.abs(d2)) / (0.6745 * math.sqrt(6.0)))
+    return float(np.median(np.abs(d)) / (0.6745 * math.sqrt(math.comb(2 * k, k))))
+
+
+def _cubic_slopes(t: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The slope at every sample of the cubic through it and its four nearest neighbours
+    in order (two each side; at the ends the five first or last), and its standard error
+    per unit noise: the narrowest, least biased estimate of the ladder."""
+    n = len(t)
+    k = min(5, n)
+    first = np.clip(np.arange(n) - 2, 0, n - k)
+    idx = first[:, None] + np.arange(k)[None, :]
+    dt = t[idx] - t[:, None]
+    deg = min(3, k - 1)
+    v = dt[:, :, None] ** np.arange(deg + 1)[None, None, :]  # (n, k, deg + 1)
+    # scaled by the window's duration: the normal equations stay well conditioned
+    span = np.maximum(np.abs(dt).max(axis=1), 1e-12)
+    v = v / span[:, None, None] ** np.arange(deg + 1)[None, None, :]
+    gram = np.einsum("nki,nkj->nij", v, v)
+    inv = np.linalg.pinv(gram)  # repeated times leave it singular: least norm, no error
+    coef = np.einsum("nij,nkj,nk->ni", inv, v, y[idx])
+    return coef[:, 1] / span, np.sqrt(inv[:, 1, 1]) / span
 
 
 def _slopes(t: FloatArray, y: FloatArray, ladder: tuple[int, ...]
             ) -> tuple[list[FloatArray], list[FloatArray]]:
-    """Per half-width ``h`` of ``ladder``: the local linear fit's slope at every sample over
-    the samples at most ``h`` away (fewer at the ends), and ``1 / sqrt(S_tt)`` -- the slope's
-    standard error per unit noise. Sums are over times relative to the centre sample."""
+    """The ladder of slope estimates at every sample, narrowest first, with their standard
+    errors per unit noise: the local cubic of :func:`_cubic_slopes`, then per half-width
+    ``h`` of ``ladder`` the local linear fit over the samples at most ``h`` away (fewer at
+    the ends; standard error ``1 / sqrt(S_tt)``). Sums are over times relative to the
+    centre sample."""
     n = len(t)
     s0 = np.ones(n)
     s1 = np.zeros(n)
     s2 = np.zeros(n)
     sy = y.copy()
     sty = np.zeros(n)
-    slopes, scales = [], []
+    cubic, cubic_scale = _cubic_slopes(t, y) if n >= 3 else (np.zeros(n), np.full(n, np.inf))
+    slopes, scales = [cubic], [cubic_scale]
     done = 0
     for h in ladder:
         for o in range(done + 1, min(h, n - 1) + 1):
@@ -143,7 +172,7 @@ def track_derivative(t_s: FloatArray, values: FloatArray, noise: float,
     hi = np.full(len(t), np.inf)
     alive = np.ones(len(t), dtype=bool)
     for slope, scale in zip(slopes, scales, strict=True):
-        half = gamma * noise * scale
+        half = np.where(np.isfinite(scale), gamma * noise * scale, np.inf)
         lo = np.maximum(lo, slope - half)
         hi = np.minimum(hi, slope + half)
         alive &= lo <= hi
