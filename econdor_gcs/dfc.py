@@ -45,6 +45,7 @@ from .core.adaptive import AdaptiveParams, adaptive_planner
 from .core.assignment import assign_jobs
 from .core.fields import Field
 from .core.geometry import FloatArray, Grid
+from .core.lag import LagCorrection, correct_lag
 from .core.planners import (
     Batch,
     ContourPlanner,
@@ -369,6 +370,16 @@ class Dfc:
             self.contour_m += batch.survey_m
         self.sim_s += max((r.sim_s for r in reports), default=0.0)
 
+    def _as_sensed(self, reports: list[FlightReport]) -> list[FlightReport]:
+        """The flights' samples as the station uses them: corrected for the sensor's known
+        lag (``vehicles.sensor.lag_s``, :mod:`econdor_gcs.core.lag`), for every planner and
+        transport alike. The run directory keeps the samples as received."""
+        sensor = self.mission.vehicles.sensor
+        if sensor.lag_s <= 0.0 or sensor.lag_correction == LagCorrection.NONE:
+            return reports
+        return [dataclasses.replace(r, samples=correct_lag(
+            r.samples, sensor.lag_s, LagCorrection(sensor.lag_correction))) for r in reports]
+
     def _positions(self, iteration: int) -> list[tuple[float, float]]:
         """Where the vehicles are when ``iteration`` is planned (recorded ones on replay)."""
         rec = self._replay.get(iteration)
@@ -393,8 +404,9 @@ class Dfc:
                 restore = getattr(self.executor, "restore", None)
                 if restore is not None:  # the executor takes over from here
                     restore(rec.executor_state)
-            return [dataclasses.replace(r, samples=dataclasses.replace(r.samples),
-                                        outcomes=list(r.outcomes)) for r in rec.reports]
+            return self._as_sensed([dataclasses.replace(
+                r, samples=dataclasses.replace(r.samples), outcomes=list(r.outcomes))
+                for r in rec.reports])
         before = self._planned_from if self._planned_from is not None else \
             self.executor.positions()
         reports = self.executor.fly(plans, iteration)
@@ -406,7 +418,7 @@ class Dfc:
             self.on_flight(FlightRecord(iteration, [list(p) for p in plans], reports,
                                         list(before), state() if state is not None else None))
         self._planned_from = None
-        return reports
+        return self._as_sensed(reports)
 
     def _context(self, iteration: int, estimate: FloatArray | None) -> PlanContext:
         budget = self.mission.algorithm.flight_budget_m
@@ -555,6 +567,7 @@ class Dfc:
             home = self.executor.finish()
             if self.on_flight is not None:
                 self.on_flight(FlightRecord(FINISH, [], home, before))
+        home = self._as_sensed(home)
         if home:  # flown, and its samples kept, but behind no estimate: no row's
             flown_before = self.flight_m
             self._account(home)

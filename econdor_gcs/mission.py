@@ -13,7 +13,8 @@ Schema (all sections optional except ``field``; defaults shown in ``_SCHEMA``, t
     origin: {lat_deg: 47.3977, lon_deg: 8.5456, alt_m: 488}
     field: {model: paper | authors | plume | front | raster, ...model keys...}
     vehicles: {count, speed_mps, max_accel_mps2, max_turn_rate_dps, sample_rate_hz,
-               altitude_m, noise_std, speedup}
+               altitude_m, noise_std, speedup,
+               sensor: {noise_std, lag_s, position_std_m, position_tau_s, lag_correction}}
     initiation: {pattern: diagonals | lawnmower, spacing_m, samples_per_diagonal}
     algorithm: {planner, m0, max_iterations, grid_spacing_m, search_radius_m,
                 max_trace_length_m, stop_lambda, min_iterations, flight_budget_m,
@@ -190,6 +191,15 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]]
     }),
 }
 
+_SENSOR_SCHEMA: dict[str, tuple[type | tuple[type, ...], Any, Check | None]] = {
+    "noise_std": (float, 0.0, _non_negative),
+    "lag_s": (float, 0.0, _non_negative),
+    "position_std_m": (float, 0.0, _non_negative),
+    "position_tau_s": (float, 10.0, _positive),
+    "lag_correction": (str, "deconvolve", _one_of("deconvolve", "none")),
+}
+"""``vehicles.sensor``: the sensor the vehicles carry (:class:`SensorConfig`)."""
+
 _FIELD_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
     "paper": {
         "n1": (int, 20, _range(1, 100000)),
@@ -304,6 +314,26 @@ def _section(
 
 
 @dataclass(frozen=True)
+class SensorConfig:
+    """The vehicles' sensor (``vehicles.sensor``; ``vehicles.noise_std`` is its
+    ``noise_std`` written the older way).
+
+    ``noise_std`` (field units), ``lag_s`` (the first-order response's time constant),
+    ``position_std_m`` and ``position_tau_s`` (the GNSS error, a first-order Gauss-Markov
+    process per axis) are what the simulated vehicles sense with
+    (:mod:`sim_vehicle.sensor`); all zero: a perfect sensor. ``lag_s`` is also what the
+    station knows of the real sensor: it corrects each sample for it
+    (``lag_correction``, :mod:`econdor_gcs.core.lag`; ``none`` leaves the lag in).
+    """
+
+    noise_std: float = 0.0
+    lag_s: float = 0.0
+    position_std_m: float = 0.0
+    position_tau_s: float = 10.0
+    lag_correction: str = "deconvolve"
+
+
+@dataclass(frozen=True)
 class VehicleConfig:
     count: int
     speed_mps: float
@@ -313,7 +343,20 @@ class VehicleConfig:
     sample_rate_hz: float
     altitude_m: float
     noise_std: float
+    """The sensor's noise (the same as ``sensor.noise_std``)."""
     speedup: float
+    sensor: SensorConfig = SensorConfig()
+
+    def __post_init__(self) -> None:
+        # one noise, wherever it was given (a copy made with dataclasses.replace too)
+        if self.sensor.noise_std != self.noise_std:
+            if self.sensor.noise_std and self.noise_std:
+                raise MissionError(f"vehicles.noise_std: {self.noise_std:g} differs from "
+                                   f"vehicles.sensor.noise_std {self.sensor.noise_std:g}")
+            noise = self.noise_std or self.sensor.noise_std
+            object.__setattr__(self, "noise_std", noise)
+            object.__setattr__(self, "sensor", dataclasses.replace(self.sensor,
+                                                                   noise_std=noise))
 
 
 @dataclass(frozen=True)
@@ -436,10 +479,23 @@ class Mission:
         return _replace(self, algorithm=algo)
 
     def with_vehicles(self, **vehicles: Any) -> Mission:
-        raw = {k: getattr(self.vehicles, k) for k in _SCHEMA["vehicles"]}
+        """A copy with some ``vehicles`` keys replaced (validated like the file);
+        ``sensor`` (a mapping) replaces only the sensor keys it names, ``noise_std`` is the
+        sensor's noise."""
+        raw: dict[str, Any] = {k: getattr(self.vehicles, k) for k in _SCHEMA["vehicles"]}
+        sensor = {k: v for k, v in dataclasses.asdict(self.vehicles.sensor).items()
+                  if k != "noise_std"}
+        new_sensor = vehicles.pop("sensor", None)
+        if isinstance(new_sensor, Mapping):
+            sensor.update(new_sensor)
+        elif new_sensor is not None:
+            raise MissionError(f"vehicles.sensor: expected a mapping, got "
+                               f"{type(new_sensor).__name__}")
+        if "noise_std" in sensor:  # the override gives it there: not twice
+            raw.pop("noise_std")
         raw.update(vehicles)
-        return _replace(self, vehicles=VehicleConfig(**_section("vehicles", raw,
-                                                                 _SCHEMA["vehicles"])))
+        raw["sensor"] = sensor
+        return _replace(self, vehicles=_vehicles(raw))
 
     def with_adaptive(self, **adaptive: Any) -> Mission:
         """A copy with some ``adaptive`` keys replaced (validated like the file)."""
@@ -453,6 +509,32 @@ def _replace(m: Mission, **kw: Any) -> Mission:
     from dataclasses import replace
 
     return replace(m, **kw)
+
+
+def _vehicles(raw: Any) -> VehicleConfig:
+    """The ``vehicles`` section, its ``sensor`` mapping included; the noise may be given
+    as ``vehicles.noise_std`` or ``vehicles.sensor.noise_std``, not both."""
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, Mapping):
+        raise MissionError(f"vehicles: expected a mapping, got {type(raw).__name__}")
+    unknown = _unknown(raw, [*_SCHEMA["vehicles"], "sensor"])
+    if unknown:
+        raise MissionError(f"vehicles.{unknown[0]}: unknown key (allowed: "
+                           f"{', '.join(sorted([*_SCHEMA['vehicles'], 'sensor']))})")
+    sensor = _section("vehicles.sensor", raw.get("sensor"), _SENSOR_SCHEMA)
+    sraw = raw.get("sensor") or {}
+    veh = _section("vehicles", {k: v for k, v in raw.items() if k != "sensor"},
+                   _SCHEMA["vehicles"])
+    if "noise_std" in raw and "noise_std" in sraw:
+        raise MissionError("vehicles.noise_std: given twice, also as vehicles.sensor.noise_std "
+                           "(keep one)")
+    if "noise_std" in raw:
+        sensor["noise_std"] = veh["noise_std"]
+    veh["noise_std"] = sensor["noise_std"]
+    if veh["speed_mps"] > veh["max_speed_mps"]:
+        raise MissionError("vehicles.speed_mps: must be <= vehicles.max_speed_mps")
+    return VehicleConfig(**veh, sensor=SensorConfig(**sensor))
 
 
 _TOP_KEYS = {"name", "seed", "field", *(_SCHEMA)}
@@ -490,7 +572,7 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
     seed = _coerce("seed", raw.get("seed", 0), int)
     if seed < 0:
         raise MissionError(f"seed: must be >= 0, got {seed}")
-    sec = {s: _section(s, raw.get(s), _SCHEMA[s]) for s in _SCHEMA}
+    sec = {s: _section(s, raw.get(s), _SCHEMA[s]) for s in _SCHEMA if s != "vehicles"}
     algo = sec["algorithm"]
     if algo["min_iterations"] > algo["max_iterations"]:
         raise MissionError("algorithm.min_iterations: must be <= algorithm.max_iterations")
@@ -499,9 +581,7 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
         raise MissionError("lawnmower.lines: must be 0 (not set) or >= 2, got 1")
     if lm["lines"] and lm["budget_m"]:
         raise MissionError("lawnmower.lines: give lines or budget_m, not both")
-    veh = sec["vehicles"]
-    if veh["speed_mps"] > veh["max_speed_mps"]:
-        raise MissionError("vehicles.speed_mps: must be <= vehicles.max_speed_mps")
+    vehicles = _vehicles(raw.get("vehicles"))
     area = sec["area"]
     return Mission(
         name=name,
@@ -510,7 +590,7 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
         origin=Origin(**sec["origin"]),
         field_model=model,
         field_params=fparams,
-        vehicles=VehicleConfig(**veh),
+        vehicles=vehicles,
         initiation=InitiationConfig(**sec["initiation"]),
         algorithm=AlgorithmConfig(**algo),
         lawnmower=LawnmowerConfig(**sec["lawnmower"]),

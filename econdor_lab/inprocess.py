@@ -38,6 +38,7 @@ from sim_vehicle.body import Sample, SimBody
 from sim_vehicle.executor import run_plan, run_task
 from sim_vehicle.fence import Fence
 from sim_vehicle.kinematics import VehicleLimits
+from sim_vehicle.sensor import SensorModel
 from sim_vehicle.tracer import TracerParams
 
 
@@ -50,13 +51,23 @@ def _brake(body: SimBody, max_ticks: int = 10_000) -> None:
         body.hold(Phase.TRANSIT)
 
 
+def sensor_model(mission: Mission) -> SensorModel:
+    """The simulated sensor of the mission's vehicles (``vehicles.sensor``)."""
+    c = mission.vehicles.sensor
+    return SensorModel(noise_std=c.noise_std, lag_s=c.lag_s, position_std_m=c.position_std_m,
+                       position_tau_s=c.position_tau_s)
+
+
 class InProcessExecutor:
     """Simulated vehicles flown one after another in this process (fast studies).
 
     Vehicles start at the area's origin corner (their home), transit at cruise speed, come
     to rest where their plan ended and keep that position between iterations, and fly home
     at the end, as the MAVLink vehicles do. They fly inside the fence ``econdor run``
-    uploads (the area plus ``FENCE_MARGIN_M``), read from the very items it sends.
+    uploads (the area plus ``FENCE_MARGIN_M``), read from the very items it sends. They
+    carry the mission's sensor (``vehicles.sensor``: noise, lag, GNSS error, each vehicle
+    its own seeded draws) and report, as the MAVLink vehicles do, the positions they
+    believe they are at.
     """
 
     def __init__(self, mission: Mission, field: Field, n_vehicles: int | None = None,
@@ -76,7 +87,7 @@ class InProcessExecutor:
             fence_items(mission.origin, mission.region, FENCE_MARGIN_M), mission.origin)
         self.bodies = [
             SimBody(field, mission.region, *self.home, limits=limits,
-                    sample_rate_hz=v.sample_rate_hz, noise_std=v.noise_std,
+                    sample_rate_hz=v.sample_rate_hz, sensor=sensor_model(mission),
                     rng=np.random.default_rng(rng.integers(2**32)), fence=self.fence)
             for _ in range(self.n_vehicles)
         ]

@@ -24,7 +24,9 @@ logic brakes before it, whatever the vehicle is doing). MISSION_START is DENIED,
 STATUSTEXT "Geofence violation for waypoint N", while an item to be flown lies outside it.
 
 Parameters (REAL32): SPEED_MPS, SAMPLE_HZ, SEARCH_RAD_M, TEL_RATE_HZ, NOISE_STD, ALT_M,
-SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when idle).
+SPEEDUP, LAG_S, POS_STD_M, POS_TAU_S. SAMPLE_HZ and the sensor's (NOISE_STD, LAG_S,
+POS_STD_M, POS_TAU_S: :mod:`sim_vehicle.sensor`) apply from the next mission item (or at
+once when idle).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from .body import Sample
 from .fence import Fence
 from .mission_server import FENCE, MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
 from .navigator import Activity, ModeFlow, Navigator
-from .state import PARAM_NAMES, FlightMode, VehicleSettings, VehicleState
+from .state import PARAM_NAMES, SENSOR_PARAMS, FlightMode, VehicleSettings, VehicleState
 from .telemetry import Outbox, Telemetry
 from .tracer import TracerParams
 
@@ -68,6 +70,8 @@ ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED
 FAILED = mavlink.MAV_RESULT_FAILED
 UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
+_ZERO_OK = ("NOISE_STD", "LAG_S", "POS_STD_M")
+"""Parameters that may be 0 (a perfect sensor); every other one must be > 0."""
 
 
 def _code(value: float) -> int | None:
@@ -194,7 +198,9 @@ class Autopilot:
         """One sim tick: step the activity (or hover); queue its sample if it is reported."""
         st = self.state
         self.counters["ticks"] += 1
-        x0, y0, a0 = st.body.x_m, st.body.y_m, st.alt_rel_m
+        # the velocity an autopilot reports is good (GNSS Doppler, IMU) even where its
+        # position carries the GNSS error: the true path's
+        x0, y0, a0 = st.body.true_x_m, st.body.true_y_m, st.alt_rel_m
         sample: Sample | None = None
         if self.activity is not None:
             try:
@@ -205,7 +211,7 @@ class Autopilot:
             st.apply_pending_body()
             st.body.hold(Phase.TRANSIT)
         dt = st.body.dt_s
-        st.vel_enu_mps = ((st.body.x_m - x0) / dt, (st.body.y_m - y0) / dt,
+        st.vel_enu_mps = ((st.body.true_x_m - x0) / dt, (st.body.true_y_m - y0) / dt,
                           (st.alt_rel_m - a0) / dt)
         if sample is not None and st.sampling:
             self.telemetry.sample(sample)
@@ -519,7 +525,7 @@ class Autopilot:
             self.outbox.statustext(f"unknown parameter {name}", mavlink.MAV_SEVERITY_WARNING)
             return
         value = float(msg.param_value)
-        ok = math.isfinite(value) and (value >= 0 if name == "NOISE_STD" else value > 0)
+        ok = math.isfinite(value) and (value >= 0 if name in _ZERO_OK else value > 0)
         if name == "SPEED_MPS":
             ok = ok and value <= st.settings.max_speed_mps
         if name == "SAMPLE_HZ":
@@ -536,7 +542,7 @@ class Autopilot:
         st.params[name] = value
         if name == "SPEED_MPS":
             st.speed_mps = value
-        elif name in ("SAMPLE_HZ", "NOISE_STD"):
+        elif name == "SAMPLE_HZ" or name in SENSOR_PARAMS:
             st.body_dirty = True  # applied at the next item boundary / idle tick
         elif name == "SEARCH_RAD_M":
             st.settings.search_radius_m = value

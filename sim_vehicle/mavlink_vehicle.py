@@ -176,6 +176,8 @@ class MavlinkVehicle:
             sysid=sysid, speed_mps=v.speed_mps, max_speed_mps=v.max_speed_mps,
             max_accel_mps2=v.max_accel_mps2, max_turn_rate_dps=v.max_turn_rate_dps,
             sample_rate_hz=v.sample_rate_hz, altitude_m=v.altitude_m, noise_std=v.noise_std,
+            lag_s=v.sensor.lag_s, position_std_m=v.sensor.position_std_m,
+            position_tau_s=v.sensor.position_tau_s,
             speedup=v.speedup if speedup is None else speedup,
             search_radius_m=mission.algorithm.search_radius_m,
             tel_rate_hz=min(10.0, v.sample_rate_hz),

@@ -25,10 +25,16 @@ from econdor_gcs.core.geometry import Region
 from .body import SimBody
 from .fence import NO_FENCE, Fence
 from .kinematics import VehicleLimits
+from .sensor import SensorModel
 
 PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD",
-               "ALT_M", "SPEEDUP")
+               "ALT_M", "SPEEDUP", "LAG_S", "POS_STD_M", "POS_TAU_S")
 """The vehicle's parameters (REAL32), in PARAM_VALUE index order."""
+
+SENSOR_PARAMS = {"NOISE_STD": "noise_std", "LAG_S": "lag_s", "POS_STD_M": "position_std_m",
+                 "POS_TAU_S": "position_tau_s"}
+"""The parameters that set the sensor model (:class:`~sim_vehicle.sensor.SensorModel`),
+applied from the next mission item (or at once when idle), like SAMPLE_HZ."""
 
 
 @dataclasses.dataclass
@@ -43,6 +49,9 @@ class VehicleSettings:
     sample_rate_hz: float = 10.0
     altitude_m: float = 30.0
     noise_std: float = 0.0
+    lag_s: float = 0.0
+    position_std_m: float = 0.0
+    position_tau_s: float = 10.0
     speedup: float = 50.0
     search_radius_m: float = 10.0
     tel_rate_hz: float = 10.0
@@ -96,14 +105,19 @@ class VehicleState:
             "SPEED_MPS": s.speed_mps, "SAMPLE_HZ": s.sample_rate_hz,
             "SEARCH_RAD_M": s.search_radius_m, "TEL_RATE_HZ": s.tel_rate_hz,
             "NOISE_STD": s.noise_std, "ALT_M": s.altitude_m, "SPEEDUP": s.speedup,
+            "LAG_S": s.lag_s, "POS_STD_M": s.position_std_m, "POS_TAU_S": s.position_tau_s,
         }
         self._rng = np.random.default_rng(s.seed * 1000 + s.sysid)
+        self._pos_rng = self._rng.spawn(1)[0]
+        """The GNSS error's generator (its own stream: the reading noise does not change
+        when a position error is added)."""
         self.fence = NO_FENCE
         """The uploaded geofence (kept when the body is rebuilt)."""
         self.body = self.make_body(hx, hy, 0.0)
         self.odo_base_m = 0.0
         self.body_dirty = False
-        """SAMPLE_HZ or NOISE_STD changed: rebuild the body at the next item boundary."""
+        """SAMPLE_HZ or a sensor parameter changed: rebuild the body at the next item
+        boundary."""
         self.armed = False
         self.alt_rel_m = 0.0
         self.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
@@ -120,9 +134,13 @@ class VehicleState:
         limits = VehicleLimits(max_speed_mps=s.max_speed_mps, max_accel_mps2=s.max_accel_mps2,
                                max_turn_rate_dps=s.max_turn_rate_dps)
         return SimBody(self.field, self.region, x_m, y_m, limits,
-                       sample_rate_hz=self.params["SAMPLE_HZ"],
-                       noise_std=self.params["NOISE_STD"], rng=self._rng, t_s=t_s,
-                       fence=self.fence)
+                       sample_rate_hz=self.params["SAMPLE_HZ"], rng=self._rng, t_s=t_s,
+                       fence=self.fence, sensor=self.sensor_model(),
+                       position_rng=self._pos_rng)
+
+    def sensor_model(self) -> SensorModel:
+        """The sensor as the parameters set it now."""
+        return SensorModel(**{key: self.params[name] for name, key in SENSOR_PARAMS.items()})
 
     def set_fence(self, fence: Fence) -> None:
         """Fly inside ``fence`` from the next tick on."""
@@ -130,11 +148,13 @@ class VehicleState:
         self.body.set_fence(fence)
 
     def rebuild_body(self, t_s: float) -> None:
-        """A new body at the same place (new sample rate / noise), the odometer carried on."""
+        """A new body at the same place (new sample rate / sensor), the odometer, the
+        sensor's state and the GNSS error carried on."""
         self.odo_base_m += self.body.odometer_m
         old = self.body
         self.body = self.make_body(old.x_m, old.y_m, t_s)
         self.body.keep_tracks_of(old)
+        self.body.keep_sensor_of(old)
         self.body_dirty = False
 
     def apply_pending_body(self) -> None:

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 REGION = Region(0, 100, 0, 100)
 
 
-@pytest.mark.parametrize("name", ["demo", "paper", "plume", "threshold"])
+@pytest.mark.parametrize("name", ["demo", "paper", "plume", "plume-noisy", "threshold"])
 def test_shipped_missions_load(name):
     m = load_mission(ROOT / "missions" / f"{name}.yaml")
     assert m.name == name

@@ -2,8 +2,9 @@
 
 In-process, a resumed run must end exactly where an uninterrupted run of the same seed
 ends: the finished flights are replayed from ``flights.jsonl`` and ``samples.csv``, the
-vehicles (position, velocity, clock and the sensor's noise generator) restored. The mission
-has sensor noise, so a resume that did not restore the generator would end elsewhere.
+vehicles (position, velocity, clock, the sensor's state and its generators) restored. The
+mission's sensor is noisy, lags and is mispositioned, so a resume that did not restore the
+generators, the lagged reading or the GNSS error would end elsewhere.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ area: {width_m: 100, height_m: 100}
 origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
 field: {model: paper, n1: 4, n2: 4}
 vehicles: {count: 2, speed_mps: 8, max_speed_mps: 12, sample_rate_hz: 10, altitude_m: 30,
-           noise_std: 0.2}
+           sensor: {noise_std: 0.2, lag_s: 0.3, position_std_m: 0.5, position_tau_s: 5}}
 initiation: {pattern: diagonals}
 algorithm: {planner: econdor, max_iterations: 3, min_iterations: 3, search_radius_m: 10,
             grid_spacing_m: 2, max_trace_length_m: 200}

@@ -299,11 +299,12 @@ def test_heartbeat_and_version(vehicle, gcs):
 def test_params_list_read_set(vehicle, gcs):
     gcs.send(mavlink.MAVLink_param_request_list_message(1, 1))
     names = set()
-    while len(names) < 7:
+    while len(names) < 10:
         pv = gcs.recv_match("PARAM_VALUE")
-        assert pv.param_type == mavlink.MAV_PARAM_TYPE_REAL32 and pv.param_count == 7
+        assert pv.param_type == mavlink.MAV_PARAM_TYPE_REAL32 and pv.param_count == 10
         names.add(pv.param_id)
-    assert {"SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD"} <= names
+    assert {"SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD", "LAG_S",
+            "POS_STD_M", "POS_TAU_S"} <= names
     gcs.send(mavlink.MAVLink_param_request_read_message(1, 1, b"SPEED_MPS", -1))
     assert gcs.recv_match("PARAM_VALUE").param_value == pytest.approx(8.0)
     gcs.send(mavlink.MAVLink_param_set_message(1, 1, b"SPEED_MPS", 4.0, 9))

@@ -85,7 +85,7 @@ def test_cli_study_and_errors(tmp_path, capsys):
     assert err.strip().splitlines() == ["econdor: error: vehicles.cont: unknown key "
                                         "(allowed: altitude_m, count, max_accel_mps2, "
                                         "max_speed_mps, max_turn_rate_dps, noise_std, "
-                                        "sample_rate_hz, speed_mps, speedup)"]
+                                        "sample_rate_hz, sensor, speed_mps, speedup)"]
     with pytest.raises(SystemExit) as exc:
         main(["study", str(bad), "--workers", "0", "--out", "x"])
     assert exc.value.code == 2
