@@ -307,6 +307,9 @@ def _cmd_view(args: argparse.Namespace) -> int:
     server = WebServer(ReplayFeed(args.run_dir), host, port)
     url = server.start()
     print(f"web: {url} (Ctrl-C stops)", flush=True)
+    if server.exposed:
+        print(f"econdor: warning: the run's page is reachable from the network on {args.web} "
+              "(to whoever has the token in the address above)", file=sys.stderr, flush=True)
     try:
         while True:
             time.sleep(3600)

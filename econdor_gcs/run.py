@@ -100,6 +100,7 @@ def run_mission(
     signing_key_file: Path | None = None,
     web: str | None = None,
     announce: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
     autopilots: Sequence[VehicleKind] | None = None,
     tolerance_m: float = 1.0,
     forward: str | None = None,
@@ -118,7 +119,9 @@ def run_mission(
     :func:`~.signing.load_signing_key`) every message is signed, unsigned telemetry is
     dropped, and the vehicles this run starts sign too (the key is written nowhere).
     ``web`` (``[HOST:]PORT``) serves the run's page (:mod:`econdor_gcs.web`) with pause /
-    resume / stop; ``announce`` is told its address as soon as it listens.
+    resume / stop; ``announce`` is told its address (with the token the controls need) as
+    soon as it listens, and ``warn`` that the controls are on the network when ``web`` is
+    not a loopback address.
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
@@ -189,6 +192,13 @@ def run_mission(
                 runlog.add("station", f"web page at {url}")
                 if announce is not None:
                     announce(url)
+                if page.exposed:
+                    warning = (f"the web page and its controls (pause, resume, stop) are "
+                               f"reachable from the network on {web}: anyone with the "
+                               "address above (its token) can stop the run")
+                    runlog.add("station", warning, Severity.WARNING)
+                    if warn is not None:
+                        warn(warning)
             host, port = station.start()
             if forward is not None:
                 forwarder = station.call(
@@ -498,6 +508,8 @@ def run_mission_cli(args: Any) -> int:
                               mission_path=args.mission, mode=mode,
                               signing_key_file=args.signing_key, web=web,
                               announce=lambda url: print(f"web: {url}", flush=True),
+                              warn=lambda text: print(f"econdor: warning: {text}",
+                                                      file=sys.stderr, flush=True),
                               autopilots=kinds,
                               tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
                               forward=forward, forward_commands=forward_commands)
