@@ -27,18 +27,20 @@ iteration, without anything else; they are small (the estimate as float32, compr
 about 40 kB per iteration on a 101 x 101 grid).
 
 A run directory is never clobbered: a non-empty one is refused unless the run is started
-with ``--force`` (:attr:`RunDirMode.FORCE`: an earlier *run* directory is replaced) or
+with ``--force`` (:attr:`RunDirMode.FORCE`: what an earlier run wrote there is deleted, and
+a file no run writes, :data:`RUN_WRITTEN`, makes it refuse, naming the file) or
 ``--resume`` (:attr:`RunDirMode.RESUME`: it is continued).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import fnmatch
 import io
 import json
 import math
 import os
-import shutil
 import threading
 import time
 from dataclasses import asdict, dataclass
@@ -64,6 +66,8 @@ from .dfc import (
 from .errors import RunError
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
+RESERVE_NAME = ".space-reserve"
+"""Disk space a run holds back for its last words (see :class:`RunDir`)."""
 RUN_FILES = ("run.json", "summary.json", "samples.csv", "metrics.csv", "flights.jsonl",
              "telemetry.tlog")
 """Files that only a run directory has (``--force`` replaces only such a directory)."""
@@ -336,10 +340,63 @@ def _sync(f: IO[Any]) -> None:
     os.fsync(f.fileno())
 
 
-def prepare_run_dir(path: Path, mode: RunDirMode) -> None:
-    """Check ``path`` against ``mode`` (see :class:`RunDirMode`); for ``FORCE`` empty it.
+RUN_WRITTEN = (
+    "run.json", "mission.yaml", "summary.json", "metrics.csv", "iterations.json",
+    "samples.csv", "samples_interrupted.csv", "samples_received.csv", "flights.jsonl",
+    "fields.npz", "log.jsonl", "telemetry.tlog", "next_batch.json", RESERVE_NAME, "*.tmp",
+    "iterations/iter_*.npz", "iterations/*.tmp", "missions/iter*", "figures/*.png",
+    "vehicles/v*.log",
+)
+"""What a run writes in its directory (``fnmatch`` patterns of paths relative to it):
+``--force`` deletes these and nothing else."""
 
-    Raises :class:`RunError` with one line naming the directory and the way out.
+
+def _run_written(rel: str) -> bool:
+    """``rel`` (a path relative to the run directory) matches :data:`RUN_WRITTEN`, part by
+    part (a ``*`` never reaches into a sub-directory).
+
+    >>> _run_written("figures/maps.png"), _run_written("analysis/maps.png")
+    (True, False)
+    >>> _run_written("summary.json.tmp"), _run_written("analysis/x.tmp")
+    (True, False)
+    """
+    parts = rel.split("/")
+    return any(len(pat.split("/")) == len(parts) and all(
+        fnmatch.fnmatchcase(a, b) for a, b in zip(parts, pat.split("/"), strict=True))
+        for pat in RUN_WRITTEN)
+
+
+def foreign_files(path: Path) -> list[Path]:
+    """Files (and other entries) under ``path`` that no run writes (:data:`RUN_WRITTEN`),
+    in sorted order; a directory counts through what it holds (an empty one is nobody's).
+    """
+    out: list[Path] = []
+    for entry in sorted(path.rglob("*")):
+        rel = entry.relative_to(path).as_posix()
+        if entry.is_dir() and not entry.is_symlink():
+            continue
+        if entry.is_symlink() or not _run_written(rel):
+            out.append(entry)
+    return out
+
+
+def _remove_run_files(path: Path) -> None:
+    """Delete what a run wrote under ``path`` (every entry, checked foreign-free before), then
+    the directories left empty."""
+    for entry in sorted(path.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+        if entry.is_dir() and not entry.is_symlink():
+            with contextlib.suppress(OSError):  # not empty: something appeared meanwhile
+                entry.rmdir()
+        else:
+            entry.unlink()
+
+
+def prepare_run_dir(path: Path, mode: RunDirMode) -> None:
+    """Check ``path`` against ``mode`` (see :class:`RunDirMode`); for ``FORCE`` empty it of
+    what an earlier run wrote, refusing when it holds anything else.
+
+    Raises :class:`RunError` with one line naming the directory (or the file) and the way
+    out.
     """
     if path.exists() and not path.is_dir():
         raise RunError(f"{path}: exists and is not a directory")
@@ -357,7 +414,12 @@ def prepare_run_dir(path: Path, mode: RunDirMode) -> None:
     if not any((path / name).exists() for name in RUN_FILES):
         raise RunError(f"{path}: not empty and not a run directory; refusing to replace it "
                        "even with --force")
-    shutil.rmtree(path)
+    foreign = foreign_files(path)
+    if foreign:
+        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+        raise RunError(f"{foreign[0]}: not written by a run{more}; --force deletes only what "
+                       f"a run wrote: move it out of {path} first")
+    _remove_run_files(path)
 
 
 class RunDir:
