@@ -640,7 +640,10 @@ def check_plausible(mfile: MissionFile, name: str) -> None:
             if d > MAX_RANGE_M:
                 raise EcondorError(f"{name}: {kind} {it.seq} is {d / 1000:,.0f} km from home "
                                    f"(at most {MAX_RANGE_M / 1000:g} km)")
-    inclusions, exclusions = [], []
+    from shapely.geometry.base import BaseGeometry
+
+    inclusions: list[BaseGeometry] = []
+    exclusions: list[BaseGeometry] = []
     k = 0
     fence = mfile.fence
     while k < len(fence):
