@@ -104,7 +104,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--connect", default=None,
                      help="serve vehicles started elsewhere on this endpoint, e.g. udpin:127.0.0.1:14550")
     run.add_argument("--timeout", type=_positive_float, default=None,
-                     help="seconds to wait for vehicles to appear / answer (default 20)")
+                     help="seconds to wait for vehicles to appear, send a position and pass "
+                          "their pre-arm checks (default 60)")
+    run.add_argument("--link-timeout", type=_positive_float, default=None, metavar="S",
+                     help="seconds a vehicle may be silent before it is given up (default "
+                          "120); a shorter drop-out of its link is waited out and its flight "
+                          "picked up where it left")
     run.add_argument("--autopilot", default=None, metavar="KINDS",
                      help="the simulated vehicles this run starts: px4, ardupilot, "
                           "px4+companion or ardupilot+companion, or a comma list given to "
@@ -268,7 +273,7 @@ def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -
         if args.mission is None:
             parser.error("run: a MISSION.yaml is needed (or --resume RUN_DIR)")
         if args.timeout is None:
-            args.timeout = 20.0
+            args.timeout = 60.0
         return
     clash = [f"--{name}" for name in ("out", "planner", "vehicles", "speedup", "seed")
              if getattr(args, name) is not None] + (["--force"] if args.force else [])

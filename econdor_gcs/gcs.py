@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import threading
@@ -72,9 +73,9 @@ from collections.abc import Callable, Coroutine, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from .commands import Commands
 from .core.tasks import FlightReport, SampleLog, Task
 from .errors import LinkError, ProtocolError, VehicleTimeout
-from .link.autopilots import start_mission
 from .link.codec import mavlink
 from .link.mission import fence_items
 from .link.router import AIRBORNE_ALT_M, Router, VehicleLost
@@ -82,6 +83,7 @@ from .link.tlog import TlogWriter
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
 from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
+from .losses import LINK_TIMEOUT_S as LINK_TIMEOUT_S
 from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
 from .losses import VehicleLosses, run_all
 from .mission import Mission
@@ -119,6 +121,9 @@ log = logging.getLogger(__name__)
 
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
+MAX_ROUNDS = 8
+"""Rounds of one iteration's flight: the plans, then the pieces left unfinished by vehicles
+given up or taken off their missions by their own failsafe, flown again."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
@@ -238,7 +243,10 @@ class MavlinkExecutor:
         ``.waypoints`` when :mod:`econdor_gcs.export` is available).
     timeout_s:
         Per-message timeout of commands / transfers is the link layer's; this bounds a whole
-        mission transfer and the wait for the first position.
+        mission transfer, the wait for the first position and for the pre-arm checks.
+    link_timeout_s:
+        A vehicle silent this long is given up (:data:`~.losses.LINK_TIMEOUT_S`); a
+        shorter silence is waited out.
     tolerance_m:
         Douglas-Peucker tolerance of the waypoint polylines given to vehicles that refuse
         contour items (stock autopilots).
@@ -250,7 +258,7 @@ class MavlinkExecutor:
 
     def __init__(self, station: Station, mission: Mission, sysids: Sequence[int],
                  missions_dir: Path | None = None, timeout_s: float = 20.0,
-                 tolerance_m: float = 1.0) -> None:
+                 tolerance_m: float = 1.0, link_timeout_s: float = LINK_TIMEOUT_S) -> None:
         self.station = station
         self.router = station.router
         self.mission = mission
@@ -273,8 +281,11 @@ class MavlinkExecutor:
         self.iteration = 0
         self.sim_s = 0.0
         self.vehicle_losses = VehicleLosses(self.router, self.mission, self.vehicles,
-                                            self.sysids, iteration=lambda: self.iteration)
+                                            self.sysids, iteration=lambda: self.iteration,
+                                            until=self._until, link_timeout_s=link_timeout_s)
         """Vehicles given up: silence, time limits, and where their work goes."""
+        self.commands = Commands(self.router, self._until, timeout_s)
+        """Arming, starting, returning: each done when acknowledged or seen done."""
         self.vehicle_missions = VehicleMissions(
             self.router, self.telemetry, self.vehicle_losses, self.mission,
             missions_dir=missions_dir, timeout_s=timeout_s, tolerance_m=tolerance_m,
@@ -299,6 +310,12 @@ class MavlinkExecutor:
     def losses(self) -> list[dict[str, Any]]:
         """Every vehicle given up (:attr:`.losses.VehicleLosses.records`)."""
         return self.vehicle_losses.records
+
+    @property
+    def interruptions(self) -> list[dict[str, Any]]:
+        """Every flight a vehicle left on its own (its failsafe), and where its unfinished
+        work went (:attr:`.losses.VehicleLosses.interruptions`)."""
+        return self.vehicle_losses.interruptions
 
     @property
     def report_errors(self) -> int:
@@ -346,7 +363,8 @@ class MavlinkExecutor:
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
         fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
         losses = self.vehicle_losses
-        await run_all([losses.tolerant(v, self.vehicle_missions.upload_fence(v, fence))
+        await run_all([losses.tolerant(v, functools.partial(self.vehicle_missions.upload_fence,
+                                                            v, fence))
                        for v in self.vehicles.values()])
 
     async def _slow_streams(self, sysid: int) -> None:
@@ -405,14 +423,14 @@ class MavlinkExecutor:
         return self._owned(self.telemetry.pending_samples)
 
     async def _disarm(self, v: VehicleState) -> None:
-        await self.router.disarm(v.sysid)
+        await self.commands.disarm(v)
 
     async def _return(self, v: VehicleState) -> None:
-        await self.router.return_to_launch(v.sysid)
+        await self.commands.return_to_launch(v)
 
     async def _start(self, v: VehicleState) -> None:
         v.status = "starting"
-        await start_mission(self.router, v.sysid, 1, self.timeout_s)
+        await self.commands.start_mission(v, 1)
         v.status = "flying"
 
     async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
@@ -424,6 +442,7 @@ class MavlinkExecutor:
             self._changed.clear()
             if cond():
                 return True
+            self.telemetry.convert_due()
             if on_tick is not None:
                 on_tick()
             if deadline is not None and time.monotonic() > deadline:
@@ -432,31 +451,46 @@ class MavlinkExecutor:
                 await asyncio.wait_for(self._changed.wait(), tick_s)
 
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
-        """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
-        during the flight left unfinished, are flown by the others (in further rounds)."""
+        """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle left
+        unfinished (given up, or its own failsafe took it off its mission), are flown in
+        further rounds, by the vehicles in service (that one too, once its link is back)."""
         self.vehicle_losses.check_lost()
         reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
         plans = self.vehicle_losses.reassign([list(p) for p in plans], [], self.positions)
-        for round_no in range(len(self.sysids)):
+        for round_no in range(MAX_ROUNDS):
             if self._abort.is_set():
                 break
             flown = await self._round(plans, iteration, round_no)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
+                cut = v.flight is not None and v.flight.interrupted is not None
                 r = self.telemetry.end(v)
-                if v.lost is not None:
+                if v.lost is not None or cut:
                     left = self.vehicle_losses.unfinished(r)
                     if left:
                         leftover.append((v.sysid, left))
+                        if cut:
+                            self.vehicle_losses.record_interruption(v, left)
                     r.outcomes = [o for o in r.outcomes if o.task not in left]
                 reports[v.index] = r if round_no == 0 else _merge(reports[v.index], r)
             if not leftover:
                 break
+            # the vehicles whose link is out are waited for: their failsafe flies them, the
+            # station picks up where they left when they are heard again
+            await run_all([self._await_link(v) for v in self.vehicles.values()
+                           if v.lost is None and not self.vehicle_losses.link_back(v)])
+            self.vehicle_losses.check_lost()
             plans = self.vehicle_losses.reassign([[] for _ in self.sysids], leftover,
                                                  self.positions)
+        else:
+            log.error("iteration %d: pieces still unfinished after %d rounds are left "
+                      "unreported", iteration, MAX_ROUNDS)
         out = [reports[v.index] for v in self.vehicles.values()]
         self.sim_s += max((r.sim_s for r in out), default=0.0)
         return out
+
+    async def _await_link(self, v: VehicleState) -> None:
+        await self.vehicle_losses.wait_link(v)
 
     async def _round(self, plans: list[list[Task]], iteration: int, round_no: int
                      ) -> list[VehicleState]:
@@ -469,13 +503,13 @@ class MavlinkExecutor:
             if not tasks or v.lost is not None:
                 continue
             flying.append(v)
-            jobs.append(self.vehicle_losses.tolerant(
-                v, self.vehicle_missions.plan_and_upload(v, tasks, iteration, round_no)))
+            jobs.append(self.vehicle_losses.tolerant(v, functools.partial(
+                self.vehicle_missions.plan_and_upload, v, tasks, iteration, round_no)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await run_all(jobs)
-        await run_all([self.vehicle_losses.tolerant(v, self._start(v)) for v in flying
-                       if v.lost is None])
+        await run_all([self.vehicle_losses.tolerant(v, functools.partial(self._start, v))
+                       for v in flying if v.lost is None])
         t1 = time.monotonic()
         for v in flying:
             v.item_since = t1
@@ -486,14 +520,16 @@ class MavlinkExecutor:
             self.vehicle_losses.check_progress(flying)
 
         await self._until(lambda: self._abort.is_set() or all(
-            v.lost is not None or (v.flight is not None and v.flight.done) for v in flying),
+            v.lost is not None or (v.flight is not None and (
+                v.flight.done or v.flight.interrupted is not None)) for v in flying),
             on_tick=tick)
         if self._abort.is_set():
             busy = [v for v in flying if v.lost is None and v.flight is not None
                     and not v.flight.done]
             log.warning("operator stop: vehicles %s leave their missions and return to launch",
                         [v.sysid for v in busy])
-            await run_all([self.vehicle_losses.tolerant(v, self._return(v)) for v in busy])
+            await run_all([self.vehicle_losses.tolerant(v, functools.partial(self._return, v))
+                           for v in busy])
         self.timings["flight_s"] += time.monotonic() - t1
         await self.recovery.recover([v for v in flying if v.lost is None])
         return flying
@@ -510,13 +546,14 @@ class MavlinkExecutor:
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
-                        await self.vehicle_losses.tolerant(v, self._disarm(v))
+                        await self.vehicle_losses.tolerant(
+                            v, functools.partial(self._disarm, v))
                 continue
             self.telemetry.begin(v, [])
             going.append(v)
         for v in going:
             v.status = "returning"
-            await self.vehicle_losses.tolerant(v, self._return(v))
+            await self.vehicle_losses.tolerant(v, functools.partial(self._return, v))
             # the way home has the time limit of an item anywhere in the area
             v.item_since = time.monotonic()
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0

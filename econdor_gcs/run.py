@@ -32,6 +32,7 @@ from .errors import (
 )
 from .gcs import (
     FENCE_MARGIN_M,
+    LINK_TIMEOUT_S,
     LOSS_SILENCE_S,
     MavlinkExecutor,
     Station,
@@ -47,10 +48,11 @@ from .link.router import (
 )
 from .link.tlog import TlogWriter
 from .mission import Mission
-from .rundir import RunDirMode, RunLog, Severity
+from .rundir import RunDir, RunDirMode, RunLog, Severity, disk_error, writing
 from .signing import load_signing_key
 
 if TYPE_CHECKING:
+    from .dfc import FlightRecord
     from .fleet import VehicleKind
 
 __all__ = ["resume_mission", "run_mission", "run_mission_cli"]
@@ -92,7 +94,8 @@ def run_mission(
     speedup: float | None = None,
     seed: int | None = None,
     connect: str | None = None,
-    timeout_s: float = 20.0,
+    timeout_s: float = 60.0,
+    link_timeout_s: float = LINK_TIMEOUT_S,
     quiet: bool = True,
     mission_path: Path | None = None,
     figures: bool = True,
@@ -107,6 +110,11 @@ def run_mission(
     forward_commands: bool = False,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
+
+    ``timeout_s`` is how long vehicles may take to appear, to send a position and to pass
+    their pre-arm checks; ``link_timeout_s`` how long a vehicle may be silent before it is
+    given up (a shorter drop-out of its link is waited out, and the flight picks up where
+    it left; at least :data:`~.losses.LOSS_SILENCE_S`).
 
     ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
     PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
@@ -129,9 +137,12 @@ def run_mission(
     from .dfc import Dfc
     from .fleet import DEFAULT_KIND, Fleet, kinds_for
     from .plans import save_next_batch
-    from .rundir import RunDir, read_checkpoint
+    from .rundir import read_checkpoint
 
     wall0 = time.perf_counter()
+    if not link_timeout_s >= LOSS_SILENCE_S:
+        raise RunError(f"--link-timeout must be at least {LOSS_SILENCE_S:g} s (vehicles "
+                       f"heartbeat once a second), got {link_timeout_s:g}")
     signing = load_signing_key(signing_key_file) if signing_key_file is not None else None
     n = vehicles or mission.vehicles.count
     speed = speedup or mission.vehicles.speedup
@@ -143,20 +154,26 @@ def run_mission(
     resume = mode == RunDirMode.RESUME
     replay = read_checkpoint(out) if resume else []
     rd = RunDir(out, mode, grid=mission.grid)
-    runlog = RunLog(out / "log.jsonl")
-    if not resume:
-        mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
-        rd.write_run_config({
-            "transport": "mavlink", "mission": mission.name, "planner": planner, "seed": seed,
-            "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
-            "mission_path": str(mission_path.resolve()) if mission_path else None,
-            "signed": signing is not None,
-            "autopilots": [str(k) for k in kinds] if connect is None else None,
-            "tolerance_m": tolerance_m,
-        }, mission_text)
-    tlog = TlogWriter(out / "telemetry.tlog", append=resume)
+    try:
+        runlog = RunLog(out / "log.jsonl")
+        if not resume:
+            mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
+            rd.write_run_config({
+                "transport": "mavlink", "mission": mission.name, "planner": planner,
+                "seed": seed, "vehicles": n, "speedup": speed, "connect": connect,
+                "timeout_s": timeout_s, "link_timeout_s": link_timeout_s,
+                "mission_path": str(mission_path.resolve()) if mission_path else None,
+                "signed": signing is not None,
+                "autopilots": [str(k) for k in kinds] if connect is None else None,
+                "tolerance_m": tolerance_m,
+            }, mission_text)
+        with writing(out / "telemetry.tlog"):
+            tlog = TlogWriter(out / "telemetry.tlog", append=resume)
+    except BaseException:
+        rd.close()  # nothing had begun: no summary to write
+        raise
     station = Station(connect or "udpin:127.0.0.1:0", tlog,
-                      heartbeat_timeout_s=min(timeout_s, LOSS_SILENCE_S), signing=signing)
+                      heartbeat_timeout_s=link_timeout_s, signing=signing)
     _log_station(station.router, runlog)
     forwarder: Forwarder | None = None
     fleet: Fleet | None = None
@@ -218,7 +235,10 @@ def run_mission(
                 sysids = station.call(_wait_count(station.router, n, timeout_s))
             t_setup = time.perf_counter() - wall0
             executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
-                                       tolerance_m=tolerance_m)
+                                       tolerance_m=tolerance_m, link_timeout_s=link_timeout_s)
+            journal = executor
+            executor.telemetry.on_rows = lambda v, rows: rd.journal(rows, v.index,
+                                                                   journal.iteration)
             executor.wait_ready()
             truth = mission.build_field(seed)
             progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
@@ -238,7 +258,7 @@ def run_mission(
             # uses it; displays see the samples as the DFC takes them in
             dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
                       progress=_all_of(progress), on_samples=_all_of(on_samples),
-                      on_flight=rd.record_flight, replay=replay,
+                      on_flight=_checked_disk(rd, tlog, runlog), replay=replay,
                       checkpoint=page.checkpoint if page is not None else None)
             result = dfc.run()
             if live is not None:
@@ -259,6 +279,9 @@ def run_mission(
                      "report_errors": executor.report_errors,
                      "sample_recovery": executor.sample_accounting(),
                      "lost_vehicles": executor.losses,
+                     "interrupted_flights": executor.interruptions,
+                     "link_timeout_s": link_timeout_s,
+                     "samples_received": rd.n_received,
                      "fence": {"margin_m": FENCE_MARGIN_M,
                                "refused_by": executor.fences_refused},
                      "link": {"bad_packets": parser.bad_packets,
@@ -275,16 +298,22 @@ def run_mission(
             if page is not None:
                 page.close(summary)
                 page = None
-    except (EcondorError, KeyboardInterrupt) as exc:
+    except (EcondorError, KeyboardInterrupt, OSError) as exc:
         if live is not None:
             live.stop()
             live = None
-        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)
+        # a write the run directory does not guard (figures, a library's file): one line
+        failure = disk_error(None, exc) if isinstance(exc, OSError) else exc
+        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(failure)
         runlog.add("station", f"run failed: {msg}", Severity.ERROR)
-        _write_partial(rd, dfc, executor, base, timings, fill_timings, msg)
+        _write_partial(rd, dfc, executor, base, timings, fill_timings, msg,
+                       disk=[e for e in (tlog.error and str(disk_error(tlog.path, tlog.error)),
+                                         runlog.error, rd.journal_error) if e])
         if page is not None:
             page.close({**base, "error": msg})
             page = None
+        if failure is not exc:
+            raise failure from exc
         raise
     finally:
         if live is not None:
@@ -304,6 +333,21 @@ def run_mission(
 
         plot_run(out)
     return summary
+
+
+def _checked_disk(rd: RunDir, tlog: TlogWriter, runlog: RunLog
+                  ) -> Callable[[FlightRecord], None]:
+    """``rd.record_flight``, after checking that every file of the run is still being
+    written: a full disk seen first by the tlog or the log (both written as messages arrive,
+    where a failure cannot be raised) ends the run here, at the next flight."""
+    def record(flight: FlightRecord) -> None:
+        if tlog.error is not None:
+            raise disk_error(tlog.path, tlog.error)
+        if runlog.error is not None:
+            raise RunError(runlog.error)
+        rd.record_flight(flight)
+
+    return record
 
 
 def _all_of(callbacks: Sequence[Callable[[T], None]]) -> Callable[[T], None]:
@@ -376,6 +420,7 @@ def _logging_to(runlog: RunLog) -> Iterator[None]:
 
 def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
                    connect: str | None = None, timeout_s: float | None = None,
+                   link_timeout_s: float | None = None,
                    signing_key_file: Path | None = None) -> dict[str, Any]:
     """Continue the MAVLink run recorded in ``out`` after its last finished flight.
 
@@ -409,7 +454,9 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         mission, out, planner=config["planner"], vehicles=config["vehicles"],
         speedup=config["speedup"], seed=config["seed"],
         connect=connect if connect is not None else config.get("connect"),
-        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
+        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 60.0),
+        link_timeout_s=(link_timeout_s if link_timeout_s is not None
+                        else config.get("link_timeout_s", LINK_TIMEOUT_S)),
         quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
         signing_key_file=signing_key_file,
         autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
@@ -418,14 +465,17 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
 
 def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
                    base: dict[str, Any], timings: dict[str, float], fill: Any,
-                   error: str) -> None:
+                   error: str, disk: Sequence[str] = ()) -> None:
     """Leave a usable run directory after ``error``: the samples still pending, the metrics
     so far, a ``summary.json`` with ``"error"``.
 
+    The space the run held back is freed first (a full disk is a likely ``error``).
     Failures on this path do not hide the original error: each is logged (one line on
-    stderr) and listed in the summary's ``"error_path"``.
+    stderr) and listed in the summary's ``"error_path"``, with the files that had stopped
+    being written (``disk``).
     """
-    problems: list[str] = []
+    problems: list[str] = list(disk)
+    rd.release_reserve()
     if executor is not None:
         try:
             pending = executor.pending_samples()
@@ -433,7 +483,9 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
                 # an unfinished flight: resume sets these aside (no flights.jsonl line)
                 rd.append_samples(pending, executor.iteration)
         except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
-            problems.append(f"the samples still pending were not written: {exc!r}")
+            problems.append(f"the samples still pending were not written: {exc!r}"
+                            if not isinstance(exc, RunError) else
+                            f"the samples still pending were not written: {exc}")
             log.exception("econdor: %s", problems[-1])
     fill()
     records = list(dfc.records) if dfc is not None else []
@@ -449,11 +501,15 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
         "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
         "samples": sum(len(s) for s in dfc.logs) if dfc is not None else 0,
         "samples_recorded": rd.n_samples,
+        "samples_received": getattr(rd, "n_received", None),
         "converged": False,
         "wall_s": timings.get("total_wall_s"),
         "sim_s": timings.get("sim_s", 0.0),
         "timings": timings,
     }
+    if executor is not None:
+        summary["lost_vehicles"] = executor.losses
+        summary["sample_recovery"] = executor.sample_accounting()
     if problems:
         summary["error_path"] = problems
     try:
@@ -497,14 +553,18 @@ def run_mission_cli(args: Any) -> int:
                                "before (its run.json)")
         out = args.resume
         summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
-                                 timeout_s=args.timeout, signing_key_file=args.signing_key)
+                                 timeout_s=args.timeout,
+                                 link_timeout_s=getattr(args, "link_timeout", None),
+                                 signing_key_file=args.signing_key)
     else:
         mission = load_mission(args.mission)
         out = args.out or _default_out(mission)
         mode = RunDirMode.FORCE if args.force else RunDirMode.NEW
         summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
                               speedup=args.speedup, seed=args.seed, connect=args.connect,
-                              timeout_s=args.timeout, quiet=args.quiet,
+                              timeout_s=args.timeout,
+                              link_timeout_s=getattr(args, "link_timeout", None)
+                              or LINK_TIMEOUT_S, quiet=args.quiet,
                               mission_path=args.mission, mode=mode,
                               signing_key_file=args.signing_key, web=web,
                               announce=lambda url: print(f"web: {url}", flush=True),

@@ -43,6 +43,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -67,7 +68,12 @@ from .errors import RunError
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
 RESERVE_NAME = ".space-reserve"
-"""Disk space a run holds back for its last words (see :class:`RunDir`)."""
+RESERVE_BYTES = 2 << 20
+"""Disk space a run holds back for its last words when the disk fills up
+(:meth:`RunDir.release_reserve`): ``summary.json``, metrics and the samples in memory take
+a few hundred kB."""
+RECEIVED_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
+"""``samples_received.csv``: every sample as it arrived (see :meth:`RunDir.journal`)."""
 RUN_FILES = ("run.json", "summary.json", "samples.csv", "metrics.csv", "flights.jsonl",
              "telemetry.tlog")
 """Files that only a run directory has (``--force`` replaces only such a directory)."""
@@ -98,6 +104,27 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
+
+
+def disk_error(path: Path | str | None, exc: OSError) -> RunError:
+    """One line for a failed write: the file, and the system's word for why (``No space
+    left on device``, ``Read-only file system``, ...).
+
+    >>> import errno
+    >>> str(disk_error(Path("run/samples.csv"), OSError(errno.ENOSPC, "No space left on device")))
+    'cannot write run/samples.csv: No space left on device'
+    """
+    where = exc.filename if exc.filename is not None else path
+    return RunError(f"cannot write {where}: {exc.strerror or exc}")
+
+
+@contextlib.contextmanager
+def writing(path: Path | str | None) -> Iterator[None]:
+    """Turn an :class:`OSError` inside into :func:`disk_error` (a :class:`RunError`)."""
+    try:
+        yield
+    except OSError as exc:
+        raise disk_error(path, exc) from exc
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -281,8 +308,12 @@ class RunLog:
         self._lines: list[LogLine] = []
         self.path = None if path is None else Path(path)
         self._file: IO[str] | None = None
+        self.error: str | None = None
+        """Why ``log.jsonl`` stopped being written (a full disk...); the lines are still kept
+        in memory, for the live page."""
         if self.path is not None:
-            self._file = self.path.open("w", encoding="utf-8")
+            with writing(self.path):
+                self._file = self.path.open("w", encoding="utf-8")
         self.iteration = 0
 
     def add(self, source: str, text: str, severity: Severity = Severity.INFO) -> LogLine:
@@ -291,8 +322,15 @@ class RunLog:
                            severity, text)
             self._lines.append(line)
             if self._file is not None and not self._file.closed:
-                self._file.write(json.dumps(asdict(line), ensure_ascii=False) + "\n")
-                self._file.flush()
+                try:
+                    self._file.write(json.dumps(asdict(line), ensure_ascii=False) + "\n")
+                    self._file.flush()
+                except OSError as exc:
+                    # lines come from every thread (a vehicle's text on the station's loop):
+                    # a full disk must not break them; the run reports it (``error``)
+                    self.error = str(disk_error(self.path, exc))
+                    with contextlib.suppress(OSError):
+                        self._file.close()
         return line
 
     def progress(self, event: DfcEvent) -> None:
@@ -447,23 +485,50 @@ class RunDir:
         self.write_s = 0.0
         """Wall time spent in :meth:`progress` (on the DFC thread)."""
         prepare_run_dir(self.path, self.mode)
-        self.path.mkdir(parents=True, exist_ok=True)
-        (self.path / "figures").mkdir(exist_ok=True)
-        (self.path / "missions").mkdir(exist_ok=True)
         self.samples_path = self.path / "samples.csv"
         self.flights_path = self.path / "flights.jsonl"
+        self.received_path = self.path / "samples_received.csv"
         self.n_samples = 0
+        self.n_received = 0
         self.interrupted_samples = 0
-        resume = self.mode == RunDirMode.RESUME and self.samples_path.exists()
-        if resume:
-            self.n_samples, self.interrupted_samples = self._set_aside_interrupted()
-        self._samples_file = self.samples_path.open("a" if resume else "w", newline="",
-                                                    encoding="utf-8")
-        self._writer = csv.writer(self._samples_file)
-        if not resume:
-            self._writer.writerow(SAMPLE_COLUMNS)
-        self._samples_file.flush()
-        self._flights_file = self.flights_path.open("a" if resume else "w", encoding="utf-8")
+        with writing(self.path):
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._reserve_space()
+            (self.path / "figures").mkdir(exist_ok=True)
+            (self.path / "missions").mkdir(exist_ok=True)
+            resume = self.mode == RunDirMode.RESUME and self.samples_path.exists()
+            if resume:
+                self.n_samples, self.interrupted_samples = self._set_aside_interrupted()
+            self._samples_file = self.samples_path.open("a" if resume else "w", newline="",
+                                                        encoding="utf-8")
+            self._writer = csv.writer(self._samples_file)
+            if not resume:
+                self._writer.writerow(SAMPLE_COLUMNS)
+            self._samples_file.flush()
+            self._flights_file = self.flights_path.open("a" if resume else "w",
+                                                        encoding="utf-8")
+            journal_exists = self.received_path.exists()
+            self._received_file = self.received_path.open("a", newline="", encoding="utf-8")
+            self._received = csv.writer(self._received_file)
+            if not journal_exists:
+                self._received.writerow(RECEIVED_COLUMNS)
+                self._received_file.flush()
+        self.journal_error: str | None = None
+        """Why ``samples_received.csv`` stopped being written (the run fails on it)."""
+
+    # -- the space held back ----------------------------------------------------------------
+    def _reserve_space(self) -> None:
+        """Hold :data:`RESERVE_BYTES` back in :data:`RESERVE_NAME`: when the disk fills up,
+        the failing run frees it (:meth:`release_reserve`) and still writes its
+        ``summary.json``, metrics and the samples it has in memory."""
+        with (self.path / RESERVE_NAME).open("wb") as f:
+            f.write(bytes(RESERVE_BYTES))
+            _sync(f)
+
+    def release_reserve(self) -> None:
+        """Give the held-back space to the error path (and to nobody else: once)."""
+        with contextlib.suppress(FileNotFoundError):
+            (self.path / RESERVE_NAME).unlink()
 
     # -- resume ---------------------------------------------------------------------------------
     def _set_aside_interrupted(self) -> tuple[int, int]:
@@ -498,27 +563,55 @@ class RunDir:
     # -- writing --------------------------------------------------------------------------------
     def append_samples(self, log: SampleLog, iteration: int = UNRECORDED) -> None:
         """Append ``log`` (taken in ``iteration``) and flush it to the OS."""
-        for row in zip(log.t_s, log.x_m, log.y_m, log.value, log.phase, log.vehicle,
-                       strict=True):
-            self._writer.writerow((repr(float(row[0])), repr(float(row[1])), repr(float(row[2])),
-                                   repr(float(row[3])), int(row[4]), int(row[5]), iteration))
-        self.n_samples += len(log)
-        self._samples_file.flush()
+        with writing(self.samples_path):
+            for row in zip(log.t_s, log.x_m, log.y_m, log.value, log.phase, log.vehicle,
+                           strict=True):
+                self._writer.writerow((repr(float(row[0])), repr(float(row[1])),
+                                       repr(float(row[2])), repr(float(row[3])), int(row[4]),
+                                       int(row[5]), iteration))
+            self.n_samples += len(log)
+            self._samples_file.flush()
+
+    def journal(self, rows: Sequence[tuple[float, float, float, float, int]], vehicle: int,
+                iteration: int) -> None:
+        """Append samples as they arrive to ``samples_received.csv`` and flush it: a batch
+        of one vehicle's rows ``(t_s, x_m, y_m, value, phase)`` (the phase as known on
+        arrival), taken in ``iteration``. Nothing received is lost even if the station
+        dies before the flight ends; ``samples.csv`` gets the same samples again, in time
+        order with their final phase, when the flight is over.
+
+        Called on the station's loop thread: a failure is kept in :attr:`journal_error`
+        (the run fails on it at the next flight) rather than raised into the link."""
+        if self.journal_error is not None or self._received_file.closed:
+            return
+        try:
+            for t, x, y, value, phase in rows:
+                self._received.writerow((repr(t), repr(x), repr(y), repr(value), phase,
+                                         vehicle, iteration))
+            self._received_file.flush()
+            self.n_received += len(rows)
+        except OSError as exc:
+            self.journal_error = str(disk_error(self.received_path, exc))
 
     def record_flight(self, record: FlightRecord) -> None:
         """Samples first, then the flight's line: a line in ``flights.jsonl`` means its
         samples are on disk (both synced)."""
+        if self.journal_error is not None:
+            raise RunError(self.journal_error)
         for r in record.reports:
             self.append_samples(r.samples, record.iteration)
-        _sync(self._samples_file)
-        self._flights_file.write(json.dumps(flight_to_json(record), allow_nan=False) + "\n")
-        _sync(self._flights_file)
+        with writing(self.flights_path):
+            _sync(self._samples_file)
+            self._flights_file.write(json.dumps(flight_to_json(record), allow_nan=False)
+                                     + "\n")
+            _sync(self._flights_file)
 
     def write_run_config(self, config: dict[str, Any], mission_text: str | None) -> None:
         """``run.json`` (and ``mission.yaml``): what ``--resume`` needs to start again."""
-        if mission_text is not None:
-            (self.path / "mission.yaml").write_text(mission_text, encoding="utf-8")
-        write_json(self.path / "run.json", config)
+        with writing(self.path / "run.json"):
+            if mission_text is not None:
+                (self.path / "mission.yaml").write_text(mission_text, encoding="utf-8")
+            write_json(self.path / "run.json", config)
 
     def progress(self, event: DfcEvent) -> None:
         """DFC progress callback: per-iteration files as soon as an iteration is done."""
@@ -531,18 +624,23 @@ class RunDir:
             self.write_metrics(self._records)
             if self.grid is not None:
                 folder = self.path / "iterations"
-                folder.mkdir(exist_ok=True)
-                write_iteration(folder / f"iter_{it:03d}.npz", IterationFrame(
-                    it, self.grid.x, self.grid.y, event.estimate, self._pieces.pop(it, [])))
+                path = folder / f"iter_{it:03d}.npz"
+                with writing(path):
+                    folder.mkdir(exist_ok=True)
+                    write_iteration(path, IterationFrame(
+                        it, self.grid.x, self.grid.y, event.estimate,
+                        self._pieces.pop(it, [])))
         self.write_s += time.perf_counter() - t0
 
     def write_metrics(self, records: list[IterationRecord]) -> None:
-        with (self.path / "metrics.csv").open("w", newline="", encoding="utf-8") as f:
+        with writing(self.path / "metrics.csv"), \
+                (self.path / "metrics.csv").open("w", newline="", encoding="utf-8") as f:
             w = csv.DictWriter(f, fieldnames=IterationRecord.CSV_COLUMNS)
             w.writeheader()
             for r in records:
                 w.writerow(r.csv_row())
-        write_json(self.path / "iterations.json", [asdict(r) for r in records])
+        with writing(self.path / "iterations.json"):
+            write_json(self.path / "iterations.json", [asdict(r) for r in records])
 
     def write_result(self, result: RunResult, extra: dict[str, Any] | None = None) -> None:
         self.write_metrics(result.records)
@@ -550,22 +648,28 @@ class RunDir:
         summary["samples_recorded"] = self.n_samples
         if extra:
             summary.update(extra)
-        write_json(self.path / "summary.json", summary)
+        with writing(self.path / "summary.json"):
+            write_json(self.path / "summary.json", summary)
         arrays: dict[str, Any] = {"grid_x": result.grid.x, "grid_y": result.grid.y,
                                   "estimate": result.estimate}
         if result.truth is not None:
             arrays["truth"] = result.truth
-        np.savez_compressed(self.path / "fields.npz", **arrays)
+        with writing(self.path / "fields.npz"):
+            np.savez_compressed(self.path / "fields.npz", **arrays)
 
     def write_partial(self, records: list[IterationRecord], summary: dict[str, Any]) -> None:
-        """What to leave behind when a run fails part-way."""
+        """What to leave behind when a run fails part-way (``summary.json`` first: the
+        metrics can be rebuilt from ``iterations/``, the reason cannot)."""
+        with writing(self.path / "summary.json"):
+            write_json(self.path / "summary.json", summary)
         self.write_metrics(records)
-        write_json(self.path / "summary.json", summary)
 
     def close(self) -> None:
-        for f in (self._samples_file, self._flights_file):
+        for f in (self._samples_file, self._flights_file, self._received_file):
             if not f.closed:
-                f.close()
+                with contextlib.suppress(OSError):  # a full disk: reported where it happened
+                    f.close()
+        self.release_reserve()
 
 
 # --------------------------------------------------------------------------------------------

@@ -43,7 +43,7 @@ from .core.tasks import (
     TraceTask,
 )
 from .errors import ProtocolError
-from .link.autopilots import AutopilotKind
+from .link.autopilots import AutopilotKind, FlightMode, flight_mode
 from .link.codec import MAVLinkMessage, mavlink
 from .link.mission import MissionItemSpec, MissionPlan
 from .link.reports import PhaseTrack, phase_change, trace_report
@@ -66,6 +66,10 @@ log = logging.getLogger(__name__)
 
 SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
+SAMPLE_BATCH_S = 1.0
+"""... or the wall time the oldest of them may wait: converted batches go to the run
+directory as they are made (:attr:`StationTelemetry.on_rows`), so a station that dies
+loses at most this much of what it had received."""
 LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
 
@@ -132,6 +136,12 @@ class Flight:
     item_flown_m: dict[int, float] = field(default_factory=dict)
     last_ms: int | None = None
     done: bool = False
+    interrupted: str | None = None
+    """Why the vehicle left this mission before its end on its own (its failsafe: RTL,
+    LAND, a hold, a landing), as its telemetry said; its unfinished tasks are flown again."""
+    in_mission: bool = False
+    """The vehicle has shown (HEARTBEAT or MISSION_CURRENT) that it flies this mission: a
+    mode or state it shows later is news about this flight, not an old message."""
     landed: bool = False
     reached: set[int] = field(default_factory=set)
     """Mission items the vehicle reported reached."""
@@ -231,6 +241,8 @@ class VehicleState:
     status: str = "idle"
     raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+    raw_since: float = 0.0
+    """Wall time the oldest of ``raw`` arrived."""
     seen_ms: list[int] = field(default_factory=list)
     """Sorted times of every sample received (a resent one that is already here is a
     duplicate); with ``_seen`` for the lookups."""
@@ -250,8 +262,18 @@ class VehicleState:
     """The vehicle's own (sim) time when the current mission item began."""
     vehicle_samples: int | None = None
     """How many samples the vehicle says it took (its count at the last recovery)."""
-    missing: int = 0
-    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost)."""
+    missing: int | None = 0
+    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost;
+    None: unknown, the vehicle was given up before it could be asked)."""
+    silent: bool = False
+    """Its link was out when the item time limits were last checked."""
+    back_since: float | None = None
+    """Monotonic time its HEARTBEATs came back after a silence (None: silent now)."""
+    mission_state: int = 0
+    """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
+    that does not say)."""
+    mission_state_at: float = 0.0
+    """Monotonic time that MISSION_CURRENT arrived."""
 
     def count_seen(self, first_ms: int, last_ms: int) -> int:
         return bisect.bisect_right(self.seen_ms, last_ms) - \
@@ -322,6 +344,11 @@ class StationTelemetry:
         self.changed = changed
         self.home = home
         self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(sysids)}
+        self.on_rows: Callable[[VehicleState, list[tuple[float, float, float, float, int]]],
+                               None] | None = None
+        """Told every batch of samples as it is converted (``(t_s, x_m, y_m, value,
+        phase)`` rows, in arrival order, the phase as known then): the run directory's
+        journal of everything received."""
         self.assembler = StatusAssembler()
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
@@ -347,6 +374,9 @@ class StationTelemetry:
         if v.recovering:
             v.recovered += 1
         phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+        now = time.monotonic()
+        if not v.raw:
+            v.raw_since = now
         v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
                       seq))
         v.samples += 1
@@ -355,7 +385,7 @@ class StationTelemetry:
             if f.start_ms is None:
                 f.start_ms = s.time_boot_ms
             f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
-        if len(v.raw) >= SAMPLE_BATCH:
+        if len(v.raw) >= SAMPLE_BATCH or now - v.raw_since >= SAMPLE_BATCH_S:
             self._convert(v)
 
     def _convert(self, v: VehicleState) -> None:
@@ -379,6 +409,8 @@ class StationTelemetry:
             v.last_xy = (float(xs[-1]), float(ys[-1]))
         rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
                         a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        if self.on_rows is not None:
+            self.on_rows(v, rows)
         if f is not None:
             f.rows.extend(rows)
             f.row_seqs.extend(seqs.tolist())
@@ -389,6 +421,14 @@ class StationTelemetry:
         for v in self.vehicles.values():
             self._convert(v)
 
+    def convert_due(self) -> None:
+        """Convert the batches that waited :data:`SAMPLE_BATCH_S` (samples that stopped
+        coming, e.g. in a link outage, still reach the run directory)."""
+        now = time.monotonic()
+        for v in self.vehicles.values():
+            if v.raw and now - v.raw_since >= SAMPLE_BATCH_S:
+                self._convert(v)
+
     def on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
         v = self.vehicles.get(sysid)
         if v is None:
@@ -397,19 +437,20 @@ class StationTelemetry:
         kind = msg.get_type()
         f = v.flight
         if kind == "MISSION_CURRENT":
-            if (f is not None and f.tasks and v.status == "flying" and msg.seq == f.last_seq
-                    and getattr(msg, "mission_state", 0) == mavlink.MISSION_STATE_COMPLETE):
-                f.done = True  # in case the MISSION_ITEM_REACHED was lost
-                v.status = "holding"
+            v.mission_state = int(getattr(msg, "mission_state", 0) or 0)
+            v.mission_state_at = time.monotonic()
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
                 v.item_since = time.monotonic()
                 v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
                 v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
+            self._judge(v, msg)
+        elif kind == "HEARTBEAT":
+            self._judge(v, msg)
         elif kind == "MISSION_ITEM_REACHED":
             if f is not None:
                 f.reached.add(msg.seq)
-            if f is not None and f.tasks and msg.seq == f.last_seq:
+            if f is not None and f.tasks and msg.seq == f.last_seq and f.interrupted is None:
                 f.done = True
                 v.status = "holding"
         elif kind == "NAMED_VALUE_INT":
@@ -432,6 +473,56 @@ class StationTelemetry:
                                       getattr(msg, "chunk_seq", 0))
             if text is not None:
                 v.last_text = text
+
+    def _judge(self, v: VehicleState, msg: MAVLinkMessage) -> None:
+        """Whether the flight in progress ended, from the vehicle's HEARTBEAT and
+        MISSION_CURRENT, whatever acknowledgement or progress message was lost on the way.
+
+        Done: MISSION_CURRENT says COMPLETE at the last item (in case its last
+        MISSION_ITEM_REACHED was lost); for an autopilot that states no ``mission_state``,
+        its HEARTBEAT shows HOLD (PX4's AUTO.LOITER after a mission) at the last item.
+        Left before its end on its own (a failsafe): once it has shown that it flies this
+        mission, its HEARTBEAT shows RTL or LAND, or disarmed, or its MISSION_CURRENT says
+        PAUSED (or, without a ``mission_state``, HOLD before the last item)."""
+        f = v.flight
+        if f is None or not f.tasks or f.done or f.interrupted is not None \
+                or v.status != "flying":
+            return
+        link = self.router.vehicles[v.sysid]
+        if msg.get_type() == "MISSION_CURRENT":
+            state = v.mission_state
+            total = getattr(msg, "total", 0)
+            ours = total in (0, 0xFFFF) or total == len(v.items)  # not an old mission's
+            if not ours:
+                return
+            if state == mavlink.MISSION_STATE_ACTIVE:
+                f.in_mission = True
+            elif state == mavlink.MISSION_STATE_COMPLETE and msg.seq == f.last_seq:
+                f.done = True
+                v.status = "holding"
+            elif state == mavlink.MISSION_STATE_PAUSED and f.in_mission:
+                f.interrupted = f"it left its mission at item {msg.seq} (MISSION_CURRENT: " \
+                                "paused)"
+        else:
+            mode = flight_mode(AutopilotKind.of(link.autopilot), link.custom_mode)
+            if mode == FlightMode.MISSION and link.armed:
+                f.in_mission = True
+            elif not f.in_mission:
+                return
+            elif not link.armed:
+                f.interrupted = "it landed and disarmed"
+            elif mode in (FlightMode.RTL, FlightMode.LAND):
+                f.interrupted = f"it switched to {mode.value.upper()}"
+            elif mode == FlightMode.HOLD and v.mission_state == mavlink.MISSION_STATE_UNKNOWN:
+                if v.current_seq == f.last_seq:
+                    f.done = True
+                    v.status = "holding"
+                else:
+                    f.interrupted = f"it holds at item {v.current_seq}"
+        if f.interrupted is not None:
+            v.status = "interrupted"
+            log.warning("vehicle %d left its mission before the end on its own: %s",
+                        v.sysid, f.interrupted)
 
     def _decode(self, decode: Callable[[MAVLinkMessage], T | None], msg: MAVLinkMessage
                 ) -> T | None:
@@ -461,8 +552,10 @@ class StationTelemetry:
         f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
                    task_seqs=list(plan.task_seqs) if plan else [],
                    style=plan.style if plan else TaskStyle.TRACE)
-        f.rows.extend(v.stray)  # nothing is ever dropped
-        f.row_seqs.extend([LATE] * len(v.stray))
+        old = v.flight  # a flight begun again (its upload was cut short by the link)
+        carried = list(v.stray) + (old.rows if old is not None else [])
+        f.rows.extend(carried)  # nothing is ever dropped
+        f.row_seqs.extend([LATE] * len(carried))
         v.stray.clear()
         v.flight = f
         return f

@@ -25,9 +25,13 @@ ORIGIN = Origin(47.397742, 8.545594, 488.0)
 
 class _BrokenExecutor:
     iteration = 2
+    losses: list[dict] = []
 
     def pending_samples(self):
         raise ValueError("half a sample")
+
+    def sample_accounting(self) -> dict:
+        return {}
 
 
 def test_partial_summary_reports_samples_it_could_not_write(
