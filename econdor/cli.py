@@ -142,6 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
         rl.add_argument(f"--{name}", type=_probability, default=0.0, metavar="P",
                         help=f"probability to {what} each datagram, each way (0.1 or 10%%)")
     rl.add_argument("--seed", type=int, default=None, help="seed of the fault draws")
+    rl.add_argument("--outage", action="append", default=[], metavar="START:SECONDS",
+                    help="lose every datagram both ways for SECONDS, START seconds after the "
+                         "first one (a radio drop-out; repeat for more)")
     rl.add_argument("--duration", type=_positive_float, default=None, metavar="S",
                     help="stop after S seconds (default: at Ctrl-C / SIGTERM)")
 
@@ -358,11 +361,11 @@ def _cmd_upload(args: argparse.Namespace) -> int:
 def _cmd_relay(args: argparse.Namespace) -> int:
     import asyncio
 
-    from econdor_gcs.link.relay import Faults, Relay, parse_relay_endpoint, serve
+    from econdor_gcs.link.relay import Faults, Relay, parse_outage, parse_relay_endpoint, serve
 
     listen, to = parse_relay_endpoint(args.listen), parse_relay_endpoint(args.to)
     relay = Relay(listen, to, Faults(args.drop, args.duplicate, args.reorder, args.corrupt),
-                  seed=args.seed)
+                  seed=args.seed, outages=[parse_outage(o) for o in args.outage])
 
     def ready(r: Relay) -> None:
         host, port = r.listen_address
