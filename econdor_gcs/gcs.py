@@ -463,14 +463,14 @@ class MavlinkExecutor:
             flown = await self._round(plans, iteration, round_no)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
-                cut = v.flight is not None and v.flight.interrupted is not None
+                cut = v.flight.interrupted if v.flight is not None else None
                 r = self.telemetry.end(v)
-                if v.lost is not None or cut:
+                if v.lost is not None or cut is not None:
                     left = self.vehicle_losses.unfinished(r)
                     if left:
                         leftover.append((v.sysid, left))
-                        if cut:
-                            self.vehicle_losses.record_interruption(v, left)
+                        if cut is not None and v.lost is None:
+                            self.vehicle_losses.record_interruption(v, cut, left)
                     r.outcomes = [o for o in r.outcomes if o.task not in left]
                 reports[v.index] = r if round_no == 0 else _merge(reports[v.index], r)
             if not leftover:

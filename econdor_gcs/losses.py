@@ -121,11 +121,10 @@ class VehicleLosses:
                              "iteration": self.iteration(), "reassigned": []})
         self._open[v.sysid] = self.records[-1]
 
-    def record_interruption(self, v: VehicleState, left: list[Task]) -> None:
-        """``v`` left its mission on its own with ``left`` unfinished (they are flown again,
-        by whoever :meth:`reassign` gives them to)."""
-        reason = v.flight.interrupted if v.flight is not None else None
-        self.interruptions.append({"sysid": v.sysid, "reason": reason or "left its mission",
+    def record_interruption(self, v: VehicleState, reason: str, left: list[Task]) -> None:
+        """``v`` left its mission on its own (``reason``) with ``left`` unfinished (they are
+        flown again, by whoever :meth:`reassign` gives them to)."""
+        self.interruptions.append({"sysid": v.sysid, "reason": reason,
                                    "iteration": self.iteration(), "unfinished": len(left),
                                    "reassigned": []})
         self._open[v.sysid] = self.interruptions[-1]
@@ -161,8 +160,8 @@ class VehicleLosses:
         (False)."""
         if self.until is None:
             return False
-        log.warning("vehicle %d: silent for %.0f s; waiting up to %.0f s for its link", v.sysid,
-                    self.silent_s(v), self.link_timeout_s)
+        log.warning("vehicle %d: waiting for its link (last heartbeat %.0f s ago; it is given "
+                    "up after %.0f s)", v.sysid, self.silent_s(v), self.link_timeout_s)
         left_s = max(0.0, self.link_timeout_s - self.silent_s(v))
         await self.until(lambda: self.link_back(v) or v.lost is not None,
                          deadline=time.monotonic() + left_s + LINK_BACK_S)

@@ -341,10 +341,11 @@ def _checked_disk(rd: RunDir, tlog: TlogWriter, runlog: RunLog
     written: a full disk seen first by the tlog or the log (both written as messages arrive,
     where a failure cannot be raised) ends the run here, at the next flight."""
     def record(flight: FlightRecord) -> None:
-        if tlog.error is not None:
-            raise disk_error(tlog.path, tlog.error)
-        if runlog.error is not None:
-            raise RunError(runlog.error)
+        error = (disk_error(tlog.path, tlog.error) if tlog.error is not None else
+                 RunError(runlog.error) if runlog.error is not None else None)
+        if error is not None:
+            rd.unwritten.append(flight)  # its samples: the error path writes them
+            raise error
         rd.record_flight(flight)
 
     return record
@@ -475,7 +476,14 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
     being written (``disk``).
     """
     problems: list[str] = list(disk)
-    rd.release_reserve()
+    try:
+        rd.salvage()  # a full disk: the space held back is free now
+        for flight in rd.unwritten:  # flights the disk refused: without a flights.jsonl
+            for r in flight.reports:  # line, a resume sets them aside
+                rd.append_samples(r.samples, flight.iteration)
+    except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
+        problems.append(f"the samples of the last flight were not written: {exc}")
+        log.exception("econdor: %s", problems[-1])
     if executor is not None:
         try:
             pending = executor.pending_samples()

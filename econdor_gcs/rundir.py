@@ -114,7 +114,7 @@ def disk_error(path: Path | str | None, exc: OSError) -> RunError:
     >>> str(disk_error(Path("run/samples.csv"), OSError(errno.ENOSPC, "No space left on device")))
     'cannot write run/samples.csv: No space left on device'
     """
-    where = exc.filename if exc.filename is not None else path
+    where = path if path is not None else exc.filename
     return RunError(f"cannot write {where}: {exc.strerror or exc}")
 
 
@@ -505,6 +505,7 @@ class RunDir:
             if not resume:
                 self._writer.writerow(SAMPLE_COLUMNS)
             self._samples_file.flush()
+            self._good = (os.fstat(self._samples_file.fileno()).st_size, self.n_samples)
             self._flights_file = self.flights_path.open("a" if resume else "w",
                                                         encoding="utf-8")
             journal_exists = self.received_path.exists()
@@ -515,6 +516,9 @@ class RunDir:
                 self._received_file.flush()
         self.journal_error: str | None = None
         """Why ``samples_received.csv`` stopped being written (the run fails on it)."""
+        self.unwritten: list[FlightRecord] = []
+        """Flights whose recording failed (a full disk): the error path writes their
+        samples once it has freed the space held back."""
 
     # -- the space held back ----------------------------------------------------------------
     def _reserve_space(self) -> None:
@@ -569,8 +573,24 @@ class RunDir:
                 self._writer.writerow((repr(float(row[0])), repr(float(row[1])),
                                        repr(float(row[2])), repr(float(row[3])), int(row[4]),
                                        int(row[5]), iteration))
-            self.n_samples += len(log)
             self._samples_file.flush()
+            self.n_samples += len(log)
+            self._good = (os.fstat(self._samples_file.fileno()).st_size, self.n_samples)
+
+    def salvage(self) -> None:
+        """After a failed write (a full disk): ``samples.csv`` back to its last complete
+        flush (no torn row, and the rows that would not go out are not left in a buffer to
+        go out twice), then the space held back freed for the error path's writes."""
+        with contextlib.suppress(OSError):  # its buffer would not go out: dropped here
+            self._samples_file.close()
+        size, n = self._good
+        with contextlib.suppress(OSError):
+            os.truncate(self.samples_path, size)
+            self.n_samples = n
+        self.release_reserve()
+        with writing(self.samples_path):
+            self._samples_file = self.samples_path.open("a", newline="", encoding="utf-8")
+            self._writer = csv.writer(self._samples_file)
 
     def journal(self, rows: Sequence[tuple[float, float, float, float, int]], vehicle: int,
                 iteration: int) -> None:
@@ -596,10 +616,14 @@ class RunDir:
     def record_flight(self, record: FlightRecord) -> None:
         """Samples first, then the flight's line: a line in ``flights.jsonl`` means its
         samples are on disk (both synced)."""
-        if self.journal_error is not None:
-            raise RunError(self.journal_error)
-        for r in record.reports:
-            self.append_samples(r.samples, record.iteration)
+        try:
+            if self.journal_error is not None:
+                raise RunError(self.journal_error)
+            for r in record.reports:
+                self.append_samples(r.samples, record.iteration)
+        except RunError:
+            self.unwritten.append(record)
+            raise
         with writing(self.flights_path):
             _sync(self._samples_file)
             self._flights_file.write(json.dumps(flight_to_json(record), allow_nan=False)

@@ -236,11 +236,12 @@ def test_unfinished_work_of_an_interrupted_flight_is_flown_again() -> None:
     report = ex.telemetry.end(v)
     left = ex.vehicle_losses.unfinished(report)
     assert [t for t in left] == [Waypoint(10, 10), tr]
-    ex.vehicle_losses.record_interruption(v, left)
+    ex.vehicle_losses.record_interruption(v, "it switched to RTL", left)
     plans = ex.vehicle_losses.reassign([[], []], [(1, left)], lambda: [(0, 0), (90, 90)])
     assert sum(len(p) for p in plans) == 2 and v.lost is None
     (record,) = ex.interruptions
     assert record["sysid"] == 1 and record["unfinished"] == 2
+    assert record["reason"] == "it switched to RTL"
     assert sum(r["tasks"] for r in record["reassigned"]) == 2
 
 
