@@ -63,6 +63,7 @@ Conventions and choices (see also DESIGN.md §4):
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import functools
 import logging
@@ -88,7 +89,7 @@ from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
 from .losses import VehicleLosses, run_all
 from .mission import Mission
 from .recovery import SampleRecovery
-from .signing import SigningKey
+from .signing import SigningKey, SigningStore
 from .telemetry import LATE as LATE
 from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
 from .telemetry import (
@@ -153,6 +154,24 @@ class Station:
         self._started = False
         self.close_error: str | None = None
         """Why :meth:`close` could not close the endpoint cleanly (logged), else None."""
+        self.signing_store: SigningStore | None = None
+        """The station's signing timestamps on disk (replays refused across restarts)."""
+        self._keeper: concurrent.futures.Future[None] | None = None
+        if signing is not None:
+            self.signing_store = SigningStore(signing, self.router.codec.system_id)
+            self.signing_store.load(*self._signing_states())
+            if self.signing_store.error:
+                log.warning("%s", self.signing_store.error)
+
+    def _signing_states(self) -> tuple[Any, Any]:
+        return self.router.codec.mav.signing, self.router.parser.signing_state
+
+    async def _keep_signing(self) -> None:
+        """Save the signing timestamps every second (on the loop that moves them)."""
+        assert self.signing_store is not None
+        while True:
+            await asyncio.sleep(1.0)
+            self.signing_store.save_due(*self._signing_states())
 
     def _run(self) -> None:
         asyncio.set_event_loop(self.loop)
@@ -163,6 +182,8 @@ class Station:
         self._thread.start()
         self._started = True
         self.call(self.router.start())
+        if self.signing_store is not None:
+            self._keeper = asyncio.run_coroutine_threadsafe(self._keep_signing(), self.loop)
         return self.router.local_address
 
     def call(self, coro: Coroutine[Any, Any, T], timeout_s: float | None = None) -> T:
@@ -202,6 +223,13 @@ class Station:
         if not self._started:
             self.loop.close()
             return
+        if self.signing_store is not None:
+            if self._keeper is not None:
+                self._keeper.cancel()
+            self.run_sync(lambda: self.signing_store.save(*self._signing_states())
+                          if self.signing_store else None)
+            if self.signing_store.error:
+                log.warning("%s", self.signing_store.error)
         try:
             asyncio.run_coroutine_threadsafe(self.router.close(), self.loop).result(5.0)
         except Exception as exc:  # noqa: BLE001 - logged and kept: closing goes on regardless

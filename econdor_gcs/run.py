@@ -230,9 +230,13 @@ def run_mission(
                 try:
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
                 except VehicleTimeout as exc:
-                    raise VehicleTimeout(fleet.explain(str(exc))) from None
+                    raise VehicleTimeout(fleet.explain(str(exc)
+                                                       + _refusals(station.router))) from None
             else:
-                sysids = station.call(_wait_count(station.router, n, timeout_s))
+                try:
+                    sysids = station.call(_wait_count(station.router, n, timeout_s))
+                except VehicleTimeout as exc:
+                    raise VehicleTimeout(str(exc) + _refusals(station.router)) from None
             t_setup = time.perf_counter() - wall0
             executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
                                        tolerance_m=tolerance_m, link_timeout_s=link_timeout_s)
@@ -287,7 +291,9 @@ def run_mission(
                      "link": {"bad_packets": parser.bad_packets,
                               "unknown_packets": parser.unknown_packets,
                               "unsigned_dropped": parser.unsigned_packets,
-                              "bad_signature_dropped": parser.bad_signature_packets},
+                              "bad_signature_dropped": parser.bad_signature_packets,
+                              "refused_by_sysid": {str(k): v for k, v in sorted(
+                                  parser.refused_by_source().items())}},
                      "signed": signing is not None}
             if resume:
                 extra["resumed"] = {"flights_replayed": dfc.replayed,
@@ -524,6 +530,26 @@ def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
         rd.write_partial(records, summary)
     except Exception as exc:  # noqa: BLE001 - as above
         log.exception("econdor: the partial summary.json was not written: %r", exc)
+
+
+REFUSALS = {
+    "bad_signature": "its packets are signed with another key",
+    "unsigned": "its packets are not signed (this station signs: --signing-key)",
+    "replayed": "its packets replay old signing timestamps",
+}
+
+
+def _refusals(router: Router) -> str:
+    """Why vehicles may not have appeared: the systems whose packets signing refused,
+    named with the reason (``; vehicle 2: its packets are signed with another key (31
+    refused)``), or nothing."""
+    parts = []
+    for sysid, counts in sorted(router.parser.refused_by_source().items()):
+        if sysid in router.vehicles and counts.keys() == {"replayed"}:
+            continue  # a vehicle heard: a few reordered packets are no news
+        reason, n = max(counts.items(), key=lambda kv: kv[1])
+        parts.append(f"vehicle {sysid}: {REFUSALS[reason]} ({n} refused)")
+    return "".join(f"; {p}" for p in parts)
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
