@@ -297,14 +297,43 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return run_mission_cli(args)
 
 
+WARM_UP_QUIET_S = 2.0
+"""Loading the compiled tracer from numba's cache takes less; longer is a compilation."""
+WARM_UP_PROGRESS_S = 10.0
+
+
 def _warm_up_tracer(quiet: bool) -> None:
-    """Load the compiled tracer, compiling it on a cold cache (say so when that took long)."""
+    """Load the compiled tracer, compiling it on a cold cache; a compilation (about 20 s
+    of one core, once per installation) is announced when it starts and its progress
+    printed, so a new user does not stare at a silent terminal."""
+    import threading
+
     from sim_vehicle.tracer import warm_up
 
-    took_s = warm_up()
-    if took_s > 3.0 and not quiet:
-        print(f"econdor: compiled the onboard tracer in {took_s:.0f} s (once: it is cached "
-              "for the next runs)", file=sys.stderr, flush=True)
+    done = threading.Event()
+    failure: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            warm_up()
+        except BaseException as exc:  # noqa: BLE001 - raised again in the main thread
+            failure.append(exc)
+        finally:
+            done.set()
+
+    t0 = time.monotonic()
+    threading.Thread(target=work, name="econdor-warm-up", daemon=True).start()
+    if not done.wait(WARM_UP_QUIET_S) and not quiet:
+        print("econdor: compiling the onboard tracer (once: numba caches it for the next "
+              "runs; about 20 s) ...", file=sys.stderr, flush=True)
+        while not done.wait(WARM_UP_PROGRESS_S):
+            print(f"econdor: ... still compiling ({time.monotonic() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+        print(f"econdor: compiled in {time.monotonic() - t0:.0f} s", file=sys.stderr,
+              flush=True)
+    done.wait()
+    if failure:
+        raise failure[0]
 
 
 def _cmd_view(args: argparse.Namespace) -> int:

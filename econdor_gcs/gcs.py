@@ -305,7 +305,11 @@ class MavlinkExecutor:
                                           self._changed, self.home)
         """Each vehicle's state, kept from what it sends (the router's callbacks)."""
         self.vehicles = self.telemetry.vehicles
-        self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
+        self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0,
+                        "flight_sim_s": 0.0, "return_sim_s": 0.0}
+        """Wall seconds per activity; ``flight_sim_s`` / ``return_sim_s``: the vehicles'
+        own time over the same wall intervals as ``flight_s`` / ``return_s`` (the
+        achieved speed-up is their ratio)."""
         self.iteration = 0
         self.sim_s = 0.0
         self.vehicle_losses = VehicleLosses(self.router, self.mission, self.vehicles,
@@ -539,6 +543,7 @@ class MavlinkExecutor:
         await run_all([self.vehicle_losses.tolerant(v, functools.partial(self._start, v))
                        for v in flying if v.lost is None])
         t1 = time.monotonic()
+        clocks = self._clocks(flying)
         for v in flying:
             v.item_since = t1
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
@@ -559,8 +564,19 @@ class MavlinkExecutor:
             await run_all([self.vehicle_losses.tolerant(v, functools.partial(self._return, v))
                            for v in busy])
         self.timings["flight_s"] += time.monotonic() - t1
+        self.timings["flight_sim_s"] += self._elapsed_s(clocks)
         await self.recovery.recover([v for v in flying if v.lost is None])
         return flying
+
+    def _clocks(self, vs: list[VehicleState]) -> dict[int, int]:
+        """The vehicles' own clocks now (their last position's ``time_boot_ms``)."""
+        return {v.sysid: self.router.vehicles[v.sysid].time_boot_ms or 0 for v in vs}
+
+    def _elapsed_s(self, clocks: dict[int, int]) -> float:
+        """Vehicle seconds since ``clocks`` (the most any vehicle in service ran)."""
+        now = self._clocks([self.vehicles[s] for s in clocks])
+        return max((now[s] - t for s, t in clocks.items()
+                    if self.vehicles[s].lost is None and now[s] >= t), default=0) / 1000.0
 
     async def _finish(self) -> list[FlightReport]:
         self.vehicle_losses.check_lost()
@@ -587,6 +603,7 @@ class MavlinkExecutor:
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += time.monotonic() - t0
         t1 = time.monotonic()
+        clocks = self._clocks(going)
 
         def all_down() -> bool:
             for v in going:
@@ -610,6 +627,7 @@ class MavlinkExecutor:
         for v in going:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
+        self.timings["return_sim_s"] += self._elapsed_s(clocks)
         await self.recovery.recover(going)
         reports = [self.telemetry.end(v) if v in going else self.telemetry.end_idle(v)
                    for v in self.vehicles.values()]
