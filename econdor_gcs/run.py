@@ -153,7 +153,7 @@ def run_mission(
     kinds = list(autopilots or [DEFAULT_KIND])
     resume = mode == RunDirMode.RESUME
     replay = read_checkpoint(out) if resume else []
-    rd = RunDir(out, mode, grid=mission.grid)
+    rd = RunDir(out, mode, grid=mission.grid, received=True)
     try:
         runlog = RunLog(out / "log.jsonl")
         if not resume:

@@ -473,10 +473,13 @@ class RunDir:
         With a grid, :meth:`progress` (a DFC progress callback) also keeps
         ``metrics.csv`` / ``iterations.json`` current after every iteration and writes
         ``iterations/iter_NNN.npz``.
+    received:
+        Keep ``samples_received.csv``, the journal of samples as they arrive
+        (:meth:`journal`; a run over MAVLink).
     """
 
     def __init__(self, path: str | Path, mode: RunDirMode = RunDirMode.NEW,
-                 grid: Grid | None = None) -> None:
+                 grid: Grid | None = None, received: bool = False) -> None:
         self.path = Path(path)
         self.mode = RunDirMode(mode)
         self.grid = grid
@@ -508,12 +511,15 @@ class RunDir:
             self._good = (os.fstat(self._samples_file.fileno()).st_size, self.n_samples)
             self._flights_file = self.flights_path.open("a" if resume else "w",
                                                         encoding="utf-8")
-            journal_exists = self.received_path.exists()
-            self._received_file = self.received_path.open("a", newline="", encoding="utf-8")
-            self._received = csv.writer(self._received_file)
-            if not journal_exists:
-                self._received.writerow(RECEIVED_COLUMNS)
-                self._received_file.flush()
+            self._received_file: IO[str] | None = None
+            if received:
+                journal_exists = self.received_path.exists()
+                self._received_file = self.received_path.open("a", newline="",
+                                                              encoding="utf-8")
+                self._received = csv.writer(self._received_file)
+                if not journal_exists:
+                    self._received.writerow(RECEIVED_COLUMNS)
+                    self._received_file.flush()
         self.journal_error: str | None = None
         """Why ``samples_received.csv`` stopped being written (the run fails on it)."""
         self.unwritten: list[FlightRecord] = []
@@ -526,8 +532,7 @@ class RunDir:
         the failing run frees it (:meth:`release_reserve`) and still writes its
         ``summary.json``, metrics and the samples it has in memory."""
         with (self.path / RESERVE_NAME).open("wb") as f:
-            f.write(bytes(RESERVE_BYTES))
-            _sync(f)
+            f.write(bytes(RESERVE_BYTES))  # written, so its blocks are taken
 
     def release_reserve(self) -> None:
         """Give the held-back space to the error path (and to nobody else: once)."""
@@ -602,7 +607,8 @@ class RunDir:
 
         Called on the station's loop thread: a failure is kept in :attr:`journal_error`
         (the run fails on it at the next flight) rather than raised into the link."""
-        if self.journal_error is not None or self._received_file.closed:
+        if self.journal_error is not None or self._received_file is None \
+                or self._received_file.closed:
             return
         try:
             for t, x, y, value, phase in rows:
@@ -690,7 +696,7 @@ class RunDir:
 
     def close(self) -> None:
         for f in (self._samples_file, self._flights_file, self._received_file):
-            if not f.closed:
+            if f is not None and not f.closed:
                 with contextlib.suppress(OSError):  # a full disk: reported where it happened
                     f.close()
         self.release_reserve()

@@ -84,7 +84,7 @@ def test_run_directory_writes_fail_in_one_line(tmp_path: Path) -> None:
     """Every write of the run directory names its file and the system's reason."""
     out = tmp_path / "run"
     with FullDisk(out) as disk:
-        rd = RunDir(out)
+        rd = RunDir(out, received=True)
         disk.fill()
         with pytest.raises(RunError, match=r"^cannot write .*run/run\.json: No space left"):
             rd.write_run_config({"a": 1}, None)
