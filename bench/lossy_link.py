@@ -342,6 +342,12 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if all(r.good for r in results) else 1
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt  # the runs' processes are stopped on the way out
+
+
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    if sys.argv[1:2] != ["relay"]:
+        signal.signal(signal.SIGTERM, _interrupt)
     sys.exit(main())

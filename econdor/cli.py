@@ -366,7 +366,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
     import dataclasses
     import json
 
-    from econdor_gcs.mission_files import check_plausible, describe, read_mission_file
+    from econdor_gcs.mission_files import describe, read_mission_file
+    from econdor_gcs.plausibility import check_plausible
 
     mfile = read_mission_file(args.path, int_frames=False)
     check_plausible(mfile, str(args.path))

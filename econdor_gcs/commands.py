@@ -21,7 +21,6 @@ from collections.abc import Awaitable, Callable
 
 from .errors import CommandRejected, LinkError, VehicleTimeout
 from .link.autopilots import AutopilotKind, FlightMode, arm_when_ready, flight_mode, set_mode
-from .link.codec import mavlink
 from .link.router import AIRBORNE_ALT_M, Router
 from .recovery import Until
 from .telemetry import VehicleState
@@ -111,9 +110,11 @@ class Commands:
         """Arm (when ready) and start the uploaded mission at ``first_seq`` the autopilot's
         way (:func:`~.link.autopilots.start_mission`), each step done when acknowledged or
         when the telemetry shows it: GUIDED in the HEARTBEAT (ArduPilot), armed in the
-        HEARTBEAT, the mission ACTIVE in a MISSION_CURRENT that came after the first
-        MISSION_START was sent (ArduPilot stays in AUTO after a mission: its mode alone
-        cannot tell an old mission from the new one)."""
+        HEARTBEAT, and news of the uploaded mission after the first MISSION_START was sent:
+        a MISSION_CURRENT of it ACTIVE, PAUSED or COMPLETE (a short mission can be over
+        within a second), or a MISSION_ITEM_REACHED (ArduPilot stays in AUTO after a
+        mission: its mode alone cannot tell an old mission from the new one). A second
+        MISSION_START would fly the mission again from its start."""
         sysid = v.sysid
         if self._kind(v) == AutopilotKind.ARDUPILOT and not self.armed(v):
             await ensure(lambda: set_mode(self.router, sysid, FlightMode.GUIDED),
@@ -127,8 +128,7 @@ class Commands:
         await ensure(arm, lambda: self.armed(v), f"vehicle {sysid}: arming", self.until)
         sent = time.monotonic()
         await ensure(lambda: self.router.start_mission(sysid, first_seq, 0),
-                     lambda: v.mission_state_at > sent and
-                     v.mission_state == mavlink.MISSION_STATE_ACTIVE and self.armed(v),
+                     lambda: v.mission_news_at > sent and self.armed(v),
                      f"vehicle {sysid}: MAV_CMD_MISSION_START", self.until)
 
     async def return_to_launch(self, v: VehicleState) -> None:

@@ -2,7 +2,7 @@
 
 Pieces, from the bottom up:
 
-:class:`Station`
+:class:`~.station.Station`
     An asyncio event loop on a background thread that owns the GCS :class:`~.link.Router`
     (one UDP endpoint, vehicles routed by system id, every message to ``telemetry.tlog``).
     The synchronous world (the :class:`~.dfc.Dfc` loop in the main thread) submits
@@ -63,7 +63,6 @@ Conventions and choices (see also DESIGN.md §4):
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import contextlib
 import functools
 import logging
@@ -79,8 +78,7 @@ from .core.tasks import FlightReport, SampleLog, Task
 from .errors import LinkError, ProtocolError, VehicleTimeout
 from .link.codec import mavlink
 from .link.mission import fence_items
-from .link.router import AIRBORNE_ALT_M, Router, VehicleLost
-from .link.tlog import TlogWriter
+from .link.router import AIRBORNE_ALT_M, VehicleLost
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
 from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
@@ -89,7 +87,7 @@ from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
 from .losses import VehicleLosses, run_all
 from .mission import Mission
 from .recovery import SampleRecovery
-from .signing import SigningKey, SigningStore
+from .station import Station as Station
 from .telemetry import LATE as LATE
 from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
 from .telemetry import (
@@ -136,110 +134,6 @@ def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
                         flown_m=a.flown_m + b.flown_m, traced_m=a.traced_m + b.traced_m,
                         outcomes=a.outcomes + b.outcomes, end_x_m=b.end_x_m, end_y_m=b.end_y_m,
                         sim_s=a.sim_s + b.sim_s)
-
-
-# --------------------------------------------------------------------------------------------
-# the asyncio loop on a thread
-
-
-class Station:
-    """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
-
-    def __init__(self, endpoint: str, tlog: TlogWriter | None = None,
-                 heartbeat_timeout_s: float = 20.0, signing: SigningKey | None = None) -> None:
-        self.loop = asyncio.new_event_loop()
-        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s,
-                             signing=signing)
-        self._thread = threading.Thread(target=self._run, name="econdor-gcs", daemon=True)
-        self._started = False
-        self.close_error: str | None = None
-        """Why :meth:`close` could not close the endpoint cleanly (logged), else None."""
-        self.signing_store: SigningStore | None = None
-        """The station's signing timestamps on disk (replays refused across restarts)."""
-        self._keeper: concurrent.futures.Future[None] | None = None
-        if signing is not None:
-            self.signing_store = SigningStore(signing, self.router.codec.system_id)
-            self.signing_store.load(*self._signing_states())
-            if self.signing_store.error:
-                log.warning("%s", self.signing_store.error)
-
-    def _signing_states(self) -> tuple[Any, Any]:
-        return self.router.codec.mav.signing, self.router.parser.signing_state
-
-    async def _keep_signing(self) -> None:
-        """Save the signing timestamps every second (on the loop that moves them)."""
-        assert self.signing_store is not None
-        while True:
-            await asyncio.sleep(1.0)
-            self.signing_store.save_due(*self._signing_states())
-
-    def _run(self) -> None:
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
-
-    def start(self) -> tuple[str, int]:
-        """Start the loop and bind the endpoint; return the bound ``(host, port)``."""
-        self._thread.start()
-        self._started = True
-        self.call(self.router.start())
-        if self.signing_store is not None:
-            self._keeper = asyncio.run_coroutine_threadsafe(self._keep_signing(), self.loop)
-        return self.router.local_address
-
-    def call(self, coro: Coroutine[Any, Any, T], timeout_s: float | None = None) -> T:
-        """Run ``coro`` on the station's loop and wait for its result (from another thread).
-
-        The wait is interruptible (Ctrl-C); the coroutine is then cancelled.
-        """
-        fut = asyncio.run_coroutine_threadsafe(coro, self.loop)
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        try:
-            while True:
-                try:
-                    return fut.result(0.2)
-                except TimeoutError:
-                    if fut.done():
-                        raise
-                    if deadline is not None and time.monotonic() > deadline:
-                        raise VehicleTimeout(f"no answer within {timeout_s:g} s") from None
-        except BaseException:
-            fut.cancel()
-            raise
-
-    def run_sync(self, fn: Callable[[], T], timeout_s: float = 10.0) -> T:
-        """Run ``fn()`` on the station's loop thread (the one thread that owns the vehicle
-        state) and return its result; on that thread itself, or when the loop no longer runs
-        (the error path), just call it."""
-        if not self._started or not self.loop.is_running() or \
-                threading.current_thread() is self._thread:
-            return fn()
-
-        async def run() -> T:
-            return fn()
-
-        return asyncio.run_coroutine_threadsafe(run(), self.loop).result(timeout_s)
-
-    def close(self) -> None:
-        if not self._started:
-            self.loop.close()
-            return
-        if self.signing_store is not None:
-            if self._keeper is not None:
-                self._keeper.cancel()
-            self.run_sync(lambda: self.signing_store.save(*self._signing_states())
-                          if self.signing_store else None)
-            if self.signing_store.error:
-                log.warning("%s", self.signing_store.error)
-        try:
-            asyncio.run_coroutine_threadsafe(self.router.close(), self.loop).result(5.0)
-        except Exception as exc:  # noqa: BLE001 - logged and kept: closing goes on regardless
-            self.close_error = f"closing the GCS endpoint failed: {exc!r}"
-            log.error("%s", self.close_error)
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self._thread.join(5.0)
-        if not self._thread.is_alive():
-            self.loop.close()
-        self._started = False
 
 
 # --------------------------------------------------------------------------------------------

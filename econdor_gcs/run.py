@@ -48,11 +48,11 @@ from .link.router import (
 )
 from .link.tlog import TlogWriter
 from .mission import Mission
+from .run_failures import checked_disk, refusals, write_partial
 from .rundir import RunDir, RunDirMode, RunLog, Severity, disk_error, writing
 from .signing import load_signing_key
 
 if TYPE_CHECKING:
-    from .dfc import FlightRecord
     from .fleet import VehicleKind
 
 __all__ = ["resume_mission", "run_mission", "run_mission_cli"]
@@ -234,12 +234,12 @@ def run_mission(
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
                 except VehicleTimeout as exc:
                     raise VehicleTimeout(fleet.explain(str(exc)
-                                                       + _refusals(station.router))) from None
+                                                       + refusals(station.router))) from None
             else:
                 try:
                     sysids = station.call(_wait_count(station.router, n, timeout_s))
                 except VehicleTimeout as exc:
-                    raise VehicleTimeout(str(exc) + _refusals(station.router)) from None
+                    raise VehicleTimeout(str(exc) + refusals(station.router)) from None
             t_setup = time.perf_counter() - wall0
             executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
                                        tolerance_m=tolerance_m, link_timeout_s=link_timeout_s)
@@ -265,7 +265,7 @@ def run_mission(
             # uses it; displays see the samples as the DFC takes them in
             dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
                       progress=_all_of(progress), on_samples=_all_of(on_samples),
-                      on_flight=_checked_disk(rd, tlog, runlog), replay=replay,
+                      on_flight=checked_disk(rd, tlog, runlog), replay=replay,
                       checkpoint=page.checkpoint if page is not None else None)
             result = dfc.run()
             if live is not None:
@@ -315,7 +315,7 @@ def run_mission(
         failure = disk_error(None, exc) if isinstance(exc, OSError) else exc
         msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(failure)
         runlog.add("station", f"run failed: {msg}", Severity.ERROR)
-        _write_partial(rd, dfc, executor, base, timings, fill_timings, msg,
+        write_partial(rd, dfc, executor, base, timings, fill_timings, msg,
                        disk=[e for e in (tlog.error and str(disk_error(tlog.path, tlog.error)),
                                          runlog.error, rd.journal_error) if e])
         if page is not None:
@@ -342,22 +342,6 @@ def run_mission(
 
         plot_run(out)
     return summary
-
-
-def _checked_disk(rd: RunDir, tlog: TlogWriter, runlog: RunLog
-                  ) -> Callable[[FlightRecord], None]:
-    """``rd.record_flight``, after checking that every file of the run is still being
-    written: a full disk seen first by the tlog or the log (both written as messages arrive,
-    where a failure cannot be raised) ends the run here, at the next flight."""
-    def record(flight: FlightRecord) -> None:
-        error = (disk_error(tlog.path, tlog.error) if tlog.error is not None else
-                 RunError(runlog.error) if runlog.error is not None else None)
-        if error is not None:
-            rd.unwritten.append(flight)  # its samples: the error path writes them
-            raise error
-        rd.record_flight(flight)
-
-    return record
 
 
 def _all_of(callbacks: Sequence[Callable[[T], None]]) -> Callable[[T], None]:
@@ -471,88 +455,6 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         signing_key_file=signing_key_file,
         autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
         tolerance_m=float(config.get("tolerance_m", 1.0)))
-
-
-def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
-                   base: dict[str, Any], timings: dict[str, float], fill: Any,
-                   error: str, disk: Sequence[str] = ()) -> None:
-    """Leave a usable run directory after ``error``: the samples still pending, the metrics
-    so far, a ``summary.json`` with ``"error"``.
-
-    The space the run held back is freed first (a full disk is a likely ``error``).
-    Failures on this path do not hide the original error: each is logged (one line on
-    stderr) and listed in the summary's ``"error_path"``, with the files that had stopped
-    being written (``disk``).
-    """
-    problems: list[str] = list(disk)
-    try:
-        rd.salvage()  # a full disk: the space held back is free now
-        for flight in rd.unwritten:  # flights the disk refused: without a flights.jsonl
-            for r in flight.reports:  # line, a resume sets them aside
-                rd.append_samples(r.samples, flight.iteration)
-    except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
-        problems.append(f"the samples of the last flight were not written: {exc}")
-        log.exception("econdor: %s", problems[-1])
-    if executor is not None:
-        try:
-            pending = executor.pending_samples()
-            if len(pending):
-                # an unfinished flight: resume sets these aside (no flights.jsonl line)
-                rd.append_samples(pending, executor.iteration)
-        except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
-            problems.append(f"the samples still pending were not written: {exc!r}"
-                            if not isinstance(exc, RunError) else
-                            f"the samples still pending were not written: {exc}")
-            log.exception("econdor: %s", problems[-1])
-    fill()
-    records = list(dfc.records) if dfc is not None else []
-    last = records[-1] if records else None
-    summary = {
-        **base,
-        "error": error,
-        "iterations": max(0, len(records) - 1),
-        "final_mae": last.mae if last else None,
-        "final_mae_db": last.mae_db if last else None,
-        "span_ratio": last.span_ratio if last else None,
-        "flight_distance_m": dfc.flight_m if dfc is not None else 0.0,
-        "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
-        "samples": sum(len(s) for s in dfc.logs) if dfc is not None else 0,
-        "samples_recorded": rd.n_samples,
-        "samples_received": getattr(rd, "n_received", None),
-        "converged": False,
-        "wall_s": timings.get("total_wall_s"),
-        "sim_s": timings.get("sim_s", 0.0),
-        "timings": timings,
-    }
-    if executor is not None:
-        summary["lost_vehicles"] = executor.losses
-        summary["sample_recovery"] = executor.sample_accounting()
-    if problems:
-        summary["error_path"] = problems
-    try:
-        rd.write_partial(records, summary)
-    except Exception as exc:  # noqa: BLE001 - as above
-        log.exception("econdor: the partial summary.json was not written: %r", exc)
-
-
-REFUSALS = {
-    "bad_signature": "its packets are signed with another key",
-    "unsigned": "its packets are not signed (this station signs: --signing-key)",
-    "replayed": "its packets replay old signing timestamps",
-}
-
-
-def _refusals(router: Router) -> str:
-    """Why vehicles may not have appeared: the systems whose packets signing refused,
-    named with the reason (``; vehicle 2: its packets are signed with another key (31
-    refused)``), or nothing."""
-    parts = []
-    for sysid, counts in sorted(router.parser.refused_by_source().items()):
-        if sysid in router.vehicles and counts.keys() == {"replayed"}:
-            continue  # a vehicle heard: a few reordered packets are no news
-        reason, n = max(counts.items(), key=lambda kv: kv[1])
-        parts.append(f"vehicle {sysid}: {REFUSALS[reason]} ({n} refused)")
-    return "".join(f"; {p}" for p in parts)
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:

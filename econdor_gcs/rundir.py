@@ -28,66 +28,66 @@ about 40 kB per iteration on a 101 x 101 grid).
 
 A run directory is never clobbered: a non-empty one is refused unless the run is started
 with ``--force`` (:attr:`RunDirMode.FORCE`: what an earlier run wrote there is deleted, and
-a file no run writes, :data:`RUN_WRITTEN`, makes it refuse, naming the file) or
-``--resume`` (:attr:`RunDirMode.RESUME`: it is continued).
+a file no run writes makes it refuse, naming the file) or ``--resume``
+(:attr:`RunDirMode.RESUME`: it is continued). What a run writes and how a failed write is
+reported live in :mod:`.rundir_files`, the log lines in :mod:`.runlog`, the checkpoint
+(``flights.jsonl``) in :mod:`.checkpoint`; all are re-exported here. The file by file
+description for users is ``docs/run-directory.md``.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
-import fnmatch
 import io
 import json
 import math
 import os
-import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
+from .checkpoint import flight_to_json as flight_to_json
+from .checkpoint import read_checkpoint as read_checkpoint
+from .checkpoint import read_flight_lines as read_flight_lines
 from .core.geometry import FloatArray, Grid
 from .core.planners import Batch
-from .core.tasks import FlightReport, SampleLog, Task, TaskOutcome, TraceTask, Waypoint
+from .core.tasks import SampleLog, Task, TraceTask, Waypoint
 from .dfc import (
     DfcEvent,
     FlightRecord,
     IterationDone,
     IterationPlanned,
     IterationRecord,
-    RunDone,
     RunResult,
-    RunStarted,
 )
 from .errors import RunError
+from .rundir_files import RESERVE_NAME as RESERVE_NAME
+from .rundir_files import RUN_FILES as RUN_FILES
+from .rundir_files import RUN_WRITTEN as RUN_WRITTEN
+from .rundir_files import RunDirMode as RunDirMode
+from .rundir_files import disk_error as disk_error
+from .rundir_files import foreign_files as foreign_files
+from .rundir_files import prepare_run_dir as prepare_run_dir
+from .rundir_files import writing as writing
+from .runlog import LogLine as LogLine
+from .runlog import RunLog as RunLog
+from .runlog import Severity as Severity
+from .runlog import read_log as read_log
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
-RESERVE_NAME = ".space-reserve"
 RESERVE_BYTES = 2 << 20
 """Disk space a run holds back for its last words when the disk fills up
 (:meth:`RunDir.release_reserve`): ``summary.json``, metrics and the samples in memory take
 a few hundred kB."""
 RECEIVED_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
 """``samples_received.csv``: every sample as it arrived (see :meth:`RunDir.journal`)."""
-RUN_FILES = ("run.json", "summary.json", "samples.csv", "metrics.csv", "flights.jsonl",
-             "telemetry.tlog")
-"""Files that only a run directory has (``--force`` replaces only such a directory)."""
 
 
-class RunDirMode(StrEnum):
-    """What to do with an existing, non-empty run directory."""
-
-    NEW = "new"
-    """Refuse it (the default: nothing of an earlier run is ever overwritten silently)."""
-    FORCE = "force"
-    """Replace it, if it is a run directory."""
-    RESUME = "resume"
-    """Continue it: samples and flights are appended."""
 UNRECORDED = -2
 """The iteration of samples appended outside a recorded flight (an observer's copy)."""
 
@@ -104,27 +104,6 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
-
-
-def disk_error(path: Path | str | None, exc: OSError) -> RunError:
-    """One line for a failed write: the file, and the system's word for why (``No space
-    left on device``, ``Read-only file system``, ...).
-
-    >>> import errno
-    >>> str(disk_error(Path("run/samples.csv"), OSError(errno.ENOSPC, "No space left on device")))
-    'cannot write run/samples.csv: No space left on device'
-    """
-    where = path if path is not None else exc.filename
-    return RunError(f"cannot write {where}: {exc.strerror or exc}")
-
-
-@contextlib.contextmanager
-def writing(path: Path | str | None) -> Iterator[None]:
-    """Turn an :class:`OSError` inside into :func:`disk_error` (a :class:`RunError`)."""
-    try:
-        yield
-    except OSError as exc:
-        raise disk_error(path, exc) from exc
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -249,215 +228,12 @@ def iteration_paths(run_dir: str | Path) -> dict[int, Path]:
     return out
 
 
-# -- log lines ---------------------------------------------------------------------------------
-
-
-class Severity(StrEnum):
-    INFO = "info"
-    WARNING = "warning"
-    ERROR = "error"
-
-
-@dataclass(frozen=True)
-class LogLine:
-    """One line of ``log.jsonl``."""
-
-    wall_s: float
-    """Seconds since the run started (wall clock)."""
-    iteration: int
-    """The iteration running (or planned) when the line was written."""
-    source: str
-    """``dfc``, ``station``, ``operator`` or ``vehicle N`` (N: system id)."""
-    severity: Severity
-    text: str
-
-
-def _describe(event: DfcEvent) -> str:
-    """One log line for a DFC progress event."""
-    if isinstance(event, RunStarted):
-        return (f"run started: planner {event.planner}, seed {event.seed}, "
-                f"{event.vehicles} vehicles")
-    if isinstance(event, IterationPlanned):
-        b = event.batch
-        flying = sum(1 for p in event.plans if p)
-        levels = f"{len(b.levels)} levels (κ {b.kappa}, δ {b.delta:.3g}), " if len(b.levels) else ""
-        return (f"iteration {event.iteration} planned: {levels}{len(b.jobs)} jobs for "
-                f"{flying} vehicles")
-    if isinstance(event, IterationDone):
-        r = event.record
-        mae = f"MAE {r.mae_db:.1f} dB, " if math.isfinite(r.mae_db) else ""
-        le = f"learning error {r.learning_error:.3g}, " if math.isfinite(r.learning_error) else ""
-        return (f"iteration {r.iteration} done: {mae}{le}flown {r.flight_distance_m:.0f} m, "
-                f"{r.samples} samples")
-    assert isinstance(event, RunDone)
-    s = event.summary
-    return (f"run finished ({s.get('stop_reason')}): {s.get('iterations')} iterations, "
-            f"flown {s.get('flight_distance_m', 0.0):.0f} m")
-
-
-class RunLog:
-    """The run's log lines: kept in memory for the live page and appended to ``log.jsonl``.
-
-    Thread-safe: lines come from the DFC thread (progress), the station's loop (vehicle
-    STATUSTEXT), the web server (operator actions) and ``logging``.
-    """
-
-    def __init__(self, path: str | Path | None = None) -> None:
-        self._lock = threading.Lock()
-        self._t0 = time.monotonic()
-        self._lines: list[LogLine] = []
-        self.path = None if path is None else Path(path)
-        self._file: IO[str] | None = None
-        self.error: str | None = None
-        """Why ``log.jsonl`` stopped being written (a full disk...); the lines are still kept
-        in memory, for the live page."""
-        if self.path is not None:
-            with writing(self.path):
-                self._file = self.path.open("w", encoding="utf-8")
-        self.iteration = 0
-
-    def add(self, source: str, text: str, severity: Severity = Severity.INFO) -> LogLine:
-        with self._lock:
-            line = LogLine(round(time.monotonic() - self._t0, 3), self.iteration, source,
-                           severity, text)
-            self._lines.append(line)
-            if self._file is not None and not self._file.closed:
-                try:
-                    self._file.write(json.dumps(asdict(line), ensure_ascii=False) + "\n")
-                    self._file.flush()
-                except OSError as exc:
-                    # lines come from every thread (a vehicle's text on the station's loop):
-                    # a full disk must not break them; the run reports it (``error``)
-                    self.error = str(disk_error(self.path, exc))
-                    with contextlib.suppress(OSError):
-                        self._file.close()
-        return line
-
-    def progress(self, event: DfcEvent) -> None:
-        """A DFC progress callback: one line per event."""
-        if isinstance(event, IterationPlanned):
-            self.iteration = event.iteration
-        self.add("dfc", _describe(event))
-
-    def since(self, n: int) -> list[LogLine]:
-        """Lines from the ``n``-th on (a reader's cursor is the count it has seen)."""
-        with self._lock:
-            return self._lines[n:]
-
-    def __len__(self) -> int:
-        with self._lock:
-            return len(self._lines)
-
-    def close(self) -> None:
-        with self._lock:
-            if self._file is not None:
-                self._file.close()
-
-
-def read_log(path: str | Path) -> list[LogLine]:
-    """Load ``log.jsonl`` (a torn last line of a killed run is skipped)."""
-    out: list[LogLine] = []
-    p = Path(path)
-    if not p.exists():
-        return out
-    for text in p.read_text(encoding="utf-8").splitlines():
-        try:
-            d = json.loads(text)
-            out.append(LogLine(float(d["wall_s"]), int(d["iteration"]), str(d["source"]),
-                               Severity(d["severity"]), str(d["text"])))
-        except (json.JSONDecodeError, KeyError, ValueError, TypeError):
-            continue
-    return out
-
-
 # -- the directory -----------------------------------------------------------------------------
 
 
 def _sync(f: IO[Any]) -> None:
     f.flush()
     os.fsync(f.fileno())
-
-
-RUN_WRITTEN = (
-    "run.json", "mission.yaml", "summary.json", "metrics.csv", "iterations.json",
-    "samples.csv", "samples_interrupted.csv", "samples_received.csv", "flights.jsonl",
-    "fields.npz", "log.jsonl", "telemetry.tlog", "next_batch.json", RESERVE_NAME, "*.tmp",
-    "iterations/iter_*.npz", "iterations/*.tmp", "missions/iter*", "figures/*.png",
-    "vehicles/v*.log",
-)
-"""What a run writes in its directory (``fnmatch`` patterns of paths relative to it):
-``--force`` deletes these and nothing else."""
-
-
-def _run_written(rel: str) -> bool:
-    """``rel`` (a path relative to the run directory) matches :data:`RUN_WRITTEN`, part by
-    part (a ``*`` never reaches into a sub-directory).
-
-    >>> _run_written("figures/maps.png"), _run_written("analysis/maps.png")
-    (True, False)
-    >>> _run_written("summary.json.tmp"), _run_written("analysis/x.tmp")
-    (True, False)
-    """
-    parts = rel.split("/")
-    return any(len(pat.split("/")) == len(parts) and all(
-        fnmatch.fnmatchcase(a, b) for a, b in zip(parts, pat.split("/"), strict=True))
-        for pat in RUN_WRITTEN)
-
-
-def foreign_files(path: Path) -> list[Path]:
-    """Files (and other entries) under ``path`` that no run writes (:data:`RUN_WRITTEN`),
-    in sorted order; a directory counts through what it holds (an empty one is nobody's).
-    """
-    out: list[Path] = []
-    for entry in sorted(path.rglob("*")):
-        rel = entry.relative_to(path).as_posix()
-        if entry.is_dir() and not entry.is_symlink():
-            continue
-        if entry.is_symlink() or not _run_written(rel):
-            out.append(entry)
-    return out
-
-
-def _remove_run_files(path: Path) -> None:
-    """Delete what a run wrote under ``path`` (every entry, checked foreign-free before), then
-    the directories left empty."""
-    for entry in sorted(path.rglob("*"), key=lambda p: len(p.parts), reverse=True):
-        if entry.is_dir() and not entry.is_symlink():
-            with contextlib.suppress(OSError):  # not empty: something appeared meanwhile
-                entry.rmdir()
-        else:
-            entry.unlink()
-
-
-def prepare_run_dir(path: Path, mode: RunDirMode) -> None:
-    """Check ``path`` against ``mode`` (see :class:`RunDirMode`); for ``FORCE`` empty it of
-    what an earlier run wrote, refusing when it holds anything else.
-
-    Raises :class:`RunError` with one line naming the directory (or the file) and the way
-    out.
-    """
-    if path.exists() and not path.is_dir():
-        raise RunError(f"{path}: exists and is not a directory")
-    busy = path.is_dir() and any(path.iterdir())
-    if mode == RunDirMode.RESUME:
-        if not (path / "run.json").is_file():
-            raise RunError(f"{path}: nothing to resume (no run.json: not a run directory, or a "
-                           "run from before resume existed)")
-        return
-    if not busy:
-        return
-    if mode == RunDirMode.NEW:
-        raise RunError(f"{path}: not empty (an earlier run?); use --force to replace it or "
-                       "--resume to continue it")
-    if not any((path / name).exists() for name in RUN_FILES):
-        raise RunError(f"{path}: not empty and not a run directory; refusing to replace it "
-                       "even with --force")
-    foreign = foreign_files(path)
-    if foreign:
-        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
-        raise RunError(f"{foreign[0]}: not written by a run{more}; --force deletes only what "
-                       f"a run wrote: move it out of {path} first")
-    _remove_run_files(path)
 
 
 class RunDir:
@@ -700,97 +476,6 @@ class RunDir:
                 with contextlib.suppress(OSError):  # a full disk: reported where it happened
                     f.close()
         self.release_reserve()
-
-
-# --------------------------------------------------------------------------------------------
-# flights.jsonl: the checkpoint
-
-
-def _task_to_json(task: Task) -> dict[str, Any]:
-    kind = "trace" if isinstance(task, TraceTask) else "waypoint"
-    return {"kind": kind, **asdict(task)}
-
-
-def _task_from_json(d: dict[str, Any]) -> Task:
-    d = dict(d)
-    kind = d.pop("kind")
-    return TraceTask(**d) if kind == "trace" else Waypoint(**d)
-
-
-def flight_to_json(record: FlightRecord) -> dict[str, Any]:
-    """One ``flights.jsonl`` line (samples are in ``samples.csv``, counted here).
-
-    Floats are written with ``repr`` precision, so a resumed run reads back exactly what
-    the interrupted one computed with.
-    """
-    return {
-        "iteration": record.iteration,
-        "plans": [[_task_to_json(t) for t in plan] for plan in record.plans],
-        "positions_before_m": [list(p) for p in record.positions_before_m],
-        "executor_state": record.executor_state,
-        "reports": [{
-            "vehicle": r.vehicle, "samples": len(r.samples), "flown_m": r.flown_m,
-            "traced_m": r.traced_m, "end_x_m": r.end_x_m, "end_y_m": r.end_y_m,
-            "sim_s": r.sim_s,
-            "outcomes": [{"task": _task_to_json(o.task), "status": o.status,
-                          "flown_m": o.flown_m, "traced_m": o.traced_m} for o in r.outcomes],
-        } for r in record.reports],
-    }
-
-
-def read_flight_lines(path: Path) -> list[dict[str, Any]]:
-    """The complete lines of ``flights.jsonl`` (a torn last line from a crash is ignored)."""
-    if not path.exists():
-        return []
-    out = []
-    with path.open(encoding="utf-8") as f:
-        for line in f:
-            if not line.endswith("\n"):
-                break  # written but never finished: that flight did not finish either
-            out.append(json.loads(line))
-    return out
-
-
-def read_checkpoint(run_dir: str | Path) -> list[FlightRecord]:
-    """The finished flights of a run directory, with their samples, for a resumed run."""
-    run_dir = Path(run_dir)
-    lines = read_flight_lines(run_dir / "flights.jsonl")
-    samples = _read_sample_rows(run_dir / "samples.csv")
-    records = []
-    for d in lines:
-        it = d["iteration"]
-        mine = samples[samples[:, 6] == it] if len(samples) else samples
-        reports = []
-        for r in d["reports"]:
-            rows = mine[mine[:, 5] == r["vehicle"]] if len(mine) else mine
-            if len(rows) != r["samples"]:
-                raise RunError(f"{run_dir}: iteration {it}, vehicle {r['vehicle']}: "
-                               f"{len(rows)} samples on disk, {r['samples']} recorded")
-            log = SampleLog(rows[:, 0].copy(), rows[:, 1].copy(), rows[:, 2].copy(),
-                            rows[:, 3].copy(), rows[:, 4].astype(np.int8),
-                            rows[:, 5].astype(np.int16)) if len(rows) else SampleLog()
-            outcomes = [TaskOutcome(_task_from_json(o["task"]), o["status"], o["flown_m"],
-                                    o["traced_m"]) for o in r["outcomes"]]
-            reports.append(FlightReport(r["vehicle"], log, r["flown_m"], r["traced_m"],
-                                        outcomes, r["end_x_m"], r["end_y_m"], r["sim_s"]))
-        records.append(FlightRecord(
-            iteration=it,
-            plans=[[_task_from_json(t) for t in plan] for plan in d["plans"]],
-            reports=reports,
-            positions_before_m=[(float(p[0]), float(p[1])) for p in d["positions_before_m"]],
-            executor_state=d.get("executor_state")))
-    return records
-
-
-def _read_sample_rows(path: Path) -> np.ndarray:
-    if not path.exists():
-        return np.zeros((0, len(SAMPLE_COLUMNS)))
-    with path.open(encoding="utf-8") as f:
-        f.readline()  # the header
-        rows = f.read()
-    if not rows.strip():
-        return np.zeros((0, len(SAMPLE_COLUMNS)))
-    return np.loadtxt(io.StringIO(rows), delimiter=",", ndmin=2)
 
 
 def read_run_config(run_dir: str | Path) -> dict[str, Any]:
