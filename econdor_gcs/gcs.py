@@ -219,6 +219,8 @@ class MavlinkExecutor:
         """Each vehicle's missions: planned, saved, uploaded (and the geofence)."""
         self._abort = threading.Event()
         """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
+        self._in_hand: dict[int, FlightReport] = {}
+        """Reports of the flight in progress whose rounds have ended (see :meth:`_fly`)."""
         self.recovery = SampleRecovery(self.router, self.mission, self.vehicles, self.timings,
                                        self.vehicle_losses, self._until,
                                        lambda: self.aborted)
@@ -345,8 +347,14 @@ class MavlinkExecutor:
 
     # -- the flights ----------------------------------------------------------------------------
     def pending_samples(self) -> SampleLog:
-        """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
-        return self._owned(self.telemetry.pending_samples)
+        """Samples received but not yet handed to the DFC (e.g. when a flight failed): the
+        flights in progress, and the rounds of the failed flight that had ended already."""
+        def take() -> SampleLog:
+            ended = [r.samples for r in self._in_hand.values()]
+            self._in_hand = {}
+            return SampleLog.concat([*ended, self.telemetry.pending_samples()])
+
+        return self._owned(take)
 
     async def _disarm(self, v: VehicleState) -> None:
         await self.commands.disarm(v)
@@ -382,6 +390,9 @@ class MavlinkExecutor:
         further rounds, by the vehicles in service (that one too, once its link is back)."""
         self.vehicle_losses.check_lost()
         reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
+        # until they are returned, the reports of the rounds flown are what an error on the
+        # way (every vehicle lost) would otherwise drop: pending_samples() takes them
+        self._in_hand = reports
         plans = self.vehicle_losses.reassign([list(p) for p in plans], [], self.positions)
         for round_no in range(MAX_ROUNDS):
             if self._abort.is_set():
@@ -411,6 +422,7 @@ class MavlinkExecutor:
         else:
             log.error("iteration %d: pieces still unfinished after %d rounds are left "
                       "unreported", iteration, MAX_ROUNDS)
+        self._in_hand = {}
         out = [reports[v.index] for v in self.vehicles.values()]
         self.sim_s += max((r.sim_s for r in out), default=0.0)
         return out
