@@ -16,8 +16,12 @@ START seconds after the first datagram.
 Per run it prints: the exit status, iterations, vehicles given up (every vehicle here is
 healthy: any given up is a failure), and samples: what the vehicles took (their own exit
 lines), what reached the station (distinct FIELD + GLOBAL_POSITION_INT pairs in the tlog,
-resends included) and what the run directory kept (``samples.csv``). A run counts as good
-when it exits 0, gives nobody up, and keeps every sample that reached the station.
+resends included) and what the run directory kept (``samples.csv``); then ``resent``, the
+commands sent again because neither an answer nor the vehicle's telemetry showed them done
+(a resent MISSION_START would fly a mission again), ``left``, the flights a vehicle left on
+its own (its GCS failsafe after 5 s without the station's heartbeat), and the achieved
+speed-up. A run counts as good when it exits 0, gives nobody up, and keeps every sample
+that reached the station.
 """
 
 from __future__ import annotations
@@ -207,6 +211,9 @@ class RunResult:
     kept: int
     wall_s: float
     error: str
+    resent: int = 0
+    left: int = 0
+    speedup: float = float("nan")
 
     @property
     def good(self) -> bool:
@@ -273,9 +280,14 @@ def one_run(args: argparse.Namespace, relay_kind: str, run: int, root: Path) -> 
     sysids = summary.get("sysids") or list(range(1, args.vehicles + 1))
     tlog = out / "telemetry.tlog"
     reached = sum(reached_station(tlog, sysids).values()) if tlog.exists() else 0
+    resent = 0
+    with contextlib.suppress(OSError):
+        resent = (out / "log.jsonl").read_text().count("no answer and no sign of it")
     return RunResult(relay_kind, run, code, summary.get("iterations"), given_up, took,
                      reached, sum(kept(out, sysids).values()), wall,
-                     summary.get("error") or "")
+                     summary.get("error") or "", resent,
+                     len(summary.get("interrupted_flights") or []),
+                     (summary.get("timings") or {}).get("achieved_speedup", float("nan")))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -316,7 +328,8 @@ def main(argv: list[str] | None = None) -> int:
           f"drop {args.drop:.0%} duplicate {args.duplicate:.0%} reorder {args.reorder:.0%} "
           f"each way" + (f", outage {args.outage}" if args.outage else ""), flush=True)
     print(f"{'relay':>11} {'run':>3} {'exit':>4} {'iters':>5} {'given up':>8} {'took':>7} "
-          f"{'reached':>7} {'kept':>7} {'wall s':>6}  note", flush=True)
+          f"{'reached':>7} {'kept':>7} {'wall s':>6} {'resent':>6} {'left':>4} {'speed':>5}"
+          "  note", flush=True)
     results: list[RunResult] = []
     with tempfile.TemporaryDirectory(prefix="econdor-lossy-") as tmp:
         root = args.keep.resolve() if args.keep else Path(tmp)
@@ -327,7 +340,8 @@ def main(argv: list[str] | None = None) -> int:
                 note = "; ".join(r.given_up) or r.error
                 print(f"{r.relay:>11} {r.run:>3} {r.code:>4} {r.iterations or '-':>5} "
                       f"{len(r.given_up):>8} {r.took:>7} {r.reached:>7} {r.kept:>7} "
-                      f"{r.wall_s:>6.0f}  {note}", flush=True)
+                      f"{r.wall_s:>6.0f} {r.resent:>6} {r.left:>4} {r.speedup:>5.1f}  {note}",
+                      flush=True)
     for kind in kinds:
         mine = [r for r in results if r.relay == kind]
         streak = best = 0
