@@ -142,18 +142,23 @@ class VehicleLosses:
         return now - link.last_heartbeat_mono if link is not None else math.inf
 
     def link_back(self, v: VehicleState) -> bool:
-        """``v`` heartbeats again: one within the last second, after :data:`LINK_BACK_S` of
-        them (or ``v`` is given up: nothing to wait for)."""
+        """``v``'s link is up: heard within :data:`SILENT_S`, and, after a silence, for
+        :data:`LINK_BACK_S` since (or ``v`` is given up: nothing to wait for)."""
         link = self.router.vehicles.get(v.sysid)
         if v.lost is not None or link is None:
             return True
         now = time.monotonic()
         if now - link.last_heartbeat_mono > SILENT_S:
-            v.back_since = None
+            v.link_out, v.back_since = True, None
             return False
+        if not v.link_out:
+            return True
         if v.back_since is None:
             v.back_since = now
-        return now - v.back_since >= LINK_BACK_S
+        if now - v.back_since >= LINK_BACK_S:
+            v.link_out, v.back_since = False, None
+            return True
+        return False
 
     async def wait_link(self, v: VehicleState) -> bool:
         """Wait until ``v``'s link is back (True) or ``v`` is given up at the link timeout

@@ -141,8 +141,11 @@ class VehicleState:
     None: unknown, the vehicle was given up before it could be asked)."""
     silent: bool = False
     """Its link was out when the item time limits were last checked."""
+    link_out: bool = False
+    """Its link was found out (no HEARTBEAT for :data:`~.losses.SILENT_S`) and is not
+    back yet."""
     back_since: float | None = None
-    """Monotonic time its HEARTBEATs came back after a silence (None: silent now)."""
+    """Monotonic time its HEARTBEATs came back after a silence."""
     mission_state: int = 0
     """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
     that does not say)."""
