@@ -202,8 +202,7 @@ class MavlinkExecutor:
         self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0,
                         "flight_sim_s": 0.0, "return_sim_s": 0.0}
         """Wall seconds per activity; ``flight_sim_s`` / ``return_sim_s``: the vehicles'
-        own time over the same wall intervals as ``flight_s`` / ``return_s`` (the
-        achieved speed-up is their ratio)."""
+        own time over the same wall intervals as ``flight_s`` / ``return_s``."""
         self.iteration = 0
         self.sim_s = 0.0
         self.vehicle_losses = VehicleLosses(self.router, self.mission, self.vehicles,
@@ -308,6 +307,10 @@ class MavlinkExecutor:
         for message_id, wall_hz in STREAM_WALL_HZ.items():
             with contextlib.suppress(LinkError):
                 await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
+
+    def clock_rate(self) -> float:
+        """The vehicles' achieved speed-up (:meth:`.telemetry.StationTelemetry.clock_rate`)."""
+        return self._owned(self.telemetry.clock_rate)
 
     def _owned(self, fn: Callable[[], T]) -> T:
         """``fn()`` on the thread that owns the vehicle state (the station's loop)."""

@@ -146,6 +146,10 @@ class VehicleState:
     back yet."""
     back_since: float | None = None
     """Monotonic time its HEARTBEATs came back after a silence."""
+    clock_first: tuple[float, int] | None = None
+    """(monotonic time, ``time_boot_ms``) of its first position, ..."""
+    clock_last: tuple[float, int] | None = None
+    """... and of its latest: how fast its clock runs (:meth:`StationTelemetry.clock_rate`)."""
     mission_state: int = 0
     """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
     that does not say)."""
@@ -331,6 +335,13 @@ class StationTelemetry:
             self._judge(v, msg)
         elif kind == "HEARTBEAT":
             self._judge(v, msg)
+        elif kind == "GLOBAL_POSITION_INT":
+            # the vehicle's clock against ours (a resent sample's older time is no news)
+            pair = (time.monotonic(), int(msg.time_boot_ms))
+            if v.clock_first is None:
+                v.clock_first = pair
+            elif v.clock_last is None or pair[1] > v.clock_last[1]:
+                v.clock_last = pair
         elif kind == "MISSION_ITEM_REACHED":
             v.mission_news_at = time.monotonic()
             if f is not None:
@@ -538,6 +549,21 @@ class StationTelemetry:
                 message=v.last_text,
             ))
         return rows
+
+    def clock_rate(self) -> float:
+        """The vehicles' sim-time speed-up as achieved: their clocks (positions'
+        ``time_boot_ms``) over ours since their first position, the median of the vehicles
+        in service heard over 5 s or more (NaN: none). Over the whole run, the staleness of
+        a position (up to a quarter second between the display's positions) does not
+        count."""
+        rates = sorted(
+            (b[1] - a[1]) / 1000.0 / (b[0] - a[0]) for v in self.vehicles.values()
+            if v.lost is None and (a := v.clock_first) is not None
+            and (b := v.clock_last) is not None and b[0] - a[0] >= 5.0)
+        if not rates:
+            return float("nan")
+        mid = len(rates) // 2
+        return rates[mid] if len(rates) % 2 else (rates[mid - 1] + rates[mid]) / 2
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
                       ) -> list[dict[str, Any]]:

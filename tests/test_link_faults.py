@@ -318,3 +318,34 @@ def test_a_silent_vehicle_is_not_late() -> None:
     router.vehicles[1].last_heartbeat_mono = time.monotonic()
     ex.vehicle_losses.check_progress([v])
     assert v.lost is None and not v.silent and v.item_since_ms == 5000 + 2 * limit_ms
+
+
+def test_the_achieved_speed_up_is_the_vehicles_clock_against_ours(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Positions' ``time_boot_ms`` against the station's clock over the run: 50x for
+    vehicles at 50x, whatever a lossy link does to the flights (a resent sample's older
+    time changes nothing; a vehicle given up does not count)."""
+    import econdor_gcs.telemetry as telemetry
+
+    ex, router = _executor()
+    wall = [100.0]
+    monkeypatch.setattr(telemetry.time, "monotonic", lambda: wall[0])
+    on_msg = router.handlers["message"]
+
+    def position(sysid: int, ms: int) -> None:
+        on_msg(sysid, mavlink.MAVLink_global_position_int_message(ms, 0, 0, 0, 0, 0, 0, 0, 0))
+
+    assert np_isnan(ex.clock_rate())
+    for k in range(61):
+        wall[0] = 100.0 + k
+        position(1, 5000 + 50_000 * k)
+        position(2, 9000 + 40_000 * k)
+        if k == 30:
+            position(1, 5000)  # a resent sample: old news
+    assert ex.clock_rate() == pytest.approx(45.0)  # the median of 50x and 40x
+    ex.vehicles[2].lost = "given up"
+    assert ex.clock_rate() == pytest.approx(50.0)
+
+
+def np_isnan(x: float) -> bool:
+    return x != x
