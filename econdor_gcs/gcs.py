@@ -2,7 +2,7 @@
 
 Pieces, from the bottom up:
 
-:class:`Station`
+:class:`~.station.Station`
     An asyncio event loop on a background thread that owns the GCS :class:`~.link.Router`
     (one UDP endpoint, vehicles routed by system id, every message to ``telemetry.tlog``).
     The synchronous world (the :class:`~.dfc.Dfc` loop in the main thread) submits
@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import threading
@@ -72,22 +73,22 @@ from collections.abc import Callable, Coroutine, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from .commands import Commands
 from .core.tasks import FlightReport, SampleLog, Task
 from .errors import LinkError, ProtocolError, VehicleTimeout
-from .link.autopilots import start_mission
 from .link.codec import mavlink
 from .link.mission import fence_items
-from .link.router import AIRBORNE_ALT_M, Received, Router, Sample, VehicleLost
-from .link.tlog import TlogWriter
+from .link.router import AIRBORNE_ALT_M, Received, Sample, VehicleLost
 from .link.vehicles import EVENTS
 from .losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
 from .losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
 from .losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
+from .losses import LINK_TIMEOUT_S as LINK_TIMEOUT_S
 from .losses import LOSS_SILENCE_S as LOSS_SILENCE_S
 from .losses import VehicleLosses, run_all
 from .mission import Mission
 from .recovery import SampleRecovery
-from .signing import SigningKey
+from .station import Station as Station
 from .telemetry import LATE as LATE
 from .telemetry import SAMPLE_BATCH as SAMPLE_BATCH
 from .telemetry import (
@@ -120,6 +121,9 @@ log = logging.getLogger(__name__)
 
 FENCE_MARGIN_M = 5.0
 """The fence uploaded to every vehicle: the mission area plus this margin on every side."""
+MAX_ROUNDS = 8
+"""Rounds of one iteration's flight: the plans, then the pieces left unfinished by vehicles
+given up or taken off their missions by their own failsafe, flown again."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
@@ -131,83 +135,6 @@ def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
                         flown_m=a.flown_m + b.flown_m, traced_m=a.traced_m + b.traced_m,
                         outcomes=a.outcomes + b.outcomes, end_x_m=b.end_x_m, end_y_m=b.end_y_m,
                         sim_s=a.sim_s + b.sim_s)
-
-
-# --------------------------------------------------------------------------------------------
-# the asyncio loop on a thread
-
-
-class Station:
-    """The GCS endpoint (a :class:`Router`) served by an event loop on a background thread."""
-
-    def __init__(self, endpoint: str | Sequence[str], tlog: TlogWriter | None = None,
-                 heartbeat_timeout_s: float = 20.0, signing: SigningKey | None = None) -> None:
-        self.loop = asyncio.new_event_loop()
-        self.router = Router(endpoint, tlog=tlog, heartbeat_timeout_s=heartbeat_timeout_s,
-                             signing=signing)
-        self._thread = threading.Thread(target=self._run, name="econdor-gcs", daemon=True)
-        self._started = False
-        self.close_error: str | None = None
-        """Why :meth:`close` could not close the endpoint cleanly (logged), else None."""
-
-    def _run(self) -> None:
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
-
-    def start(self) -> tuple[str, int]:
-        """Start the loop and bind the endpoint; return the bound ``(host, port)``."""
-        self._thread.start()
-        self._started = True
-        self.call(self.router.start())
-        return self.router.local_address
-
-    def call(self, coro: Coroutine[Any, Any, T], timeout_s: float | None = None) -> T:
-        """Run ``coro`` on the station's loop and wait for its result (from another thread).
-
-        The wait is interruptible (Ctrl-C); the coroutine is then cancelled.
-        """
-        fut = asyncio.run_coroutine_threadsafe(coro, self.loop)
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        try:
-            while True:
-                try:
-                    return fut.result(0.2)
-                except TimeoutError:
-                    if fut.done():
-                        raise
-                    if deadline is not None and time.monotonic() > deadline:
-                        raise VehicleTimeout(f"no answer within {timeout_s:g} s") from None
-        except BaseException:
-            fut.cancel()
-            raise
-
-    def run_sync(self, fn: Callable[[], T], timeout_s: float = 10.0) -> T:
-        """Run ``fn()`` on the station's loop thread (the one thread that owns the vehicle
-        state) and return its result; on that thread itself, or when the loop no longer runs
-        (the error path), just call it."""
-        if not self._started or not self.loop.is_running() or \
-                threading.current_thread() is self._thread:
-            return fn()
-
-        async def run() -> T:
-            return fn()
-
-        return asyncio.run_coroutine_threadsafe(run(), self.loop).result(timeout_s)
-
-    def close(self) -> None:
-        if not self._started:
-            self.loop.close()
-            return
-        try:
-            asyncio.run_coroutine_threadsafe(self.router.close(), self.loop).result(5.0)
-        except Exception as exc:  # noqa: BLE001 - logged and kept: closing goes on regardless
-            self.close_error = f"closing the GCS endpoint failed: {exc!r}"
-            log.error("%s", self.close_error)
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self._thread.join(5.0)
-        if not self._thread.is_alive():
-            self.loop.close()
-        self._started = False
 
 
 # --------------------------------------------------------------------------------------------
@@ -243,7 +170,10 @@ class MavlinkExecutor:
         ``.waypoints`` when :mod:`econdor_gcs.export` is available).
     timeout_s:
         Per-message timeout of commands / transfers is the link layer's; this bounds a whole
-        mission transfer and the wait for the first position.
+        mission transfer, the wait for the first position and for the pre-arm checks.
+    link_timeout_s:
+        A vehicle silent this long is given up (:data:`~.losses.LINK_TIMEOUT_S`); a
+        shorter silence is waited out.
     tolerance_m:
         Douglas-Peucker tolerance of the waypoint polylines given to vehicles that refuse
         contour items (stock autopilots).
@@ -255,7 +185,7 @@ class MavlinkExecutor:
 
     def __init__(self, station: Station, mission: Mission, sysids: Sequence[int],
                  missions_dir: Path | None = None, timeout_s: float = 20.0,
-                 tolerance_m: float = 1.0) -> None:
+                 tolerance_m: float = 1.0, link_timeout_s: float = LINK_TIMEOUT_S) -> None:
         self.station = station
         self.router = station.router
         self.mission = mission
@@ -274,12 +204,18 @@ class MavlinkExecutor:
                                           self._changed, self.home)
         """Each vehicle's state, kept from what it sends (the router's callbacks)."""
         self.vehicles = self.telemetry.vehicles
-        self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0}
+        self.timings = {"protocol_s": 0.0, "flight_s": 0.0, "return_s": 0.0,
+                        "flight_sim_s": 0.0, "return_sim_s": 0.0}
+        """Wall seconds per activity; ``flight_sim_s`` / ``return_sim_s``: the vehicles'
+        own time over the same wall intervals as ``flight_s`` / ``return_s``."""
         self.iteration = 0
         self.sim_s = 0.0
         self.vehicle_losses = VehicleLosses(self.router, self.mission, self.vehicles,
-                                            self.sysids, iteration=lambda: self.iteration)
+                                            self.sysids, iteration=lambda: self.iteration,
+                                            until=self._until, link_timeout_s=link_timeout_s)
         """Vehicles given up: silence, time limits, and where their work goes."""
+        self.commands = Commands(self.router, self._until, timeout_s)
+        """Arming, starting, returning: each done when acknowledged or seen done."""
         self.vehicle_missions = VehicleMissions(
             self.router, self.telemetry, self.vehicle_losses, self.mission,
             missions_dir=missions_dir, timeout_s=timeout_s, tolerance_m=tolerance_m,
@@ -287,6 +223,8 @@ class MavlinkExecutor:
         """Each vehicle's missions: planned, saved, uploaded (and the geofence)."""
         self._abort = threading.Event()
         """Set by :meth:`abort_flight` (any thread): the flight in progress ends now."""
+        self._in_hand: dict[int, FlightReport] = {}
+        """Reports of the flight in progress whose rounds have ended (see :meth:`_fly`)."""
         self.recovery = SampleRecovery(self.router, self.mission, self.vehicles, self.timings,
                                        self.vehicle_losses, self._until,
                                        lambda: self.aborted)
@@ -304,6 +242,12 @@ class MavlinkExecutor:
     def losses(self) -> list[dict[str, Any]]:
         """Every vehicle given up (:attr:`.losses.VehicleLosses.records`)."""
         return self.vehicle_losses.records
+
+    @property
+    def interruptions(self) -> list[dict[str, Any]]:
+        """Every flight a vehicle left on its own (its failsafe), and where its unfinished
+        work went (:attr:`.losses.VehicleLosses.interruptions`)."""
+        return self.vehicle_losses.interruptions
 
     @property
     def report_errors(self) -> int:
@@ -351,7 +295,8 @@ class MavlinkExecutor:
         await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
         fence = fence_items(self.origin, self.mission.region, FENCE_MARGIN_M)
         losses = self.vehicle_losses
-        await run_all([losses.tolerant(v, self.vehicle_missions.upload_fence(v, fence))
+        await run_all([losses.tolerant(v, functools.partial(self.vehicle_missions.upload_fence,
+                                                            v, fence))
                        for v in self.vehicles.values()])
 
     async def _slow_streams(self, sysid: int) -> None:
@@ -373,6 +318,10 @@ class MavlinkExecutor:
         for message_id, wall_hz in STREAM_WALL_HZ.items():
             with contextlib.suppress(LinkError):
                 await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
+
+    def clock_rate(self) -> float:
+        """The vehicles' achieved speed-up (:meth:`.telemetry.StationTelemetry.clock_rate`)."""
+        return self._owned(self.telemetry.clock_rate)
 
     def _owned(self, fn: Callable[[], T]) -> T:
         """``fn()`` on the thread that owns the vehicle state (the station's loop)."""
@@ -412,18 +361,24 @@ class MavlinkExecutor:
 
     # -- the flights ----------------------------------------------------------------------------
     def pending_samples(self) -> SampleLog:
-        """Samples received but not yet handed to the DFC (e.g. when a flight failed)."""
-        return self._owned(self.telemetry.pending_samples)
+        """Samples received but not yet handed to the DFC (e.g. when a flight failed): the
+        flights in progress, and the rounds of the failed flight that had ended already."""
+        def take() -> SampleLog:
+            ended = [r.samples for r in self._in_hand.values()]
+            self._in_hand = {}
+            return SampleLog.concat([*ended, self.telemetry.pending_samples()])
+
+        return self._owned(take)
 
     async def _disarm(self, v: VehicleState) -> None:
-        await self.router.disarm(v.sysid)
+        await self.commands.disarm(v)
 
     async def _return(self, v: VehicleState) -> None:
-        await self.router.return_to_launch(v.sysid)
+        await self.commands.return_to_launch(v)
 
     async def _start(self, v: VehicleState) -> None:
         v.status = "starting"
-        await start_mission(self.router, v.sysid, 1, self.timeout_s)
+        await self.commands.start_mission(v, 1)
         v.status = "flying"
 
     async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
@@ -435,6 +390,7 @@ class MavlinkExecutor:
             self._changed.clear()
             if cond():
                 return True
+            self.telemetry.convert_due()
             if on_tick is not None:
                 on_tick()
             if deadline is not None and time.monotonic() > deadline:
@@ -443,31 +399,50 @@ class MavlinkExecutor:
                 await asyncio.wait_for(self._changed.wait(), tick_s)
 
     async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
-        """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle lost
-        during the flight left unfinished, are flown by the others (in further rounds)."""
+        """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle left
+        unfinished (given up, or its own failsafe took it off its mission), are flown in
+        further rounds, by the vehicles in service (that one too, once its link is back)."""
         self.vehicle_losses.check_lost()
         reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
+        # until they are returned, the reports of the rounds flown are what an error on the
+        # way (every vehicle lost) would otherwise drop: pending_samples() takes them
+        self._in_hand = reports
         plans = self.vehicle_losses.reassign([list(p) for p in plans], [], self.positions)
-        for round_no in range(len(self.sysids)):
+        for round_no in range(MAX_ROUNDS):
             if self._abort.is_set():
                 break
             flown = await self._round(plans, iteration, round_no)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
+                cut = v.flight.interrupted if v.flight is not None else None
                 r = self.telemetry.end(v)
-                if v.lost is not None:
+                if v.lost is not None or cut is not None:
                     left = self.vehicle_losses.unfinished(r)
                     if left:
                         leftover.append((v.sysid, left))
+                        if cut is not None and v.lost is None:
+                            self.vehicle_losses.record_interruption(v, cut, left)
                     r.outcomes = [o for o in r.outcomes if o.task not in left]
                 reports[v.index] = r if round_no == 0 else _merge(reports[v.index], r)
             if not leftover:
                 break
+            # the vehicles whose link is out are waited for: their failsafe flies them, the
+            # station picks up where they left when they are heard again
+            await run_all([self._await_link(v) for v in self.vehicles.values()
+                           if v.lost is None and not self.vehicle_losses.link_back(v)])
+            self.vehicle_losses.check_lost()
             plans = self.vehicle_losses.reassign([[] for _ in self.sysids], leftover,
                                                  self.positions)
+        else:
+            log.error("iteration %d: pieces still unfinished after %d rounds are left "
+                      "unreported", iteration, MAX_ROUNDS)
+        self._in_hand = {}
         out = [reports[v.index] for v in self.vehicles.values()]
         self.sim_s += max((r.sim_s for r in out), default=0.0)
         return out
+
+    async def _await_link(self, v: VehicleState) -> None:
+        await self.vehicle_losses.wait_link(v)
 
     async def _round(self, plans: list[list[Task]], iteration: int, round_no: int
                      ) -> list[VehicleState]:
@@ -480,14 +455,15 @@ class MavlinkExecutor:
             if not tasks or v.lost is not None:
                 continue
             flying.append(v)
-            jobs.append(self.vehicle_losses.tolerant(
-                v, self.vehicle_missions.plan_and_upload(v, tasks, iteration, round_no)))
+            jobs.append(self.vehicle_losses.tolerant(v, functools.partial(
+                self.vehicle_missions.plan_and_upload, v, tasks, iteration, round_no)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await run_all(jobs)
-        await run_all([self.vehicle_losses.tolerant(v, self._start(v)) for v in flying
-                       if v.lost is None])
+        await run_all([self.vehicle_losses.tolerant(v, functools.partial(self._start, v))
+                       for v in flying if v.lost is None])
         t1 = time.monotonic()
+        clocks = self._clocks(flying)
         for v in flying:
             v.item_since = t1
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
@@ -497,17 +473,30 @@ class MavlinkExecutor:
             self.vehicle_losses.check_progress(flying)
 
         await self._until(lambda: self._abort.is_set() or all(
-            v.lost is not None or (v.flight is not None and v.flight.done) for v in flying),
+            v.lost is not None or (v.flight is not None and (
+                v.flight.done or v.flight.interrupted is not None)) for v in flying),
             on_tick=tick)
         if self._abort.is_set():
             busy = [v for v in flying if v.lost is None and v.flight is not None
                     and not v.flight.done]
             log.warning("operator stop: vehicles %s leave their missions and return to launch",
                         [v.sysid for v in busy])
-            await run_all([self.vehicle_losses.tolerant(v, self._return(v)) for v in busy])
+            await run_all([self.vehicle_losses.tolerant(v, functools.partial(self._return, v))
+                           for v in busy])
         self.timings["flight_s"] += time.monotonic() - t1
+        self.timings["flight_sim_s"] += self._elapsed_s(clocks)
         await self.recovery.recover([v for v in flying if v.lost is None])
         return flying
+
+    def _clocks(self, vs: list[VehicleState]) -> dict[int, int]:
+        """The vehicles' own clocks now (their last position's ``time_boot_ms``)."""
+        return {v.sysid: self.router.vehicles[v.sysid].time_boot_ms or 0 for v in vs}
+
+    def _elapsed_s(self, clocks: dict[int, int]) -> float:
+        """Vehicle seconds since ``clocks`` (the most any vehicle in service ran)."""
+        now = self._clocks([self.vehicles[s] for s in clocks])
+        return max((now[s] - t for s, t in clocks.items()
+                    if self.vehicles[s].lost is None and now[s] >= t), default=0) / 1000.0
 
     async def _finish(self) -> list[FlightReport]:
         self.vehicle_losses.check_lost()
@@ -521,18 +510,20 @@ class MavlinkExecutor:
             if not airborne:
                 if link.armed:
                     with contextlib.suppress(ProtocolError):
-                        await self.vehicle_losses.tolerant(v, self._disarm(v))
+                        await self.vehicle_losses.tolerant(
+                            v, functools.partial(self._disarm, v))
                 continue
             self.telemetry.begin(v, [])
             going.append(v)
         for v in going:
             v.status = "returning"
-            await self.vehicle_losses.tolerant(v, self._return(v))
+            await self.vehicle_losses.tolerant(v, functools.partial(self._return, v))
             # the way home has the time limit of an item anywhere in the area
             v.item_since = time.monotonic()
             v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
         self.timings["protocol_s"] += time.monotonic() - t0
         t1 = time.monotonic()
+        clocks = self._clocks(going)
 
         def all_down() -> bool:
             for v in going:
@@ -556,6 +547,7 @@ class MavlinkExecutor:
         for v in going:
             v.status = "landed"
         self.timings["return_s"] += time.monotonic() - t1
+        self.timings["return_sim_s"] += self._elapsed_s(clocks)
         await self.recovery.recover(going)
         reports = [self.telemetry.end(v) if v in going else self.telemetry.end_idle(v)
                    for v in self.vehicles.values()]

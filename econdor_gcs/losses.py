@@ -1,12 +1,15 @@
 """Vehicles given up, and where their work goes.
 
 :class:`VehicleLosses` is a part of :class:`~.gcs.MavlinkExecutor`. A vehicle is given up
-when the router hears no HEARTBEAT from it for its timeout, when a step with it fails after
-:data:`LOSS_SILENCE_S` of silence, or when its current mission item takes longer than the
-item's time limit (:meth:`VehicleLosses.item_limit_s`; it is then told to return). Its
-unfinished tasks go to the vehicles still in service (:meth:`VehicleLosses.reassign`); the
-run fails only when no vehicle is left. Like the rest of the executor, this runs on the
-station's loop thread.
+only when its HEARTBEAT is gone for the link timeout (``--link-timeout``, default
+:data:`LINK_TIMEOUT_S`: the router's :class:`~.link.router.VehicleLost`), or when its
+current mission item takes longer than the item's time limit
+(:meth:`VehicleLosses.item_limit_s`; it is then told to return). A step with a vehicle that
+fails while the vehicle is silent (its link is out: a radio drop-out) waits for the link to
+come back and runs again (:meth:`VehicleLosses.tolerant`); a lost acknowledgement that the
+vehicle's own telemetry contradicts never counts (:mod:`.commands`). Its unfinished tasks go
+to the vehicles still in service (:meth:`VehicleLosses.reassign`); the run fails only when
+no vehicle is left. Like the rest of the executor, this runs on the station's loop thread.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Coroutine, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .core.tasks import FlightReport, OutcomeStatus, Task, TaskStyle, TraceTask
 from .errors import LinkError, VehicleTimeout
@@ -24,12 +27,26 @@ from .link.router import Router
 from .mission import Mission
 from .telemetry import VehicleState
 
-__all__ = ["VehicleLosses", "run_all"]
+if TYPE_CHECKING:
+    from .recovery import Until
+
+__all__ = ["LINK_TIMEOUT_S", "VehicleLosses", "run_all"]
 
 log = logging.getLogger(__name__)
 
+LINK_TIMEOUT_S = 120.0
+"""A vehicle silent this long (no HEARTBEAT) is given up; its unfinished pieces go to the
+others. Long enough for the drop-outs of a telemetry radio (15 s is ordinary, a minute
+happens), during which the vehicle's own failsafe (RTL after 5 s) keeps it safe and its
+samples on board; the station picks up where it left when the link is back."""
 LOSS_SILENCE_S = 5.0
-"""A vehicle silent this long (no HEARTBEAT) is lost; its unfinished pieces go to the others."""
+"""The shortest link timeout that makes sense: a vehicle heartbeats at 1 Hz."""
+SILENT_S = 3.0
+"""No HEARTBEAT for this long: the link is out (three in a row lost; at 20 % loss each
+way, 1 % of the time for 3 s), so a failing step waits for it instead of failing the run,
+and the item time limits stop counting."""
+LINK_BACK_S = 2.0
+"""The link counts as back after HEARTBEATs for this long (two in a row)."""
 DESCENT_RATE_MPS = 1.0
 """Slowest descent we expect of a vehicle landing (PX4 lands at 0.7-1.5 m/s)."""
 ITEM_TIME_FACTOR = 3.0
@@ -70,8 +87,11 @@ class VehicleLosses:
     """
 
     def __init__(self, router: Router, mission: Mission, vehicles: dict[int, VehicleState],
-                 sysids: Sequence[int], *, iteration: Callable[[], int]) -> None:
+                 sysids: Sequence[int], *, iteration: Callable[[], int],
+                 until: Until | None = None, link_timeout_s: float = LINK_TIMEOUT_S) -> None:
         self.router = router
+        self.until = until
+        self.link_timeout_s = link_timeout_s
         self.mission = mission
         self.vehicles = vehicles
         self.sysids = sysids
@@ -80,6 +100,11 @@ class VehicleLosses:
         self.records: list[dict[str, Any]] = []
         """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
         its tasks, the iteration, the vehicle that flew it, the tasks and piece ids."""
+        self.interruptions: list[dict[str, Any]] = []
+        """Every flight a vehicle left before its end on its own (its failsafe): sysid,
+        reason, iteration, and ``reassigned`` as for :attr:`records`."""
+        self._open: dict[int, dict[str, Any]] = {}
+        """The record (loss or interruption) whose tasks are handed out now, by sysid."""
 
     def mark_lost(self, v: VehicleState, reason: str) -> None:
         """Give ``v`` up: it gets no more work; its unfinished pieces go to the others."""
@@ -90,9 +115,19 @@ class VehicleLosses:
             where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
         v.lost = reason + where
         v.status = "lost"
+        v.missing = None  # what it took since it was last asked is unknown
         log.warning("vehicle %d lost: %s", v.sysid, v.lost)
         self.records.append({"sysid": v.sysid, "reason": v.lost,
                              "iteration": self.iteration(), "reassigned": []})
+        self._open[v.sysid] = self.records[-1]
+
+    def record_interruption(self, v: VehicleState, reason: str, left: list[Task]) -> None:
+        """``v`` left its mission on its own (``reason``) with ``left`` unfinished (they are
+        flown again, by whoever :meth:`reassign` gives them to)."""
+        self.interruptions.append({"sysid": v.sysid, "reason": reason,
+                                   "iteration": self.iteration(), "unfinished": len(left),
+                                   "reassigned": []})
+        self._open[v.sysid] = self.interruptions[-1]
 
     def check_lost(self) -> None:
         """Fail only when no vehicle is left; a single loss is handled."""
@@ -100,17 +135,66 @@ class VehicleLosses:
             raise VehicleTimeout("every vehicle lost: " + "; ".join(
                 f"vehicle {v.sysid} lost: {v.lost}" for v in self.vehicles.values()))
 
-    async def tolerant(self, v: VehicleState, coro: Coroutine[Any, Any, None]) -> None:
-        """Run a step with ``v``; if it fails because ``v`` went silent, ``v`` is lost and
-        the run goes on. Any other failure (a refusal from a vehicle that answers) stands."""
-        try:
-            await coro
-        except LinkError as exc:
-            link = self.router.vehicles.get(v.sysid)
-            silent = time.monotonic() - link.last_heartbeat_mono if link else math.inf
-            if v.lost is None and silent <= LOSS_SILENCE_S:
-                raise
-            self.mark_lost(v, f"{exc} (silent for {silent:.0f} s)")
+    def silent_s(self, v: VehicleState, now: float | None = None) -> float:
+        """Seconds since ``v``'s last HEARTBEAT."""
+        link = self.router.vehicles.get(v.sysid)
+        now = time.monotonic() if now is None else now
+        return now - link.last_heartbeat if link is not None else math.inf
+
+    def link_back(self, v: VehicleState) -> bool:
+        """``v``'s link is up: heard within :data:`SILENT_S`, and, after a silence, for
+        :data:`LINK_BACK_S` since (or ``v`` is given up: nothing to wait for)."""
+        link = self.router.vehicles.get(v.sysid)
+        if v.lost is not None or link is None:
+            return True
+        now = time.monotonic()
+        if now - link.last_heartbeat > SILENT_S:
+            v.link_out, v.back_since = True, None
+            return False
+        if not v.link_out:
+            return True
+        if v.back_since is None:
+            v.back_since = now
+        if now - v.back_since >= LINK_BACK_S:
+            v.link_out, v.back_since = False, None
+            return True
+        return False
+
+    async def wait_link(self, v: VehicleState) -> bool:
+        """Wait until ``v``'s link is back (True) or ``v`` is given up at the link timeout
+        (False)."""
+        if self.until is None:
+            return False
+        log.warning("vehicle %d: waiting for its link (last heartbeat %.0f s ago; it is given "
+                    "up after %.0f s)", v.sysid, self.silent_s(v), self.link_timeout_s)
+        left_s = max(0.0, self.link_timeout_s - self.silent_s(v))
+        await self.until(lambda: self.link_back(v) or v.lost is not None,
+                         deadline=time.monotonic() + left_s + LINK_BACK_S)
+        if v.lost is None and not self.link_back(v):
+            self.mark_lost(v, f"no heartbeat for {self.silent_s(v):.0f} s")
+        return v.lost is None
+
+    async def tolerant(self, v: VehicleState,
+                       step: Callable[[], Coroutine[Any, Any, None]]) -> None:
+        """Run ``step()`` with ``v``. If it fails while ``v`` is silent (its link is out),
+        wait for the link and run it again; ``v`` is given up only when its HEARTBEAT stays
+        away for the link timeout, and the run goes on without it. Any other failure (a
+        refusal, a vehicle that heartbeats but never answers) stands."""
+        while True:
+            if v.lost is not None:
+                return
+            try:
+                await step()
+                return
+            except LinkError as exc:
+                if v.lost is not None:
+                    return
+                if self.silent_s(v) <= SILENT_S:
+                    raise
+                if not await self.wait_link(v):
+                    return
+                log.warning("vehicle %d: its link is back (%s was cut short); again", v.sysid,
+                            exc)
 
     def item_limit_s(self, v: VehicleState) -> float:
         """Sim seconds the current mission item may take (module constants)."""
@@ -131,12 +215,23 @@ class VehicleLosses:
     def check_progress(self, flying: list[VehicleState]) -> None:
         """A vehicle whose current item takes longer than its limit is lost. The limit is
         in the vehicle's own sim time (a vehicle slowed by a busy machine is not late); a
-        vehicle whose clock stops while it heartbeats is caught by wall time (10x)."""
+        vehicle whose clock stops while it heartbeats is caught by wall time (10x). While a
+        vehicle is silent its clock is not watched; when it is heard again its item starts
+        anew (its own failsafe may have flown it elsewhere meanwhile)."""
         now = time.monotonic()
         for v in flying:
             f = v.flight
-            if v.lost is not None or f is None or f.done or f.landed:
-                continue  # a vehicle that finished (or landed) is not late any more
+            if v.lost is not None or f is None or f.done or f.landed or \
+                    f.interrupted is not None:
+                continue  # a vehicle that finished (or landed, or left) is not late any more
+            if self.silent_s(v, now) > SILENT_S:
+                v.silent = True
+                continue
+            if v.silent:
+                v.silent = False
+                v.item_since = now
+                v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
+                continue
             limit_s = self.item_limit_s(v)
             sim_ms = (self.router.vehicles[v.sysid].time_boot_ms or 0) - v.item_since_ms
             wall_s = now - v.item_since
@@ -187,9 +282,11 @@ class VehicleLosses:
                 plans[i] = plans[i] + batch
                 load[i] += len(batch)
                 pieces = [t.piece_id for t in batch if isinstance(t, TraceTask)]
-                loss = next(x for x in reversed(self.records) if x["sysid"] == source)
-                loss["reassigned"].append({"iteration": self.iteration(), "to": self.sysids[i],
-                                           "tasks": len(batch), "pieces": pieces})
-                log.warning("vehicle %d (lost): %d tasks (pieces %s) go to vehicle %d",
-                            source, len(batch), pieces, self.sysids[i])
+                record = self._open[source]
+                record["reassigned"].append({"iteration": self.iteration(),
+                                             "to": self.sysids[i], "tasks": len(batch),
+                                             "pieces": pieces})
+                why = "lost" if self.vehicles[source].lost is not None else "interrupted"
+                log.warning("vehicle %d (%s): %d tasks (pieces %s) go to vehicle %d",
+                            source, why, len(batch), pieces, self.sysids[i])
         return plans

@@ -63,14 +63,6 @@ _REQUIRED = object()
 Check = Callable[[Any], str | None]
 
 
-def _positive(v: Any) -> str | None:
-    return None if v > 0 else f"must be > 0, got {v}"
-
-
-def _non_negative(v: Any) -> str | None:
-    return None if v >= 0 else f"must be >= 0, got {v}"
-
-
 def _one_of(*choices: str) -> Check:
     def check(v: Any) -> str | None:
         return None if v in choices else f"must be one of {', '.join(choices)}; got {v!r}"
@@ -89,6 +81,56 @@ def _range(lo: float, hi: float) -> Check:
     return check
 
 
+def _between(lo: float, hi: float, *, above: bool = False, why: str = "") -> Check:
+    """``lo <= v <= hi`` (``lo < v`` with ``above``); the message says which side failed,
+    and ``why`` the bound.
+
+    >>> _between(10, 10_000, why="the area the station maps")(0.5)
+    'must be >= 10 (the area the station maps), got 0.5'
+    >>> _between(0, 50, above=True)(0.0), _between(0, 50, above=True)(1e9)
+    ('must be > 0, got 0.0', 'must be <= 50, got 1000000000.0')
+    """
+    note = f" ({why})" if why else ""
+
+    def check(v: Any) -> str | None:
+        if above and not v > lo:
+            return f"must be > {lo:g}{note}, got {v}"
+        if v < lo:
+            return f"must be >= {lo:g}{note}, got {v}"
+        if v > hi:
+            return f"must be <= {hi:g}{note}, got {v}"
+        return None
+
+    return check
+
+
+MIN_AREA_M = 10.0
+MAX_AREA_M = 10_000.0
+"""The side of a mission area: below 10 m nothing is left to map between the fence margins
+and the tracer's search radius; above 10 km a local ENU frame and the evaluation grid stop
+making sense (and a typo such as ``100000000`` would send vehicles 2,000 km away)."""
+MAX_ALT_M = 1_000.0
+"""Flight altitude above home: far above any drone's legal ceiling (120 m in most places),
+below anything a multicopter reaches."""
+MAX_SPEED_MPS = 100.0
+"""Cruise and top speed: no multicopter flies faster."""
+MAX_RATE_HZ = 1_000.0
+"""Sample rate: the simulated sensor's own limit (its SAMPLE_HZ parameter)."""
+MAX_SPEEDUP = 1_000.0
+"""Sim time over wall time: the simulated vehicles keep ~100x on one core."""
+MAX_DISTANCE_M = 1e7
+"""Any flight distance or budget (10,000 km: farther than any battery)."""
+MAX_GRID_NODES = 4_000_000
+"""The evaluation grid (P x Q nodes, float64 arrays of several copies): 2001 x 2001."""
+MIN_AMSL_M, MAX_AMSL_M = -500.0, 9_000.0
+"""Home altitude above mean sea level: from the Dead Sea shore to above Everest."""
+
+_POS = _between(0, MAX_DISTANCE_M, above=True)
+_DIST = _between(0, MAX_DISTANCE_M)
+_AREA = _between(0, MAX_AREA_M, above=True)
+_AREA0 = _between(0, MAX_AREA_M)
+
+
 def _from_params(cls: type, checks: dict[str, Check | None]
                  ) -> dict[str, tuple[type | tuple[type, ...], Any, Check | None]]:
     """Schema rows for the keys of ``checks``, with the type and default the dataclass
@@ -101,101 +143,102 @@ def _from_params(cls: type, checks: dict[str, Check | None]
 # section -> key -> (type, default, check)
 _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | None]]] = {
     "area": {
-        "width_m": (float, 100.0, _positive),
-        "height_m": (float, 100.0, _positive),
+        "width_m": (float, 100.0, _between(MIN_AREA_M, MAX_AREA_M, why="metres")),
+        "height_m": (float, 100.0, _between(MIN_AREA_M, MAX_AREA_M, why="metres")),
     },
     "origin": {
         "lat_deg": (float, 47.397742, _range(-90, 90)),
         "lon_deg": (float, 8.545594, _range(-180, 180)),
-        "alt_m": (float, 488.0, None),
+        "alt_m": (float, 488.0, _between(MIN_AMSL_M, MAX_AMSL_M,
+                                         why="metres above mean sea level")),
     },
     "vehicles": {
         "count": (int, 3, _range(1, 250)),
-        "speed_mps": (float, 8.0, _positive),
-        "max_speed_mps": (float, 12.0, _positive),
-        "max_accel_mps2": (float, 5.0, _positive),
-        "max_turn_rate_dps": (float, 180.0, _positive),
-        "sample_rate_hz": (float, 10.0, _positive),
-        "altitude_m": (float, 30.0, _positive),
-        "noise_std": (float, 0.0, _non_negative),
-        "speedup": (float, 50.0, _positive),
+        "speed_mps": (float, 8.0, _between(0, MAX_SPEED_MPS, above=True)),
+        "max_speed_mps": (float, 12.0, _between(0, MAX_SPEED_MPS, above=True)),
+        "max_accel_mps2": (float, 5.0, _between(0, 100, above=True)),
+        "max_turn_rate_dps": (float, 180.0, _between(0, 3600, above=True)),
+        "sample_rate_hz": (float, 10.0, _between(0, MAX_RATE_HZ, above=True)),
+        "altitude_m": (float, 30.0, _between(1, MAX_ALT_M, why="metres above home")),
+        "noise_std": (float, 0.0, _between(0, 1e9)),
+        "speedup": (float, 50.0, _between(0, MAX_SPEEDUP, above=True)),
     },
     "initiation": {
         "pattern": (str, "diagonals", _one_of("diagonals", "lawnmower")),
-        "spacing_m": (float, 25.0, _positive),
-        "samples_per_diagonal": (int, 0, _non_negative),
+        "spacing_m": (float, 25.0, _AREA),
+        "samples_per_diagonal": (int, 0, _range(0, 1_000_000)),
     },
     "algorithm": {
         "planner": (str, "econdor", _one_of(*PLANNER_NAMES)),
         "m0": (int, 3, _range(1, 1000)),
         "max_iterations": (int, 8, _range(1, 1000)),
         "min_iterations": (int, 3, _range(1, 1000)),
-        "grid_spacing_m": (float, 1.0, _positive),
-        "search_radius_m": (float, 10.0, _positive),
-        "max_trace_length_m": (float, 0.0, _non_negative),
-        "stop_lambda": (float, 0.0, _non_negative),
-        "flight_budget_m": (float, 0.0, _non_negative),
+        "grid_spacing_m": (float, 1.0, _AREA),
+        "search_radius_m": (float, 10.0, _AREA),
+        "max_trace_length_m": (float, 0.0, _DIST),
+        "stop_lambda": (float, 0.0, _between(0, 1)),
+        "flight_budget_m": (float, 0.0, _DIST),
         "lloyd_bins": (int, 200, _range(2, 100000)),
         "lloyd_iterations": (int, 100, _range(1, 100000)),
         "lloyd_variant": (str, "textbook", _one_of("textbook", "authors")),
         "reconstruction": (str, "auto", _one_of("auto", "exact", "fast", "kriging")),
-        "min_piece_length_m": (float, 2.0, _non_negative),
+        "min_piece_length_m": (float, 2.0, _AREA0),
         "keep_diagonals": (bool, True, None),
-        "max_idle_iterations": (int, 2, _non_negative),
+        "max_idle_iterations": (int, 2, _range(0, 1000)),
         "target_levels": (tuple, (), _numbers),
     },
     "lawnmower": {
-        "spacing_m": (float, 0.0, _non_negative),
-        "budget_m": (float, 0.0, _non_negative),
+        "spacing_m": (float, 0.0, _AREA0),
+        "budget_m": (float, 0.0, _DIST),
         "lines": (int, 0, _range(0, 100000)),
     },
     "adaptive": _from_params(AdaptiveParams, {
-        "batch_m": _positive,
-        "batch_growth": _non_negative,
+        "batch_m": _POS,
+        "batch_growth": _between(0, 100),
         "levels": _range(1, 1000),
-        "piece_m": _positive,
-        "leg_m": _positive,
+        "piece_m": _AREA,
+        "leg_m": _AREA,
         "legs": _range(0, 10000),
-        "line_spacing_m": _non_negative,
+        "line_spacing_m": _AREA0,
         "line_orientation": None,  # its enum has the values
         "start": None,  # its enum has the values
         "start_lines": _range(0, 1000),
-        "start_step_m": _non_negative,
+        "start_step_m": _AREA0,
         "model": None,  # its enum has the values
-        "length_m": _positive,
+        "length_m": _AREA,
         "fit_length": None,
-        "floor": _non_negative,
-        "gradient_gain_m": _non_negative,
+        "floor": _between(0, 1e12),
+        "gradient_gain_m": _AREA0,
         "power": _range(0.5, 4.0),
-        "plan_spacing_m": _positive,
-        "search_radius_m": _positive,
-        "resolve_m": _positive,
-        "explore_m": _positive,
-        "band_m": _non_negative,
+        "plan_spacing_m": _AREA,
+        "search_radius_m": _AREA,
+        "resolve_m": _AREA,
+        "explore_m": _AREA,
+        "band_m": _AREA0,
         "level_tol": _range(0.0, 0.5),
-        "threshold_batch_m": _positive,
+        "threshold_batch_m": _POS,
         "crossings_first": None,
         "first_order": None,  # its enum has the values
         "open_entry": None,  # its enum has the values
         "probes": None,
         "probe_climb": None,
-        "probe_m": _positive,
+        "probe_m": _AREA,
         "probe_prominence": _range(0.0, 1.0),
-        "probe_reach": _non_negative,
+        "probe_reach": _AREA0,
         "sweeps": None,
         "explore": None,  # its enum has the values
-        "line_step_m": _positive,
+        "line_step_m": _AREA,
         "rays": _range(0, 3600),
         "line_weight": None,  # its enum has the values
-        "probe_length_m": _non_negative,
+        "probe_length_m": _DIST,
     }),
 }
 
 _SENSOR_SCHEMA: dict[str, tuple[type | tuple[type, ...], Any, Check | None]] = {
-    "noise_std": (float, 0.0, _non_negative),
-    "lag_s": (float, 0.0, _non_negative),
-    "position_std_m": (float, 0.0, _non_negative),
-    "position_tau_s": (float, 10.0, _positive),
+    "noise_std": (float, 0.0, _between(0, 1e12)),
+    "lag_s": (float, 0.0, _between(0, 600, why="a sensor's response time")),
+    "position_std_m": (float, 0.0, _between(0, 1000)),
+    "position_tau_s": (float, 10.0, _between(0, 86400, above=True)),
     "lag_correction": (str, "deconvolve", _one_of("deconvolve", "none")),
 }
 """``vehicles.sensor``: the sensor the vehicles carry (:class:`SensorConfig`)."""
@@ -204,32 +247,32 @@ _FIELD_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], Any, Check | N
     "paper": {
         "n1": (int, 20, _range(1, 100000)),
         "n2": (int, 20, _range(0, 100000)),
-        "sigma1_m": (float, 10.0, _positive),
-        "sigma2_m": (float, 15.0, _positive),
-        "peak": (float, 100.0, _positive),
+        "sigma1_m": (float, 10.0, _AREA),
+        "sigma2_m": (float, 15.0, _AREA),
+        "peak": (float, 100.0, _between(0, 1e12, above=True)),
     },
     "authors": {
         "n1": (int, 150, _range(1, 100000)),
         "n2": (int, 150, _range(0, 100000)),
-        "sigma1_m": (float, 10.0, _positive),
-        "sigma2_m": (float, 15.0, _positive),
-        "peak": (float, 100.0, _positive),
+        "sigma1_m": (float, 10.0, _AREA),
+        "sigma2_m": (float, 15.0, _AREA),
+        "peak": (float, 100.0, _between(0, 1e12, above=True)),
     },
     "plume": {
         "sources": (int, 3, _range(1, 1000)),
-        "sigma_min_m": (float, 2.0, _positive),
-        "sigma_max_m": (float, 5.0, _positive),
-        "background": (float, 10.0, None),
-        "peak": (float, 100.0, _positive),
+        "sigma_min_m": (float, 2.0, _AREA),
+        "sigma_max_m": (float, 5.0, _AREA),
+        "background": (float, 10.0, _between(-1e12, 1e12)),
+        "peak": (float, 100.0, _between(0, 1e12, above=True)),
     },
     "front": {
-        "width_min_m": (float, 1.0, _positive),
-        "width_max_m": (float, 3.0, _positive),
-        "amplitude_m": (float, 10.0, _non_negative),
-        "wavelength_m": (float, 60.0, _positive),
+        "width_min_m": (float, 1.0, _AREA),
+        "width_max_m": (float, 3.0, _AREA),
+        "amplitude_m": (float, 10.0, _AREA0),
+        "wavelength_m": (float, 60.0, _AREA),
         "islands": (int, 2, _range(0, 20)),
-        "background": (float, 10.0, None),
-        "peak": (float, 100.0, _positive),
+        "background": (float, 10.0, _between(-1e12, 1e12)),
+        "peak": (float, 100.0, _between(0, 1e12, above=True)),
     },
     "raster": {
         "path": (str, _REQUIRED, None),
@@ -570,8 +613,9 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
         raise MissionError(f"name: must be printable text without / or \\ (it names run "
                            f"directories), got {name!r}")
     seed = _coerce("seed", raw.get("seed", 0), int)
-    if seed < 0:
-        raise MissionError(f"seed: must be >= 0, got {seed}")
+    if not 0 <= seed < 2**32:
+        raise MissionError(f"seed: must be within 0..{2**32 - 1} (a random generator's seed), "
+                           f"got {seed}")
     sec = {s: _section(s, raw.get(s), _SCHEMA[s]) for s in _SCHEMA if s != "vehicles"}
     algo = sec["algorithm"]
     if algo["min_iterations"] > algo["max_iterations"]:
@@ -583,6 +627,17 @@ def parse_mission(raw: Any, base_dir: Path | None = None, source: str = "mission
         raise MissionError("lawnmower.lines: give lines or budget_m, not both")
     vehicles = _vehicles(raw.get("vehicles"))
     area = sec["area"]
+    spacing = algo["grid_spacing_m"]
+    side = min(area["width_m"], area["height_m"])
+    if spacing > side / 2:
+        raise MissionError(f"algorithm.grid_spacing_m: must be <= half the area's shorter side "
+                           f"({side / 2:g} m: the grid needs at least 3 x 3 nodes), got "
+                           f"{spacing:g}")
+    nodes = (round(area["width_m"] / spacing) + 1) * (round(area["height_m"] / spacing) + 1)
+    if nodes > MAX_GRID_NODES:
+        raise MissionError(f"algorithm.grid_spacing_m: {spacing:g} m makes a grid of {nodes:,} "
+                           f"nodes over this area, more than {MAX_GRID_NODES:,}; use a coarser "
+                           "spacing")
     return Mission(
         name=name,
         seed=seed,

@@ -106,8 +106,8 @@ class SampleRecovery:
         """Bring in every sample the vehicles ``vs`` took since their last recovery (and
         the TRACE reports of their flight), as far as rounds of resends can."""
         t0 = time.monotonic()
-        await run_all([self.losses.tolerant(v, self._recover_one(v)) for v in vs
-                       if v.lost is None])
+        await run_all([self.losses.tolerant(v, functools.partial(self._recover_one, v))
+                       for v in vs if v.lost is None])
         self.timings["recovery_s"] = self.timings.get("recovery_s", 0.0) + \
             time.monotonic() - t0
 
@@ -183,7 +183,8 @@ class SampleRecovery:
         finally:
             v.recovering = False
         v.vehicle_samples = (v.vehicle_samples or 0) + n
-        v.missing += max(0, n - have)
+        if v.missing is not None:
+            v.missing += max(0, n - have)
         if n > have:
             log.error("vehicle %d: %d of its %d samples in %d..%d ms never arrived", v.sysid,
                       n - have, n, first, last)
@@ -225,10 +226,12 @@ class SampleRecovery:
         f = v.flight
         if f is None or f.style != TaskStyle.TRACE:
             return  # contours flown as waypoints have no TRACE reports
-        # after an operator's stop only the items the vehicle got past have a report
+        # after an operator's stop (or the vehicle's own failsafe) only the items the
+        # vehicle got past have a report
+        cut = self._aborted() or f.interrupted is not None
         current = v.current_seq if v.current_seq is not None else 0
         due = [t for t, (_, last) in zip(f.tasks, f.task_seqs, strict=True)
-               if not self._aborted() or last < current or last in f.reached]
+               if not cut or last < current or last in f.reached]
         for _ in range(RECOVERY_ROUNDS):
             missing = [t.piece_id for t in due
                        if isinstance(t, TraceTask) and t.piece_id not in f.pieces]
@@ -256,8 +259,9 @@ class SampleRecovery:
         await self._until(quiet, tick_s=0.05, deadline=start + 5.0)
 
     def sample_accounting(self) -> dict[str, dict[str, int | str | None]]:
-        """Per vehicle: samples it took (its own count), received, recovered by resends,
-        duplicates dropped, missing (for summary.json)."""
+        """Per vehicle: samples it took (its own count at its last recovery), received,
+        recovered by resends, duplicates dropped, missing (None for a vehicle given up, or
+        one whose samples cannot be recovered: what it took is unknown), for summary.json."""
         return {str(v.sysid): {"vehicle_count": v.vehicle_samples, "received": v.samples,
                                "recovered": v.recovered, "duplicates": v.duplicates,
                                "missing": v.missing if v.no_recovery is None else None,

@@ -32,6 +32,7 @@ from .errors import (
 )
 from .gcs import (
     FENCE_MARGIN_M,
+    LINK_TIMEOUT_S,
     LOSS_SILENCE_S,
     MavlinkExecutor,
     Station,
@@ -53,7 +54,8 @@ from .link.router import (
 from .link.tlog import TlogWriter
 from .link.vehicles import EVENTS
 from .mission import Mission
-from .rundir import RunDirMode, RunLog, Severity
+from .run_failures import checked_disk, refusals, write_partial
+from .rundir import RunDir, RunDirMode, RunLog, Severity, disk_error, writing
 from .signing import load_signing_key
 
 if TYPE_CHECKING:
@@ -98,7 +100,8 @@ def run_mission(
     speedup: float | None = None,
     seed: int | None = None,
     connect: str | Sequence[str] | None = None,
-    timeout_s: float = 20.0,
+    timeout_s: float = 60.0,
+    link_timeout_s: float = LINK_TIMEOUT_S,
     quiet: bool = True,
     mission_path: Path | None = None,
     figures: bool = True,
@@ -106,12 +109,18 @@ def run_mission(
     signing_key_file: Path | None = None,
     web: str | None = None,
     announce: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
     autopilots: Sequence[VehicleKind] | None = None,
     tolerance_m: float = 1.0,
     forward: str | None = None,
     forward_commands: bool = False,
 ) -> dict[str, Any]:
     """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
+
+    ``timeout_s`` is how long vehicles may take to appear, to send a position and to pass
+    their pre-arm checks; ``link_timeout_s`` how long a vehicle may be silent before it is
+    given up (a shorter drop-out of its link is waited out, and the flight picks up where
+    it left; at least :data:`~.losses.LOSS_SILENCE_S`).
 
     ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
     PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
@@ -124,7 +133,9 @@ def run_mission(
     :func:`~.signing.load_signing_key`) every message is signed, unsigned telemetry is
     dropped, and the vehicles this run starts sign too (the key is written nowhere).
     ``web`` (``[HOST:]PORT``) serves the run's page (:mod:`econdor_gcs.web`) with pause /
-    resume / stop; ``announce`` is told its address as soon as it listens.
+    resume / stop; ``announce`` is told its address (with the token the controls need) as
+    soon as it listens, and ``warn`` that the controls are on the network when ``web`` is
+    not a loopback address.
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
@@ -132,9 +143,12 @@ def run_mission(
     from .dfc import Dfc
     from .fleet import DEFAULT_KIND, Fleet, kinds_for
     from .plans import save_next_batch
-    from .rundir import RunDir, read_checkpoint
+    from .rundir import read_checkpoint
 
     wall0 = time.perf_counter()
+    if not link_timeout_s >= LOSS_SILENCE_S:
+        raise RunError(f"--link-timeout must be at least {LOSS_SILENCE_S:g} s (vehicles "
+                       f"heartbeat once a second), got {link_timeout_s:g}")
     signing = load_signing_key(signing_key_file) if signing_key_file is not None else None
     n = vehicles or mission.vehicles.count
     speed = speedup or mission.vehicles.speedup
@@ -145,21 +159,27 @@ def run_mission(
     kinds = list(autopilots or [DEFAULT_KIND])
     resume = mode == RunDirMode.RESUME
     replay = read_checkpoint(out) if resume else []
-    rd = RunDir(out, mode, grid=mission.grid)
-    runlog = RunLog(out / "log.jsonl")
-    if not resume:
-        mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
-        rd.write_run_config({
-            "transport": "mavlink", "mission": mission.name, "planner": planner, "seed": seed,
-            "vehicles": n, "speedup": speed, "connect": connect, "timeout_s": timeout_s,
-            "mission_path": str(mission_path.resolve()) if mission_path else None,
-            "signed": signing is not None,
-            "autopilots": [str(k) for k in kinds] if connect is None else None,
-            "tolerance_m": tolerance_m,
-        }, mission_text)
-    tlog = TlogWriter(out / "telemetry.tlog", append=resume)
+    rd = RunDir(out, mode, grid=mission.grid, received=True)
+    try:
+        runlog = RunLog(out / "log.jsonl")
+        if not resume:
+            mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
+            rd.write_run_config({
+                "transport": "mavlink", "mission": mission.name, "planner": planner,
+                "seed": seed, "vehicles": n, "speedup": speed, "connect": connect,
+                "timeout_s": timeout_s, "link_timeout_s": link_timeout_s,
+                "mission_path": str(mission_path.resolve()) if mission_path else None,
+                "signed": signing is not None,
+                "autopilots": [str(k) for k in kinds] if connect is None else None,
+                "tolerance_m": tolerance_m,
+            }, mission_text)
+        with writing(out / "telemetry.tlog"):
+            tlog = TlogWriter(out / "telemetry.tlog", append=resume)
+    except BaseException:
+        rd.close()  # nothing had begun: no summary to write
+        raise
     station = Station(connect or "udpin:127.0.0.1:0", tlog,
-                      heartbeat_timeout_s=min(timeout_s, LOSS_SILENCE_S), signing=signing)
+                      heartbeat_timeout_s=link_timeout_s, signing=signing)
     _log_station(station.router, runlog)
     forwarder: Forwarder | None = None
     fleet: Fleet | None = None
@@ -178,8 +198,10 @@ def run_mission(
         if executor is not None:
             timings.update(executor.timings)
             timings["sim_s"] = executor.sim_s
-            fw = executor.timings["flight_s"] + executor.timings["return_s"]
-            timings["achieved_speedup"] = executor.sim_s / fw if fw > 0 else math.nan
+            # how fast the vehicles' clocks ran against ours over the run (not the flights'
+            # sim_s over flying time: a flight's clock starts before its upload, which a
+            # lossy link makes long, so "104x" was shown for vehicles at 50x)
+            timings["achieved_speedup"] = executor.clock_rate()
         if dfc is not None:
             timings["reconstruction_s"] = dfc.recon_s
         timings["requested_speedup"] = speed
@@ -195,6 +217,13 @@ def run_mission(
                 runlog.add("station", f"web page at {url}")
                 if announce is not None:
                     announce(url)
+                if page.exposed:
+                    warning = (f"the web page and its controls (pause, resume, stop) are "
+                               f"reachable from the network on {web}: anyone with the "
+                               "address above (its token) can stop the run")
+                    runlog.add("station", warning, Severity.WARNING)
+                    if warn is not None:
+                        warn(warning)
             host, port = station.start()
             if forward is not None:
                 forwarder = station.call(
@@ -209,14 +238,21 @@ def run_mission(
                 try:
                     station.call(station.router.wait_for_vehicles(sysids, timeout_s))
                 except VehicleTimeout as exc:
-                    raise VehicleTimeout(fleet.explain(str(exc))) from None
+                    raise VehicleTimeout(fleet.explain(str(exc)
+                                                       + refusals(station.router))) from None
             else:
-                sysids = station.call(_wait_count(station.router, n, timeout_s))
+                try:
+                    sysids = station.call(_wait_count(station.router, n, timeout_s))
+                except VehicleTimeout as exc:
+                    raise VehicleTimeout(str(exc) + refusals(station.router)) from None
             # the fleet is named: any other system on these links is a stranger from now on
             station.run_sync(lambda: station.router.expect(sysids))
             t_setup = time.perf_counter() - wall0
             executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
-                                       tolerance_m=tolerance_m)
+                                       tolerance_m=tolerance_m, link_timeout_s=link_timeout_s)
+            journal = executor
+            executor.telemetry.on_rows = lambda v, rows: rd.journal(rows, v.index,
+                                                                   journal.iteration)
             executor.wait_ready()
             truth = mission.build_field(seed)
             progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
@@ -236,7 +272,7 @@ def run_mission(
             # uses it; displays see the samples as the DFC takes them in
             dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
                       progress=_all_of(progress), on_samples=_all_of(on_samples),
-                      on_flight=rd.record_flight, replay=replay,
+                      on_flight=checked_disk(rd, tlog, runlog), replay=replay,
                       checkpoint=page.checkpoint if page is not None else None)
             result = dfc.run()
             if live is not None:
@@ -259,12 +295,17 @@ def run_mission(
                      "report_errors": executor.report_errors,
                      "sample_recovery": executor.sample_accounting(),
                      "lost_vehicles": executor.losses,
+                     "interrupted_flights": executor.interruptions,
+                     "link_timeout_s": link_timeout_s,
+                     "samples_received": rd.n_received,
                      "fence": {"margin_m": FENCE_MARGIN_M,
                                "refused_by": executor.fences_refused},
                      "link": {"bad_packets": parser.bad_packets,
                               "unknown_packets": parser.unknown_packets,
                               "unsigned_dropped": parser.unsigned_packets,
-                              "bad_signature_dropped": parser.bad_signature_packets},
+                              "bad_signature_dropped": parser.bad_signature_packets,
+                              "refused_by_sysid": {str(k): v for k, v in sorted(
+                                  parser.refused_by_source().items())}},
                      "signed": signing is not None}
             if resume:
                 extra["resumed"] = {"flights_replayed": dfc.replayed,
@@ -275,17 +316,23 @@ def run_mission(
             if page is not None:
                 page.close(summary)
                 page = None
-    except (EcondorError, KeyboardInterrupt) as exc:
+    except (EcondorError, KeyboardInterrupt, OSError) as exc:
         if live is not None:
             live.stop()
             live = None
-        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)
+        # a write the run directory does not guard (figures, a library's file): one line
+        failure = disk_error(None, exc) if isinstance(exc, OSError) else exc
+        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(failure)
         runlog.add("station", f"run failed: {msg}", Severity.ERROR)
         base["link_conflicts"] = [c.as_dict() for c in station.router.table.conflicts]
-        _write_partial(rd, dfc, executor, base, timings, fill_timings, msg)
+        write_partial(rd, dfc, executor, base, timings, fill_timings, msg,
+                       disk=[e for e in (tlog.error and str(disk_error(tlog.path, tlog.error)),
+                                         runlog.error, rd.journal_error) if e])
         if page is not None:
             page.close({**base, "error": msg})
             page = None
+        if failure is not exc:
+            raise failure from exc
         raise
     finally:
         if live is not None:
@@ -397,6 +444,7 @@ def _logging_to(runlog: RunLog) -> Iterator[None]:
 def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
                    connect: str | Sequence[str] | None = None,
                    timeout_s: float | None = None,
+                   link_timeout_s: float | None = None,
                    signing_key_file: Path | None = None) -> dict[str, Any]:
     """Continue the MAVLink run recorded in ``out`` after its last finished flight.
 
@@ -430,57 +478,13 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         mission, out, planner=config["planner"], vehicles=config["vehicles"],
         speedup=config["speedup"], seed=config["seed"],
         connect=connect if connect is not None else config.get("connect"),
-        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 20.0),
+        timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 60.0),
+        link_timeout_s=(link_timeout_s if link_timeout_s is not None
+                        else config.get("link_timeout_s", LINK_TIMEOUT_S)),
         quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
         signing_key_file=signing_key_file,
         autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
         tolerance_m=float(config.get("tolerance_m", 1.0)))
-
-
-def _write_partial(rd: Any, dfc: Any, executor: MavlinkExecutor | None,
-                   base: dict[str, Any], timings: dict[str, float], fill: Any,
-                   error: str) -> None:
-    """Leave a usable run directory after ``error``: the samples still pending, the metrics
-    so far, a ``summary.json`` with ``"error"``.
-
-    Failures on this path do not hide the original error: each is logged (one line on
-    stderr) and listed in the summary's ``"error_path"``.
-    """
-    problems: list[str] = []
-    if executor is not None:
-        try:
-            pending = executor.pending_samples()
-            if len(pending):
-                # an unfinished flight: resume sets these aside (no flights.jsonl line)
-                rd.append_samples(pending, executor.iteration)
-        except Exception as exc:  # noqa: BLE001 - the run failed already; report, go on
-            problems.append(f"the samples still pending were not written: {exc!r}")
-            log.exception("econdor: %s", problems[-1])
-    fill()
-    records = list(dfc.records) if dfc is not None else []
-    last = records[-1] if records else None
-    summary = {
-        **base,
-        "error": error,
-        "iterations": max(0, len(records) - 1),
-        "final_mae": last.mae if last else None,
-        "final_mae_db": last.mae_db if last else None,
-        "span_ratio": last.span_ratio if last else None,
-        "flight_distance_m": dfc.flight_m - dfc.return_m if dfc is not None else 0.0,
-        "contour_distance_m": dfc.contour_m if dfc is not None else 0.0,
-        "samples": sum(len(s) for s in dfc.logs) if dfc is not None else 0,
-        "samples_recorded": rd.n_samples,
-        "converged": False,
-        "wall_s": timings.get("total_wall_s"),
-        "sim_s": timings.get("sim_s", 0.0),
-        "timings": timings,
-    }
-    if problems:
-        summary["error_path"] = problems
-    try:
-        rd.write_partial(records, summary)
-    except Exception as exc:  # noqa: BLE001 - as above
-        log.exception("econdor: the partial summary.json was not written: %r", exc)
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
@@ -518,17 +522,23 @@ def run_mission_cli(args: Any) -> int:
                                "before (its run.json)")
         out = args.resume
         summary = resume_mission(out, quiet=args.quiet, connect=args.connect,
-                                 timeout_s=args.timeout, signing_key_file=args.signing_key)
+                                 timeout_s=args.timeout,
+                                 link_timeout_s=getattr(args, "link_timeout", None),
+                                 signing_key_file=args.signing_key)
     else:
         mission = load_mission(args.mission)
         out = args.out or _default_out(mission)
         mode = RunDirMode.FORCE if args.force else RunDirMode.NEW
         summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
                               speedup=args.speedup, seed=args.seed, connect=args.connect,
-                              timeout_s=args.timeout, quiet=args.quiet,
+                              timeout_s=args.timeout,
+                              link_timeout_s=getattr(args, "link_timeout", None)
+                              or LINK_TIMEOUT_S, quiet=args.quiet,
                               mission_path=args.mission, mode=mode,
                               signing_key_file=args.signing_key, web=web,
                               announce=lambda url: print(f"web: {url}", flush=True),
+                              warn=lambda text: print(f"econdor: warning: {text}",
+                                                      file=sys.stderr, flush=True),
                               autopilots=kinds,
                               tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
                               forward=forward, forward_commands=forward_commands)

@@ -27,57 +27,67 @@ iteration, without anything else; they are small (the estimate as float32, compr
 about 40 kB per iteration on a 101 x 101 grid).
 
 A run directory is never clobbered: a non-empty one is refused unless the run is started
-with ``--force`` (:attr:`RunDirMode.FORCE`: an earlier *run* directory is replaced) or
-``--resume`` (:attr:`RunDirMode.RESUME`: it is continued).
+with ``--force`` (:attr:`RunDirMode.FORCE`: what an earlier run wrote there is deleted, and
+a file no run writes makes it refuse, naming the file) or ``--resume``
+(:attr:`RunDirMode.RESUME`: it is continued). What a run writes and how a failed write is
+reported live in :mod:`.rundir_files`, the log lines in :mod:`.runlog`, the checkpoint
+(``flights.jsonl``) in :mod:`.checkpoint`; all are re-exported here. The file by file
+description for users is ``docs/run-directory.md``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
 import math
 import os
-import shutil
-import threading
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
+from .checkpoint import flight_to_json as flight_to_json
+from .checkpoint import read_checkpoint as read_checkpoint
+from .checkpoint import read_flight_lines as read_flight_lines
 from .core.geometry import FloatArray, Grid
 from .core.planners import Batch
-from .core.tasks import FlightReport, SampleLog, Task, TaskOutcome, TraceTask, Waypoint
+from .core.tasks import SampleLog, Task, TraceTask, Waypoint
 from .dfc import (
     DfcEvent,
     FlightRecord,
     IterationDone,
     IterationPlanned,
     IterationRecord,
-    RunDone,
     RunResult,
-    RunStarted,
 )
 from .errors import RunError
+from .rundir_files import RESERVE_NAME as RESERVE_NAME
+from .rundir_files import RUN_FILES as RUN_FILES
+from .rundir_files import RUN_WRITTEN as RUN_WRITTEN
+from .rundir_files import RunDirMode as RunDirMode
+from .rundir_files import disk_error as disk_error
+from .rundir_files import foreign_files as foreign_files
+from .rundir_files import prepare_run_dir as prepare_run_dir
+from .rundir_files import writing as writing
+from .runlog import LogLine as LogLine
+from .runlog import RunLog as RunLog
+from .runlog import Severity as Severity
+from .runlog import read_log as read_log
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
-RUN_FILES = ("run.json", "summary.json", "samples.csv", "metrics.csv", "flights.jsonl",
-             "telemetry.tlog")
-"""Files that only a run directory has (``--force`` replaces only such a directory)."""
+RESERVE_BYTES = 2 << 20
+"""Disk space a run holds back for its last words when the disk fills up
+(:meth:`RunDir.release_reserve`): ``summary.json``, metrics and the samples in memory take
+a few hundred kB."""
+RECEIVED_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
+"""``samples_received.csv``: every sample as it arrived (see :meth:`RunDir.journal`)."""
 
 
-class RunDirMode(StrEnum):
-    """What to do with an existing, non-empty run directory."""
-
-    NEW = "new"
-    """Refuse it (the default: nothing of an earlier run is ever overwritten silently)."""
-    FORCE = "force"
-    """Replace it, if it is a run directory."""
-    RESUME = "resume"
-    """Continue it: samples and flights are appended."""
 UNRECORDED = -2
 """The iteration of samples appended outside a recorded flight (an observer's copy)."""
 
@@ -218,146 +228,12 @@ def iteration_paths(run_dir: str | Path) -> dict[int, Path]:
     return out
 
 
-# -- log lines ---------------------------------------------------------------------------------
-
-
-class Severity(StrEnum):
-    INFO = "info"
-    WARNING = "warning"
-    ERROR = "error"
-
-
-@dataclass(frozen=True)
-class LogLine:
-    """One line of ``log.jsonl``."""
-
-    wall_s: float
-    """Seconds since the run started (wall clock)."""
-    iteration: int
-    """The iteration running (or planned) when the line was written."""
-    source: str
-    """``dfc``, ``station``, ``operator`` or ``vehicle N`` (N: system id)."""
-    severity: Severity
-    text: str
-
-
-def _describe(event: DfcEvent) -> str:
-    """One log line for a DFC progress event."""
-    if isinstance(event, RunStarted):
-        return (f"run started: planner {event.planner}, seed {event.seed}, "
-                f"{event.vehicles} vehicles")
-    if isinstance(event, IterationPlanned):
-        b = event.batch
-        flying = sum(1 for p in event.plans if p)
-        levels = f"{len(b.levels)} levels (κ {b.kappa}, δ {b.delta:.3g}), " if len(b.levels) else ""
-        return (f"iteration {event.iteration} planned: {levels}{len(b.jobs)} jobs for "
-                f"{flying} vehicles")
-    if isinstance(event, IterationDone):
-        r = event.record
-        mae = f"MAE {r.mae_db:.1f} dB, " if math.isfinite(r.mae_db) else ""
-        le = f"learning error {r.learning_error:.3g}, " if math.isfinite(r.learning_error) else ""
-        return (f"iteration {r.iteration} done: {mae}{le}flown {r.flight_distance_m:.0f} m, "
-                f"{r.samples} samples")
-    assert isinstance(event, RunDone)
-    s = event.summary
-    return (f"run finished ({s.get('stop_reason')}): {s.get('iterations')} iterations, "
-            f"flown {s.get('flight_distance_m', 0.0):.0f} m")
-
-
-class RunLog:
-    """The run's log lines: kept in memory for the live page and appended to ``log.jsonl``.
-
-    Thread-safe: lines come from the DFC thread (progress), the station's loop (vehicle
-    STATUSTEXT), the web server (operator actions) and ``logging``.
-    """
-
-    def __init__(self, path: str | Path | None = None) -> None:
-        self._lock = threading.Lock()
-        self._t0 = time.monotonic()
-        self._lines: list[LogLine] = []
-        self.path = None if path is None else Path(path)
-        self._file: IO[str] | None = None
-        if self.path is not None:
-            self._file = self.path.open("w", encoding="utf-8")
-        self.iteration = 0
-
-    def add(self, source: str, text: str, severity: Severity = Severity.INFO) -> LogLine:
-        with self._lock:
-            line = LogLine(round(time.monotonic() - self._t0, 3), self.iteration, source,
-                           severity, text)
-            self._lines.append(line)
-            if self._file is not None and not self._file.closed:
-                self._file.write(json.dumps(asdict(line), ensure_ascii=False) + "\n")
-                self._file.flush()
-        return line
-
-    def progress(self, event: DfcEvent) -> None:
-        """A DFC progress callback: one line per event."""
-        if isinstance(event, IterationPlanned):
-            self.iteration = event.iteration
-        self.add("dfc", _describe(event))
-
-    def since(self, n: int) -> list[LogLine]:
-        """Lines from the ``n``-th on (a reader's cursor is the count it has seen)."""
-        with self._lock:
-            return self._lines[n:]
-
-    def __len__(self) -> int:
-        with self._lock:
-            return len(self._lines)
-
-    def close(self) -> None:
-        with self._lock:
-            if self._file is not None:
-                self._file.close()
-
-
-def read_log(path: str | Path) -> list[LogLine]:
-    """Load ``log.jsonl`` (a torn last line of a killed run is skipped)."""
-    out: list[LogLine] = []
-    p = Path(path)
-    if not p.exists():
-        return out
-    for text in p.read_text(encoding="utf-8").splitlines():
-        try:
-            d = json.loads(text)
-            out.append(LogLine(float(d["wall_s"]), int(d["iteration"]), str(d["source"]),
-                               Severity(d["severity"]), str(d["text"])))
-        except (json.JSONDecodeError, KeyError, ValueError, TypeError):
-            continue
-    return out
-
-
 # -- the directory -----------------------------------------------------------------------------
 
 
 def _sync(f: IO[Any]) -> None:
     f.flush()
     os.fsync(f.fileno())
-
-
-def prepare_run_dir(path: Path, mode: RunDirMode) -> None:
-    """Check ``path`` against ``mode`` (see :class:`RunDirMode`); for ``FORCE`` empty it.
-
-    Raises :class:`RunError` with one line naming the directory and the way out.
-    """
-    if path.exists() and not path.is_dir():
-        raise RunError(f"{path}: exists and is not a directory")
-    busy = path.is_dir() and any(path.iterdir())
-    if mode == RunDirMode.RESUME:
-        if not (path / "run.json").is_file():
-            raise RunError(f"{path}: nothing to resume (no run.json: not a run directory, or a "
-                           "run from before resume existed)")
-        return
-    if not busy:
-        return
-    if mode == RunDirMode.NEW:
-        raise RunError(f"{path}: not empty (an earlier run?); use --force to replace it or "
-                       "--resume to continue it")
-    if not any((path / name).exists() for name in RUN_FILES):
-        raise RunError(f"{path}: not empty and not a run directory; refusing to replace it "
-                       "even with --force")
-    shutil.rmtree(path)
 
 
 class RunDir:
@@ -373,10 +249,13 @@ class RunDir:
         With a grid, :meth:`progress` (a DFC progress callback) also keeps
         ``metrics.csv`` / ``iterations.json`` current after every iteration and writes
         ``iterations/iter_NNN.npz``.
+    received:
+        Keep ``samples_received.csv``, the journal of samples as they arrive
+        (:meth:`journal`; a run over MAVLink).
     """
 
     def __init__(self, path: str | Path, mode: RunDirMode = RunDirMode.NEW,
-                 grid: Grid | None = None) -> None:
+                 grid: Grid | None = None, received: bool = False) -> None:
         self.path = Path(path)
         self.mode = RunDirMode(mode)
         self.grid = grid
@@ -385,23 +264,56 @@ class RunDir:
         self.write_s = 0.0
         """Wall time spent in :meth:`progress` (on the DFC thread)."""
         prepare_run_dir(self.path, self.mode)
-        self.path.mkdir(parents=True, exist_ok=True)
-        (self.path / "figures").mkdir(exist_ok=True)
-        (self.path / "missions").mkdir(exist_ok=True)
         self.samples_path = self.path / "samples.csv"
         self.flights_path = self.path / "flights.jsonl"
+        self.received_path = self.path / "samples_received.csv"
         self.n_samples = 0
+        self.n_received = 0
         self.interrupted_samples = 0
-        resume = self.mode == RunDirMode.RESUME and self.samples_path.exists()
-        if resume:
-            self.n_samples, self.interrupted_samples = self._set_aside_interrupted()
-        self._samples_file = self.samples_path.open("a" if resume else "w", newline="",
-                                                    encoding="utf-8")
-        self._writer = csv.writer(self._samples_file)
-        if not resume:
-            self._writer.writerow(SAMPLE_COLUMNS)
-        self._samples_file.flush()
-        self._flights_file = self.flights_path.open("a" if resume else "w", encoding="utf-8")
+        with writing(self.path):
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._reserve_space()
+            (self.path / "figures").mkdir(exist_ok=True)
+            (self.path / "missions").mkdir(exist_ok=True)
+            resume = self.mode == RunDirMode.RESUME and self.samples_path.exists()
+            if resume:
+                self.n_samples, self.interrupted_samples = self._set_aside_interrupted()
+            self._samples_file = self.samples_path.open("a" if resume else "w", newline="",
+                                                        encoding="utf-8")
+            self._writer = csv.writer(self._samples_file)
+            if not resume:
+                self._writer.writerow(SAMPLE_COLUMNS)
+            self._samples_file.flush()
+            self._good = (os.fstat(self._samples_file.fileno()).st_size, self.n_samples)
+            self._flights_file = self.flights_path.open("a" if resume else "w",
+                                                        encoding="utf-8")
+            self._received_file: IO[str] | None = None
+            if received:
+                journal_exists = self.received_path.exists()
+                self._received_file = self.received_path.open("a", newline="",
+                                                              encoding="utf-8")
+                self._received = csv.writer(self._received_file)
+                if not journal_exists:
+                    self._received.writerow(RECEIVED_COLUMNS)
+                    self._received_file.flush()
+        self.journal_error: str | None = None
+        """Why ``samples_received.csv`` stopped being written (the run fails on it)."""
+        self.unwritten: list[FlightRecord] = []
+        """Flights whose recording failed (a full disk): the error path writes their
+        samples once it has freed the space held back."""
+
+    # -- the space held back ----------------------------------------------------------------
+    def _reserve_space(self) -> None:
+        """Hold :data:`RESERVE_BYTES` back in :data:`RESERVE_NAME`: when the disk fills up,
+        the failing run frees it (:meth:`release_reserve`) and still writes its
+        ``summary.json``, metrics and the samples it has in memory."""
+        with (self.path / RESERVE_NAME).open("wb") as f:
+            f.write(bytes(RESERVE_BYTES))  # written, so its blocks are taken
+
+    def release_reserve(self) -> None:
+        """Give the held-back space to the error path (and to nobody else: once)."""
+        with contextlib.suppress(FileNotFoundError):
+            (self.path / RESERVE_NAME).unlink()
 
     # -- resume ---------------------------------------------------------------------------------
     def _set_aside_interrupted(self) -> tuple[int, int]:
@@ -436,27 +348,76 @@ class RunDir:
     # -- writing --------------------------------------------------------------------------------
     def append_samples(self, log: SampleLog, iteration: int = UNRECORDED) -> None:
         """Append ``log`` (taken in ``iteration``) and flush it to the OS."""
-        for row in zip(log.t_s, log.x_m, log.y_m, log.value, log.phase, log.vehicle,
-                       strict=True):
-            self._writer.writerow((repr(float(row[0])), repr(float(row[1])), repr(float(row[2])),
-                                   repr(float(row[3])), int(row[4]), int(row[5]), iteration))
-        self.n_samples += len(log)
-        self._samples_file.flush()
+        with writing(self.samples_path):
+            for row in zip(log.t_s, log.x_m, log.y_m, log.value, log.phase, log.vehicle,
+                           strict=True):
+                self._writer.writerow((repr(float(row[0])), repr(float(row[1])),
+                                       repr(float(row[2])), repr(float(row[3])), int(row[4]),
+                                       int(row[5]), iteration))
+            self._samples_file.flush()
+            self.n_samples += len(log)
+            self._good = (os.fstat(self._samples_file.fileno()).st_size, self.n_samples)
+
+    def salvage(self) -> None:
+        """After a failed write (a full disk): ``samples.csv`` back to its last complete
+        flush (no torn row, and the rows that would not go out are not left in a buffer to
+        go out twice), then the space held back freed for the error path's writes."""
+        with contextlib.suppress(OSError):  # its buffer would not go out: dropped here
+            self._samples_file.close()
+        size, n = self._good
+        with contextlib.suppress(OSError):
+            os.truncate(self.samples_path, size)
+            self.n_samples = n
+        self.release_reserve()
+        with writing(self.samples_path):
+            self._samples_file = self.samples_path.open("a", newline="", encoding="utf-8")
+            self._writer = csv.writer(self._samples_file)
+
+    def journal(self, rows: Sequence[tuple[float, float, float, float, int]], vehicle: int,
+                iteration: int) -> None:
+        """Append samples as they arrive to ``samples_received.csv`` and flush it: a batch
+        of one vehicle's rows ``(t_s, x_m, y_m, value, phase)`` (the phase as known on
+        arrival), taken in ``iteration``. Nothing received is lost even if the station
+        dies before the flight ends; ``samples.csv`` gets the same samples again, in time
+        order with their final phase, when the flight is over.
+
+        Called on the station's loop thread: a failure is kept in :attr:`journal_error`
+        (the run fails on it at the next flight) rather than raised into the link."""
+        if self.journal_error is not None or self._received_file is None \
+                or self._received_file.closed:
+            return
+        try:
+            for t, x, y, value, phase in rows:
+                self._received.writerow((repr(t), repr(x), repr(y), repr(value), phase,
+                                         vehicle, iteration))
+            self._received_file.flush()
+            self.n_received += len(rows)
+        except OSError as exc:
+            self.journal_error = str(disk_error(self.received_path, exc))
 
     def record_flight(self, record: FlightRecord) -> None:
         """Samples first, then the flight's line: a line in ``flights.jsonl`` means its
         samples are on disk (both synced)."""
-        for r in record.reports:
-            self.append_samples(r.samples, record.iteration)
-        _sync(self._samples_file)
-        self._flights_file.write(json.dumps(flight_to_json(record), allow_nan=False) + "\n")
-        _sync(self._flights_file)
+        try:
+            if self.journal_error is not None:
+                raise RunError(self.journal_error)
+            for r in record.reports:
+                self.append_samples(r.samples, record.iteration)
+        except RunError:
+            self.unwritten.append(record)
+            raise
+        with writing(self.flights_path):
+            _sync(self._samples_file)
+            self._flights_file.write(json.dumps(flight_to_json(record), allow_nan=False)
+                                     + "\n")
+            _sync(self._flights_file)
 
     def write_run_config(self, config: dict[str, Any], mission_text: str | None) -> None:
         """``run.json`` (and ``mission.yaml``): what ``--resume`` needs to start again."""
-        if mission_text is not None:
-            (self.path / "mission.yaml").write_text(mission_text, encoding="utf-8")
-        write_json(self.path / "run.json", config)
+        with writing(self.path / "run.json"):
+            if mission_text is not None:
+                (self.path / "mission.yaml").write_text(mission_text, encoding="utf-8")
+            write_json(self.path / "run.json", config)
 
     def progress(self, event: DfcEvent) -> None:
         """DFC progress callback: per-iteration files as soon as an iteration is done."""
@@ -469,18 +430,23 @@ class RunDir:
             self.write_metrics(self._records)
             if self.grid is not None:
                 folder = self.path / "iterations"
-                folder.mkdir(exist_ok=True)
-                write_iteration(folder / f"iter_{it:03d}.npz", IterationFrame(
-                    it, self.grid.x, self.grid.y, event.estimate, self._pieces.pop(it, [])))
+                path = folder / f"iter_{it:03d}.npz"
+                with writing(path):
+                    folder.mkdir(exist_ok=True)
+                    write_iteration(path, IterationFrame(
+                        it, self.grid.x, self.grid.y, event.estimate,
+                        self._pieces.pop(it, [])))
         self.write_s += time.perf_counter() - t0
 
     def write_metrics(self, records: list[IterationRecord]) -> None:
-        with (self.path / "metrics.csv").open("w", newline="", encoding="utf-8") as f:
+        with writing(self.path / "metrics.csv"), \
+                (self.path / "metrics.csv").open("w", newline="", encoding="utf-8") as f:
             w = csv.DictWriter(f, fieldnames=IterationRecord.CSV_COLUMNS)
             w.writeheader()
             for r in records:
                 w.writerow(r.csv_row())
-        write_json(self.path / "iterations.json", [asdict(r) for r in records])
+        with writing(self.path / "iterations.json"):
+            write_json(self.path / "iterations.json", [asdict(r) for r in records])
 
     def write_result(self, result: RunResult, extra: dict[str, Any] | None = None) -> None:
         self.write_metrics(result.records)
@@ -488,113 +454,28 @@ class RunDir:
         summary["samples_recorded"] = self.n_samples
         if extra:
             summary.update(extra)
-        write_json(self.path / "summary.json", summary)
+        with writing(self.path / "summary.json"):
+            write_json(self.path / "summary.json", summary)
         arrays: dict[str, Any] = {"grid_x": result.grid.x, "grid_y": result.grid.y,
                                   "estimate": result.estimate}
         if result.truth is not None:
             arrays["truth"] = result.truth
-        np.savez_compressed(self.path / "fields.npz", **arrays)
+        with writing(self.path / "fields.npz"):
+            np.savez_compressed(self.path / "fields.npz", **arrays)
 
     def write_partial(self, records: list[IterationRecord], summary: dict[str, Any]) -> None:
-        """What to leave behind when a run fails part-way."""
+        """What to leave behind when a run fails part-way (``summary.json`` first: the
+        metrics can be rebuilt from ``iterations/``, the reason cannot)."""
+        with writing(self.path / "summary.json"):
+            write_json(self.path / "summary.json", summary)
         self.write_metrics(records)
-        write_json(self.path / "summary.json", summary)
 
     def close(self) -> None:
-        for f in (self._samples_file, self._flights_file):
-            if not f.closed:
-                f.close()
-
-
-# --------------------------------------------------------------------------------------------
-# flights.jsonl: the checkpoint
-
-
-def _task_to_json(task: Task) -> dict[str, Any]:
-    kind = "trace" if isinstance(task, TraceTask) else "waypoint"
-    return {"kind": kind, **asdict(task)}
-
-
-def _task_from_json(d: dict[str, Any]) -> Task:
-    d = dict(d)
-    kind = d.pop("kind")
-    return TraceTask(**d) if kind == "trace" else Waypoint(**d)
-
-
-def flight_to_json(record: FlightRecord) -> dict[str, Any]:
-    """One ``flights.jsonl`` line (samples are in ``samples.csv``, counted here).
-
-    Floats are written with ``repr`` precision, so a resumed run reads back exactly what
-    the interrupted one computed with.
-    """
-    return {
-        "iteration": record.iteration,
-        "plans": [[_task_to_json(t) for t in plan] for plan in record.plans],
-        "positions_before_m": [list(p) for p in record.positions_before_m],
-        "executor_state": record.executor_state,
-        "reports": [{
-            "vehicle": r.vehicle, "samples": len(r.samples), "flown_m": r.flown_m,
-            "traced_m": r.traced_m, "end_x_m": r.end_x_m, "end_y_m": r.end_y_m,
-            "sim_s": r.sim_s,
-            "outcomes": [{"task": _task_to_json(o.task), "status": o.status,
-                          "flown_m": o.flown_m, "traced_m": o.traced_m} for o in r.outcomes],
-        } for r in record.reports],
-    }
-
-
-def read_flight_lines(path: Path) -> list[dict[str, Any]]:
-    """The complete lines of ``flights.jsonl`` (a torn last line from a crash is ignored)."""
-    if not path.exists():
-        return []
-    out = []
-    with path.open(encoding="utf-8") as f:
-        for line in f:
-            if not line.endswith("\n"):
-                break  # written but never finished: that flight did not finish either
-            out.append(json.loads(line))
-    return out
-
-
-def read_checkpoint(run_dir: str | Path) -> list[FlightRecord]:
-    """The finished flights of a run directory, with their samples, for a resumed run."""
-    run_dir = Path(run_dir)
-    lines = read_flight_lines(run_dir / "flights.jsonl")
-    samples = _read_sample_rows(run_dir / "samples.csv")
-    records = []
-    for d in lines:
-        it = d["iteration"]
-        mine = samples[samples[:, 6] == it] if len(samples) else samples
-        reports = []
-        for r in d["reports"]:
-            rows = mine[mine[:, 5] == r["vehicle"]] if len(mine) else mine
-            if len(rows) != r["samples"]:
-                raise RunError(f"{run_dir}: iteration {it}, vehicle {r['vehicle']}: "
-                               f"{len(rows)} samples on disk, {r['samples']} recorded")
-            log = SampleLog(rows[:, 0].copy(), rows[:, 1].copy(), rows[:, 2].copy(),
-                            rows[:, 3].copy(), rows[:, 4].astype(np.int8),
-                            rows[:, 5].astype(np.int16)) if len(rows) else SampleLog()
-            outcomes = [TaskOutcome(_task_from_json(o["task"]), o["status"], o["flown_m"],
-                                    o["traced_m"]) for o in r["outcomes"]]
-            reports.append(FlightReport(r["vehicle"], log, r["flown_m"], r["traced_m"],
-                                        outcomes, r["end_x_m"], r["end_y_m"], r["sim_s"]))
-        records.append(FlightRecord(
-            iteration=it,
-            plans=[[_task_from_json(t) for t in plan] for plan in d["plans"]],
-            reports=reports,
-            positions_before_m=[(float(p[0]), float(p[1])) for p in d["positions_before_m"]],
-            executor_state=d.get("executor_state")))
-    return records
-
-
-def _read_sample_rows(path: Path) -> np.ndarray:
-    if not path.exists():
-        return np.zeros((0, len(SAMPLE_COLUMNS)))
-    with path.open(encoding="utf-8") as f:
-        f.readline()  # the header
-        rows = f.read()
-    if not rows.strip():
-        return np.zeros((0, len(SAMPLE_COLUMNS)))
-    return np.loadtxt(io.StringIO(rows), delimiter=",", ndmin=2)
+        for f in (self._samples_file, self._flights_file, self._received_file):
+            if f is not None and not f.closed:
+                with contextlib.suppress(OSError):  # a full disk: reported where it happened
+                    f.close()
+        self.release_reserve()
 
 
 def read_run_config(run_dir: str | Path) -> dict[str, Any]:

@@ -10,12 +10,12 @@ Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
     and each flight's samples settled into a :class:`~.core.tasks.FlightReport`.
 :class:`VehicleState`
     One vehicle's bookkeeping across flights.
-:class:`Flight` and :func:`build_report`
-    What one vehicle did for one mission, and the report made of it.
 :class:`VehicleStatus`
     One vehicle as the live display sees it at one moment.
-:class:`StatusAssembler`
-    STATUSTEXT chunks joined into texts, for people.
+
+:class:`~.flight.Flight`, :func:`~.flight.build_report` and
+:class:`~.flight.StatusAssembler` (a flight, its report, STATUSTEXT texts) live in
+:mod:`.flight` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -37,13 +37,14 @@ from .core.tasks import (
     Phase,
     SampleLog,
     Task,
-    TaskOutcome,
     TaskStyle,
-    TraceReport,
     TraceTask,
 )
 from .errors import ProtocolError
-from .link.autopilots import AutopilotKind
+from .flight import Flight as Flight
+from .flight import StatusAssembler as StatusAssembler
+from .flight import build_report as build_report
+from .link.autopilots import AutopilotKind, FlightMode, flight_mode
 from .link.codec import MAVLinkMessage, mavlink
 from .link.mission import MissionItemSpec, MissionPlan
 from .link.reports import PhaseTrack, phase_change, trace_report
@@ -66,135 +67,18 @@ log = logging.getLogger(__name__)
 
 SAMPLE_BATCH = 512
 """Raw samples buffered per vehicle before they are converted to local metres anyway."""
+SAMPLE_BATCH_S = 1.0
+"""... or the wall time the oldest of them may wait: converted batches go to the run
+directory as they are made (:attr:`StationTelemetry.on_rows`), so a station that dies
+loses at most this much of what it had received."""
 LATE = -2
 """Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+RUNNING_STATES = frozenset({mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED,
+                            mavlink.MISSION_STATE_COMPLETE})
+"""``mission_state``s of a mission that was started."""
 
 # --------------------------------------------------------------------------------------------
 # pure helpers (unit-tested in tests/test_gcs_unit.py)
-
-
-class StatusAssembler:
-    """Joins STATUSTEXT chunks (MAVLink 2 ``id`` / ``chunk_seq``) into whole texts, for
-    people (the live display); nothing the station accounts for reads them.
-
-    A text with ``id == 0`` is complete on its own; a chunked one is complete with a chunk
-    shorter than 50 bytes (or an empty terminator). Pending chunks of one id are dropped
-    when a new chunk sequence for that id starts at 0.
-    """
-
-    def __init__(self) -> None:
-        self._parts: dict[tuple[int, int], list[str]] = {}
-
-    def add(self, sysid: int, text: str | bytes, text_id: int = 0, chunk_seq: int = 0,
-            raw_len: int | None = None) -> str | None:
-        if isinstance(text, bytes | bytearray):
-            raw = bytes(text)
-            text = raw.decode("utf-8", "replace")
-        else:
-            raw = text.encode("utf-8")
-        text = text.rstrip("\x00")
-        full = len(raw.rstrip(b"\x00")) >= 50 if raw_len is None else raw_len >= 50
-        if text_id == 0:
-            return text
-        key = (sysid, text_id)
-        if chunk_seq == 0:
-            self._parts[key] = []
-        parts = self._parts.setdefault(key, [])
-        parts.append(text)
-        if full:
-            return None
-        del self._parts[key]
-        return "".join(parts)
-
-
-@dataclass
-class Flight:
-    """What one vehicle did for one mission, as seen from the ground.
-
-    ``task_seqs[k]`` is the ``(first, last)`` mission seq of task ``k`` (default: one item
-    per task from ``first_seq``); ``style`` how its contour pieces were given (trace items,
-    or waypoint polylines of the estimated contours).
-    """
-
-    index: int
-    sysid: int
-    tasks: list[Task]
-    first_seq: int = 2              # mission seq of the first task (0 home, 1 takeoff)
-    task_seqs: list[tuple[int, int]] = field(default_factory=list)
-    style: TaskStyle = TaskStyle.TRACE
-    start_xy: tuple[float, float] = (0.0, 0.0)
-    start_ms: int | None = None
-    rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
-    row_seqs: list[int] = field(default_factory=list)
-    """Mission item of each row (-1 outside items, :data:`LATE` for a sample that arrived
-    after later ones: attributed at the end, by time)."""
-    pieces: dict[int, TraceReport] = field(default_factory=dict)
-    item_flown_m: dict[int, float] = field(default_factory=dict)
-    last_ms: int | None = None
-    done: bool = False
-    landed: bool = False
-    reached: set[int] = field(default_factory=set)
-    """Mission items the vehicle reported reached."""
-
-    def __post_init__(self) -> None:
-        if not self.task_seqs:
-            self.task_seqs = [(self.first_seq + k, self.first_seq + k)
-                              for k in range(len(self.tasks))]
-        if len(self.task_seqs) != len(self.tasks):
-            raise ValueError(f"{len(self.tasks)} tasks but {len(self.task_seqs)} item ranges")
-
-    @property
-    def last_seq(self) -> int:
-        return self.task_seqs[-1][1] if self.task_seqs else -1
-
-    def task_at(self, seq: int) -> Task | None:
-        """The task mission item ``seq`` belongs to (None for home, takeoff, speed)."""
-        for task, (first, last) in zip(self.tasks, self.task_seqs, strict=True):
-            if first <= seq <= last:
-                return task
-        return None
-
-
-def build_report(flight: Flight) -> FlightReport:
-    """One :class:`FlightReport` from what was collected during ``flight``."""
-    rows = flight.rows
-    if rows:
-        a = np.asarray(rows, dtype=float)
-        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
-                        a[:, 4].astype(np.int8),
-                        np.full(len(rows), flight.index, dtype=np.int16))
-        xy = np.vstack([np.asarray(flight.start_xy)[None, :], a[:, 1:3]])
-        flown = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
-        end = (float(a[-1, 1]), float(a[-1, 2]))
-    else:
-        log = SampleLog()
-        flown = 0.0
-        end = flight.start_xy
-    outcomes: list[TaskOutcome] = []
-    flown_on = flight.item_flown_m
-    for task, (first, last) in zip(flight.tasks, flight.task_seqs, strict=True):
-        item_m = sum(flown_on.get(seq, 0.0) for seq in range(first, last + 1))
-        reached = flight.done or last in flight.reached
-        if isinstance(task, TraceTask) and flight.style == TaskStyle.WAYPOINTS:
-            # the estimated contour, flown as waypoints: along it from the first waypoint on
-            along_m = sum(flown_on.get(seq, 0.0) for seq in range(first + 1, last + 1))
-            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
-            outcomes.append(TaskOutcome(task, status, item_m, along_m if reached else 0.0))
-        elif isinstance(task, TraceTask):
-            rep = flight.pieces.get(task.piece_id)
-            if rep is None:
-                outcomes.append(TaskOutcome(task, OutcomeStatus.UNREPORTED, item_m, 0.0))
-            else:
-                outcomes.append(TaskOutcome(task, rep.status, rep.flown_m, rep.traced_m))
-        else:
-            status = OutcomeStatus.REACHED if reached else OutcomeStatus.UNREPORTED
-            outcomes.append(TaskOutcome(task, status, item_m))
-    traced = float(sum(o.traced_m for o in outcomes))
-    sim_s = 0.0
-    if flight.start_ms is not None and flight.last_ms is not None:
-        sim_s = max(0.0, (flight.last_ms - flight.start_ms) / 1000.0)
-    return FlightReport(vehicle=flight.index, samples=log, flown_m=flown, traced_m=traced,
-                        outcomes=outcomes, end_x_m=end[0], end_y_m=end[1], sim_s=sim_s)
 
 
 # --------------------------------------------------------------------------------------------
@@ -231,6 +115,8 @@ class VehicleState:
     status: str = "idle"
     raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+    raw_since: float = 0.0
+    """Wall time the oldest of ``raw`` arrived."""
     seen_ms: list[int] = field(default_factory=list)
     """Sorted times of every sample received (a resent one that is already here is a
     duplicate); with ``_seen`` for the lookups."""
@@ -250,11 +136,32 @@ class VehicleState:
     """The vehicle's own (sim) time when the current mission item began."""
     vehicle_samples: int | None = None
     """How many samples the vehicle says it took (its count at the last recovery)."""
-    missing: int = 0
-    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost)."""
+    missing: int | None = 0
+    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost;
+    None: unknown, the vehicle was given up before it could be asked)."""
     no_recovery: str | None = None
     """Why this vehicle's samples cannot be recovered (its payload does not answer the
     sample count: a stock autopilot's Lua script); None while recovery works."""
+    silent: bool = False
+    """Its link was out when the item time limits were last checked."""
+    link_out: bool = False
+    """Its link was found out (no HEARTBEAT for :data:`~.losses.SILENT_S`) and is not
+    back yet."""
+    back_since: float | None = None
+    """Monotonic time its HEARTBEATs came back after a silence."""
+    clock_first: tuple[float, int] | None = None
+    """(monotonic time, ``time_boot_ms``) of its first position, ..."""
+    clock_last: tuple[float, int] | None = None
+    """... and of its latest: how fast its clock runs (:meth:`StationTelemetry.clock_rate`)."""
+    mission_state: int = 0
+    """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
+    that does not say)."""
+    mission_state_at: float = 0.0
+    """Monotonic time that MISSION_CURRENT arrived."""
+    mission_news_at: float = 0.0
+    """Monotonic time of the last sign that the uploaded mission runs or ran: a
+    MISSION_CURRENT of it ACTIVE, PAUSED or COMPLETE, or a MISSION_ITEM_REACHED (a short
+    mission can be over before a once-a-second MISSION_CURRENT says ACTIVE)."""
 
     def count_seen(self, first_ms: int, last_ms: int) -> int:
         return bisect.bisect_right(self.seen_ms, last_ms) - \
@@ -325,6 +232,11 @@ class StationTelemetry:
         self.changed = changed
         self.home = home
         self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(sysids)}
+        self.on_rows: Callable[[VehicleState, list[tuple[float, float, float, float, int]]],
+                               None] | None = None
+        """Told every batch of samples as it is converted (``(t_s, x_m, y_m, value,
+        phase)`` rows, in arrival order, the phase as known then): the run directory's
+        journal of everything received."""
         self.assembler = StatusAssembler()
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
@@ -350,6 +262,9 @@ class StationTelemetry:
         if v.recovering:
             v.recovered += 1
         phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+        now = time.monotonic()
+        if not v.raw:
+            v.raw_since = now
         v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
                       seq))
         v.samples += 1
@@ -358,7 +273,7 @@ class StationTelemetry:
             if f.start_ms is None:
                 f.start_ms = s.time_boot_ms
             f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
-        if len(v.raw) >= SAMPLE_BATCH:
+        if len(v.raw) >= SAMPLE_BATCH or now - v.raw_since >= SAMPLE_BATCH_S:
             self._convert(v)
 
     def _convert(self, v: VehicleState) -> None:
@@ -382,6 +297,8 @@ class StationTelemetry:
             v.last_xy = (float(xs[-1]), float(ys[-1]))
         rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
                         a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        if self.on_rows is not None:
+            self.on_rows(v, rows)
         if f is not None:
             f.rows.extend(rows)
             f.row_seqs.extend(seqs.tolist())
@@ -392,6 +309,14 @@ class StationTelemetry:
         for v in self.vehicles.values():
             self._convert(v)
 
+    def convert_due(self) -> None:
+        """Convert the batches that waited :data:`SAMPLE_BATCH_S` (samples that stopped
+        coming, e.g. in a link outage, still reach the run directory)."""
+        now = time.monotonic()
+        for v in self.vehicles.values():
+            if v.raw and now - v.raw_since >= SAMPLE_BATCH_S:
+                self._convert(v)
+
     def on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
         v = self.vehicles.get(sysid)
         if v is None:
@@ -400,19 +325,31 @@ class StationTelemetry:
         kind = msg.get_type()
         f = v.flight
         if kind == "MISSION_CURRENT":
-            if (f is not None and f.tasks and v.status == "flying" and msg.seq == f.last_seq
-                    and getattr(msg, "mission_state", 0) == mavlink.MISSION_STATE_COMPLETE):
-                f.done = True  # in case the MISSION_ITEM_REACHED was lost
-                v.status = "holding"
+            v.mission_state = int(getattr(msg, "mission_state", 0) or 0)
+            v.mission_state_at = time.monotonic()
+            total = getattr(msg, "total", 0)
+            if v.mission_state in RUNNING_STATES and total == len(v.items):
+                v.mission_news_at = v.mission_state_at
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
                 v.item_since = time.monotonic()
                 v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
                 v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
+            self._judge(v, msg)
+        elif kind == "HEARTBEAT":
+            self._judge(v, msg)
+        elif kind == "GLOBAL_POSITION_INT":
+            # the vehicle's clock against ours (a resent sample's older time is no news)
+            pair = (time.monotonic(), int(msg.time_boot_ms))
+            if v.clock_first is None:
+                v.clock_first = pair
+            elif v.clock_last is None or pair[1] > v.clock_last[1]:
+                v.clock_last = pair
         elif kind == "MISSION_ITEM_REACHED":
+            v.mission_news_at = time.monotonic()
             if f is not None:
                 f.reached.add(msg.seq)
-            if f is not None and f.tasks and msg.seq == f.last_seq:
+            if f is not None and f.tasks and msg.seq == f.last_seq and f.interrupted is None:
                 f.done = True
                 v.status = "holding"
         elif kind == "NAMED_VALUE_INT":
@@ -435,6 +372,56 @@ class StationTelemetry:
                                       getattr(msg, "chunk_seq", 0))
             if text is not None:
                 v.last_text = text
+
+    def _judge(self, v: VehicleState, msg: MAVLinkMessage) -> None:
+        """Whether the flight in progress ended, from the vehicle's HEARTBEAT and
+        MISSION_CURRENT, whatever acknowledgement or progress message was lost on the way.
+
+        Done: MISSION_CURRENT says COMPLETE at the last item (in case its last
+        MISSION_ITEM_REACHED was lost); for an autopilot that states no ``mission_state``,
+        its HEARTBEAT shows HOLD (PX4's AUTO.LOITER after a mission) at the last item.
+        Left before its end on its own (a failsafe): once it has shown that it flies this
+        mission, its HEARTBEAT shows RTL or LAND, or disarmed, or its MISSION_CURRENT says
+        PAUSED (or, without a ``mission_state``, HOLD before the last item)."""
+        f = v.flight
+        if f is None or not f.tasks or f.done or f.interrupted is not None \
+                or v.status != "flying":
+            return
+        link = self.router.vehicles[v.sysid]
+        if msg.get_type() == "MISSION_CURRENT":
+            state = v.mission_state
+            total = getattr(msg, "total", 0)
+            ours = total in (0, 0xFFFF) or total == len(v.items)  # not an old mission's
+            if not ours:
+                return
+            if state == mavlink.MISSION_STATE_ACTIVE:
+                f.in_mission = True
+            elif state == mavlink.MISSION_STATE_COMPLETE and msg.seq == f.last_seq:
+                f.done = True
+                v.status = "holding"
+            elif state == mavlink.MISSION_STATE_PAUSED and f.in_mission:
+                f.interrupted = f"it left its mission at item {msg.seq} (MISSION_CURRENT: " \
+                                "paused)"
+        else:
+            mode = flight_mode(AutopilotKind.of(link.autopilot), link.custom_mode)
+            if mode == FlightMode.MISSION and link.armed:
+                f.in_mission = True
+            elif not f.in_mission:
+                return
+            elif not link.armed:
+                f.interrupted = "it landed and disarmed"
+            elif mode in (FlightMode.RTL, FlightMode.LAND):
+                f.interrupted = f"it switched to {mode.value.upper()}"
+            elif mode == FlightMode.HOLD and v.mission_state == mavlink.MISSION_STATE_UNKNOWN:
+                if v.current_seq == f.last_seq:
+                    f.done = True
+                    v.status = "holding"
+                else:
+                    f.interrupted = f"it holds at item {v.current_seq}"
+        if f.interrupted is not None:
+            v.status = "interrupted"
+            log.warning("vehicle %d left its mission before the end on its own: %s",
+                        v.sysid, f.interrupted)
 
     def _decode(self, decode: Callable[[MAVLinkMessage], T | None], msg: MAVLinkMessage
                 ) -> T | None:
@@ -464,8 +451,10 @@ class StationTelemetry:
         f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
                    task_seqs=list(plan.task_seqs) if plan else [],
                    style=plan.style if plan else TaskStyle.TRACE)
-        f.rows.extend(v.stray)  # nothing is ever dropped
-        f.row_seqs.extend([LATE] * len(v.stray))
+        old = v.flight  # a flight begun again (its upload was cut short by the link)
+        carried = list(v.stray) + (old.rows if old is not None else [])
+        f.rows.extend(carried)  # nothing is ever dropped
+        f.row_seqs.extend([LATE] * len(carried))
         v.stray.clear()
         v.flight = f
         return f
@@ -563,6 +552,21 @@ class StationTelemetry:
                 message=v.last_text,
             ))
         return rows
+
+    def clock_rate(self) -> float:
+        """The vehicles' sim-time speed-up as achieved: their clocks (positions'
+        ``time_boot_ms``) over ours since their first position, the median of the vehicles
+        in service heard over 5 s or more (NaN: none). Over the whole run, the staleness of
+        a position (up to a quarter second between the display's positions) does not
+        count."""
+        rates = sorted(
+            (b[1] - a[1]) / 1000.0 / (b[0] - a[0]) for v in self.vehicles.values()
+            if v.lost is None and (a := v.clock_first) is not None
+            and (b := v.clock_last) is not None and b[0] - a[0] >= 5.0)
+        if not rates:
+            return float("nan")
+        mid = len(rates) // 2
+        return rates[mid] if len(rates) % 2 else (rates[mid - 1] + rates[mid]) / 2
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
                       ) -> list[dict[str, Any]]:

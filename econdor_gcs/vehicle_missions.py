@@ -27,7 +27,7 @@ from .link.mission import (
     plan_mission,
 )
 from .link.router import Router
-from .losses import VehicleLosses
+from .losses import SILENT_S, VehicleLosses
 from .mission import Mission
 from .mission_files import write_wpl
 from .telemetry import Flight, StationTelemetry, VehicleState
@@ -40,7 +40,8 @@ UPLOAD_ATTEMPTS = 3
 """Uploads of one mission to a vehicle that says no transfer is running (MAV_MISSION_RESULT
 INVALID_SEQUENCE, ArduPilot: ERROR) or that gave up on it (ERROR, ArduPilot:
 OPERATION_CANCELLED after 8 s of its time without an item): its answer to an earlier item
-was lost, or the station was too slow for a vehicle running faster than real time."""
+was lost, or the station was too slow for a vehicle running faster than real time; and
+uploads that ran out of answers while the vehicle heartbeats."""
 RESTART_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR,
                              mavlink.MAV_MISSION_OPERATION_CANCELLED})
 """MISSION_ACK results after which the upload starts again from MISSION_COUNT."""
@@ -149,14 +150,28 @@ class VehicleMissions:
                 v.style = style
             return
 
+    async def _transfer(self, v: VehicleState, items: list[MissionItemSpec],
+                        mission_type: int, what: str) -> None:
+        """Upload ``items``; one that runs out of answers while the vehicle heartbeats (the
+        protocol's messages were lost, not the vehicle) starts again, up to
+        :data:`UPLOAD_ATTEMPTS` times. One that fails while the vehicle is silent is left
+        to :meth:`~.losses.VehicleLosses.tolerant` (it waits for the link)."""
+        for attempt in range(1, UPLOAD_ATTEMPTS + 1):
+            try:
+                await asyncio.wait_for(self.router.upload_mission(
+                    v.sysid, items, mission_type=mission_type), self.timeout_s)
+                return
+            except (TimeoutError, VehicleTimeout) as exc:
+                self.losses.check_lost()  # a vehicle that went silent says so
+                text = (f"vehicle {v.sysid}: {what} did not finish within {self.timeout_s:g} s"
+                        if isinstance(exc, TimeoutError) else str(exc))
+                if attempt == UPLOAD_ATTEMPTS or self.losses.silent_s(v) > SILENT_S:
+                    raise VehicleTimeout(text) from None
+                log.warning("%s; the vehicle heartbeats: uploading it again", text)
+
     async def upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
         v.status = "uploading"
-        try:
-            await asyncio.wait_for(self.router.upload_mission(v.sysid, items), self.timeout_s)
-        except TimeoutError:
-            self.losses.check_lost()  # a vehicle that went silent says so
-            raise VehicleTimeout(f"vehicle {v.sysid}: mission upload did not finish within "
-                                 f"{self.timeout_s:g} s") from None
+        await self._transfer(v, items, mavlink.MAV_MISSION_TYPE_MISSION, "mission upload")
         v.items = items
         v.current_seq = None
         v.status = "uploaded"
@@ -165,11 +180,7 @@ class VehicleMissions:
         """The area plus :data:`~.gcs.FENCE_MARGIN_M` as the vehicle's inclusion fence (mission
         type FENCE): an autopilot that enforces fences keeps the vehicle inside."""
         try:
-            await asyncio.wait_for(self.router.upload_mission(
-                v.sysid, fence, mission_type=mavlink.MAV_MISSION_TYPE_FENCE), self.timeout_s)
-        except TimeoutError:
-            raise VehicleTimeout(f"vehicle {v.sysid}: fence upload did not finish within "
-                                 f"{self.timeout_s:g} s") from None
+            await self._transfer(v, fence, mavlink.MAV_MISSION_TYPE_FENCE, "fence upload")
         except ProtocolError as exc:  # a vehicle without fences flies without one
             log.warning("vehicle %d refused the fence: %s", v.sysid, exc)
             self.fences_refused.append(v.sysid)

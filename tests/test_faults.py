@@ -63,6 +63,7 @@ def test_demo_through_a_lossy_signed_link_keeps_every_sample(tmp_path: Path, cap
     samples the vehicle says it took."""
     key = tmp_path / "key"
     key.write_text("lossy but signed\n")
+    key.chmod(0o600)
     out = tmp_path / "run"
     station_port = free_port()
     with RelayProcess(station_port, "--drop", "10%", "--seed", "7") as relay, \

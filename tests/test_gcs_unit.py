@@ -220,7 +220,11 @@ def test_mission_json_round_trip() -> None:
 
 class FakeRouter:
     def __init__(self) -> None:
-        self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1)) for s in (1, 2)}
+        import time
+
+        # vehicles heard just now (a silent one's item time limits are not watched)
+        self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1),
+                                        last_heartbeat=time.monotonic()) for s in (1, 2)}
         self.handlers: dict[str, Any] = {}
 
     def subscribe(self, kinds: Any, h: Any) -> None:

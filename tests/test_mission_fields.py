@@ -51,7 +51,7 @@ def _write(tmp_path, text):
         ("field: {model: paper}\nvehicles: {count: two}\n", r"vehicles\.count: expected an integer"),
         ("field: {model: paper}\nvehicles: {speed_mps: 20, max_speed_mps: 10}\n",
          r"vehicles\.speed_mps: must be <= vehicles\.max_speed_mps"),
-        ("field: {model: paper}\narea: {width_m: 0}\n", r"area\.width_m: must be > 0"),
+        ("field: {model: paper}\narea: {width_m: 0}\n", r"area\.width_m: must be >= 10 \(metres\), got 0"),
         ("field: {model: raster}\n", r"field\.path: missing required key"),
         ("field: {model: paper}\nalgorithm: {planner: greedy}\n", r"algorithm\.planner: must be one of"),
         ("field: [1, 2\n", r"malformed YAML at line"),

@@ -56,8 +56,8 @@ class NoLosses:
     def check_lost(self) -> None:
         pass
 
-    async def tolerant(self, v: VehicleState, coro: Any) -> None:
-        await coro
+    async def tolerant(self, v: VehicleState, step: Any) -> None:
+        await step()
 
 
 async def until(cond: Any, *, tick_s: float = 0.25, on_tick: Any = None,

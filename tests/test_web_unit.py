@@ -333,7 +333,10 @@ def test_another_host_than_loopback_needs_a_token() -> None:
     feed = ReplayFeed.__new__(ReplayFeed)  # never served: only the server's policy is asked
     s = WebServer(feed, "0.0.0.0", 8765)
     assert s.token and len(s.token) >= 20 and s.url.endswith(f"/?token={s.token}")
-    assert WebServer(feed, "127.0.0.1", 8765).token is None
+    assert s.exposed
+    assert WebServer(feed, "127.0.0.1", 8765).token is None  # a replay: nothing to guard
+    live = WebServer(feed, "127.0.0.1", 8765, controls=True)  # the controls: always a token
+    assert live.token and live.url.endswith(f"/?token={live.token}") and not live.exposed
 
 
 @pytest.fixture()
@@ -415,6 +418,34 @@ def test_a_token_guards_the_page_and_its_socket(replay_server: Any) -> None:
     with pytest.raises(aiohttp.WSServerHandshakeError):
         _ws(s.bound_port)
     assert _ws(s.bound_port, "/ws?token=s3cret-token")[0]["type"] == "hello"
+
+
+@pytest.mark.parametrize("origin", [None, "null"])
+def test_no_control_without_the_token_whatever_the_origin(origin: str | None) -> None:
+    """A page of another site cannot stop the run: on loopback a socket without the token
+    (no Origin, as a script sends; or ``Origin: null``, a sandboxed frame or a file://
+    page) gets no controls and its requests are refused; only the token obeys."""
+    import aiohttp
+
+    feed, control, _ = _live_feed()
+    s = WebServer(feed, "127.0.0.1", 0, controls=True)
+    s.start()
+    try:
+        stop = [{"type": "control", "action": "stop"}]
+        if origin == "null":
+            with pytest.raises(aiohttp.WSServerHandshakeError):
+                _ws(s.bound_port, origin=origin, send=stop)
+        else:
+            hello, *rest = _ws(s.bound_port, send=stop, n=5)
+            assert hello["type"] == "hello" and hello["controls"] is False
+            assert any(m["type"] == "error" and "need the token" in m["text"] for m in rest)
+        assert control.state is ControlState.RUNNING
+        hello, *rest = _ws(s.bound_port, f"/ws?token={s.token}", send=stop, n=5)
+        assert hello["controls"] is True
+        assert any(m["type"] == "control" and m["state"] == "stopping" for m in rest), rest
+        assert control.state is ControlState.STOPPING
+    finally:
+        s.stop(flush_s=0.2)
 
 
 def test_requests_a_replay_cannot_grant_come_back_as_errors(replay_server: Any) -> None:

@@ -38,7 +38,8 @@ from .codec import MAVLinkMessage, mavlink
 from .router import Router
 
 __all__ = ["ARDUPILOT_POSITION_COMMANDS", "AutopilotKind", "FlightMode", "arm_when_ready",
-           "mission_start_params", "mode_params", "set_mode", "start_mission", "takeoff"]
+           "flight_mode", "mission_start_params", "mode_params", "set_mode", "start_mission",
+           "takeoff"]
 
 ARDUPILOT_POSITION_COMMANDS = frozenset({
     mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
@@ -106,6 +107,28 @@ def mode_params(kind: AutopilotKind, mode: FlightMode) -> tuple[float, float, fl
         return base, float(COPTER_NUMBER[mode.value]), 0.0
     raise LinkError(f"cannot set mode {mode.value!r} on a {kind.value} autopilot: its mode "
                     "numbers are not known")
+
+
+def flight_mode(kind: AutopilotKind, custom_mode: int) -> FlightMode | None:
+    """The mode a HEARTBEAT's ``custom_mode`` names, the inverse of :func:`mode_params`
+    (None: a mode the station never asks for, e.g. PX4's AUTO.TAKEOFF, or an unknown
+    autopilot).
+
+    >>> flight_mode(AutopilotKind.PX4, (4 << 16) | (5 << 24)).value
+    'rtl'
+    >>> flight_mode(AutopilotKind.ARDUPILOT, 3).value
+    'mission'
+    """
+    if kind == AutopilotKind.PX4:
+        if (custom_mode >> 16) & 0xFF != PX4_MAIN_AUTO:
+            return None
+        sub = (custom_mode >> 24) & 0xFF
+        return next((FlightMode(name) for name, n in PX4_SUB.items()
+                     if n == sub and name in FlightMode.__members__.values()), None)
+    if kind == AutopilotKind.ARDUPILOT:
+        return next((FlightMode(name) for name, n in COPTER_NUMBER.items()
+                     if n == custom_mode), None)
+    return None
 
 
 def _kind(router: Router, sysid: int) -> AutopilotKind:

@@ -84,6 +84,8 @@ class _Page:
     """One connected page."""
 
     ws: web.WebSocketResponse
+    may_control: bool = False
+    """The socket was opened with the token: its ``control`` requests are obeyed."""
     cursor: Cursor = field(default_factory=Cursor)
     requests: asyncio.Queue[dict[str, Any]] = field(default_factory=asyncio.Queue)
 
@@ -98,20 +100,35 @@ class WebServer:
     host, port:
         Where to listen (port 0: any free one; :attr:`url` tells).
     token:
-        Required of every page (``?token=``). ``None``: none on a loopback host, a fresh
-        random one on any other.
+        The page's secret (``?token=``): given, every request needs it. ``None``: a fresh
+        random one when one is needed: on any host other than loopback (then every request
+        needs it) and for ``controls``.
+    controls:
+        The feed takes operator requests (pause, resume, stop). They are obeyed only on a
+        socket opened with the token, whatever its ``Origin``: a page of another site
+        (or a sandboxed one, whose ``Origin`` is ``null``) cannot know it. On a loopback
+        host, a page without the token still sees the run, without the controls.
     rate_hz:
         How often each page is sent what changed (vehicle positions, trails, log lines).
+
+    Access: on any other host than loopback (or with a ``token`` given), every request needs
+    the token. Otherwise the ``Host`` header must name a loopback address (no DNS
+    rebinding). Sockets from
+    another origin, ``null`` included, are refused.
     """
 
     def __init__(self, feed: Feed, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *,
-                 token: str | None = None, rate_hz: float = 4.0) -> None:
+                 token: str | None = None, controls: bool = False,
+                 rate_hz: float = 4.0) -> None:
         self.feed = feed
         self.host = host
         self.port = port
         self.loopback = is_loopback(host)
+        self.controls = controls
+        self.token_required = token is not None or not self.loopback
+        """Every request needs the token (not only the controls)."""
         self.token = token if token is not None else (
-            None if self.loopback else secrets.token_urlsafe(18))
+            secrets.token_urlsafe(18) if controls or not self.loopback else None)
         self.rate_hz = rate_hz
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
@@ -198,19 +215,30 @@ class WebServer:
         for msg in self.feed.updates(page.cursor):
             await self._send(page, msg)
 
+    @property
+    def exposed(self) -> bool:
+        """Served beyond this machine (any other host than loopback)."""
+        return not self.loopback
+
     # -- access ----------------------------------------------------------------------------------
+    def _has_token(self, request: web.Request) -> bool:
+        if self.token is None:
+            return False
+        given = request.query.get("token", "")
+        return hmac.compare_digest(given.encode(), self.token.encode())
+
     def _refuse(self, request: web.Request) -> str | None:
         """Why ``request`` may not have the page (``None``: it may)."""
-        if self.token is not None:
-            given = request.query.get("token", "")
-            if not hmac.compare_digest(given.encode(), self.token.encode()):
+        if self.token_required:
+            if not self._has_token(request):
                 return "this page needs the token printed when the server started (?token=...)"
         else:
             name = urlsplit(f"//{request.host}").hostname or ""
             if not is_loopback(name):  # DNS rebinding: a foreign name resolving to us
                 return f"host {request.host!r} is not a loopback address"
         origin = request.headers.get("Origin")
-        if origin is not None and origin != "null" and urlsplit(origin).netloc != request.host:
+        if origin is not None and urlsplit(origin).netloc != request.host:
+            # "null" too: a sandboxed frame or a file:// page; our own page never sends it
             return f"cross-origin request from {origin} refused"
         return None
 
@@ -229,7 +257,7 @@ class WebServer:
             return web.Response(status=403, text=why + "\n")
         ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=1 << 16)
         await ws.prepare(request)
-        page = _Page(ws)
+        page = _Page(ws, may_control=self.controls and self._has_token(request))
         self._pages.add(page)
         sender = asyncio.ensure_future(self._serve(page))
         try:
@@ -256,7 +284,10 @@ class WebServer:
         """The only writer of ``page``: updates at ``rate_hz``, answers as they come."""
         period = 1.0 / self.rate_hz
         try:
-            await self._send(page, self.feed.hello())
+            hello = self.feed.hello()
+            if hello.get("controls") and not page.may_control:
+                hello = {**hello, "controls": False}  # seen without the token: no controls
+            await self._send(page, hello)
             while not page.ws.closed and not self._closing:
                 next_tick = time.monotonic() + period
                 for msg in self.feed.updates(page.cursor):
@@ -281,10 +312,16 @@ class WebServer:
             await self._send(page, msg if msg is not None else
                              {"type": "error", "text": f"no estimate stored for iteration {it}"})
         elif kind == "control":
-            try:
-                reply = self.feed.control(str(req.get("action")))
-            except ControlError as exc:
-                reply = {"type": "error", "text": str(exc)}
+            if not page.may_control and self.controls:
+                reply: Message = {"type": "error", "text": "the controls need the token printed "
+                                                          "when the run started (?token=...)"}
+                log.warning("web: a %s request without the token was refused",
+                            str(req.get("action"))[:20])
+            else:
+                try:
+                    reply = self.feed.control(str(req.get("action")))
+                except ControlError as exc:
+                    reply = {"type": "error", "text": str(exc)}
             await self._send(page, reply)
         else:
             await self._send(page, {"type": "error", "text": f"unknown request {kind!r}"})

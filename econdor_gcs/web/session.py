@@ -38,11 +38,17 @@ class LiveWeb:
                              origin=mission.origin, runlog=runlog, control=self.control,
                              max_iterations=mission.algorithm.max_iterations,
                              run_dir=run_dir, rate_hz=rate_hz)
-        self.server = WebServer(self.feed, host, port, token=token, rate_hz=rate_hz)
+        self.server = WebServer(self.feed, host, port, token=token, controls=True,
+                                rate_hz=rate_hz)
 
     def start(self) -> str:
-        """Bind and serve; the page's address (with its token when one is needed)."""
+        """Bind and serve; the page's address, with the token its controls need."""
         return self.server.start()
+
+    @property
+    def exposed(self) -> bool:
+        """Served beyond this machine: the controls are on the network (token-guarded)."""
+        return self.server.exposed
 
     def _on_control(self, state: ControlState, iteration: int) -> None:
         if state is ControlState.STOPPING and self._on_stop is not None:
