@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from efficiency import mid_level, mission_for  # noqa: E402
 
-from econdor_gcs.dfc import Dfc  # noqa: E402
+from econdor_gcs.dfc.loop import Dfc  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
 from econdor_lab.study import parse_seeds  # noqa: E402
 

@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.planners import PLANNER_NAMES
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.mission import load_mission
 
 WEB_DEFAULT = "127.0.0.1:8765"
 
@@ -269,7 +269,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from econdor_gcs.figures import plot_run
+    from econdor_gcs.files.figures import plot_run
 
     if not (args.run_dir / "metrics.csv").exists():
         raise EcondorError(f"{args.run_dir}: not a run directory (no metrics.csv)")
@@ -296,7 +296,7 @@ def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from econdor_gcs.run import run_mission_cli
+    from econdor_gcs.app.run import run_mission_cli
 
     if not args.connect:
         # the vehicles we start load the compiled tracer from numba's cache; on a cold
@@ -345,8 +345,8 @@ def _warm_up_tracer(quiet: bool) -> None:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from econdor_gcs.web.replay import ReplayFeed
-    from econdor_gcs.web.server import WebServer, parse_web_address
+    from econdor_gcs.app.web.replay import ReplayFeed
+    from econdor_gcs.app.web.server import WebServer, parse_web_address
 
     host, port = parse_web_address(args.web)
     server = WebServer(ReplayFeed(args.run_dir), host, port)
@@ -365,7 +365,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from econdor_gcs.export import export_cli
+    from econdor_gcs.app.export import export_cli
 
     return export_cli(args)
 
@@ -374,8 +374,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
     import dataclasses
     import json
 
-    from econdor_gcs.mission_files import describe, read_mission_file
-    from econdor_gcs.plausibility import check_plausible
+    from econdor_gcs.files.autopilot_files import describe, read_mission_file
+    from econdor_gcs.files.plausibility import check_plausible
 
     mfile = read_mission_file(args.path, int_frames=False)
     check_plausible(mfile, str(args.path))
@@ -391,7 +391,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 
 def _cmd_upload(args: argparse.Namespace) -> int:
-    from econdor_gcs.upload import upload_cli
+    from econdor_gcs.app.upload import upload_cli
 
     return upload_cli(args)
 

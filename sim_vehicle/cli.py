@@ -122,8 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_one(args: argparse.Namespace) -> int:
-    from econdor_gcs.mission import load_mission
-    from econdor_gcs.signing import load_signing_key
+    from econdor_gcs.config import load_mission
+    from econdor_gcs.link.signing import load_signing_key
 
     from .mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
     from .tracer import warm_up
@@ -171,7 +171,7 @@ def _run_one(args: argparse.Namespace) -> int:
 
 
 def _run_many(args: argparse.Namespace) -> int:
-    from econdor_gcs.mission import load_mission
+    from econdor_gcs.config import load_mission
 
     from .transport import parse_endpoint
 

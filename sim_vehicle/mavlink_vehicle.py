@@ -43,7 +43,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
-from econdor_gcs.signing import (
+from econdor_gcs.link.signing import (
     SigningKey,
     SigningStore,
     refusal_counts,
@@ -183,7 +183,7 @@ class MavlinkVehicle:
                      autopilot: type[Autopilot] = Px4Autopilot,
                      signing: SigningKey | None = None,
                      **overrides: Any) -> MavlinkVehicle:
-        """Build a vehicle from a loaded :class:`econdor_gcs.mission.Mission`."""
+        """Build a vehicle from a loaded :class:`econdor_gcs.config.Mission`."""
         v = mission.vehicles
         settings = VehicleSettings(
             sysid=sysid, speed_mps=v.speed_mps, max_speed_mps=v.max_speed_mps,

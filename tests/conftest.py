@@ -19,8 +19,8 @@ def compiled_tracer() -> None:
 
 @pytest.fixture(scope="session", autouse=True)
 def signing_state_dir(tmp_path_factory: pytest.TempPathFactory) -> None:
-    """Signing timestamps (econdor_gcs.signing.SigningStore) go to a folder of the test
+    """Signing timestamps (econdor_gcs.link.signing.SigningStore) go to a folder of the test
     session, not the user's ~/.local/state; the vehicles tests start inherit it."""
-    from econdor_gcs.signing import STATE_DIR_ENV
+    from econdor_gcs.link.signing import STATE_DIR_ENV
 
     os.environ[STATE_DIR_ENV] = str(tmp_path_factory.mktemp("econdor-state"))

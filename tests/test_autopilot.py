@@ -8,7 +8,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import DEMO, item_int
 
-from econdor_gcs.mission import load_mission
+from econdor_gcs.config import load_mission
 from sim_vehicle.ardupilot import (
     COPTER_AUTO,
     COPTER_GUIDED,
@@ -386,7 +386,8 @@ def test_gcs_failsafe_leaves_the_mission_after_5_s_without_the_gcs_heartbeat(cls
     if cls is ArduCopterAutopilot:
         ap.set_mode(COPTER_GUIDED)
     command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    assert command(ap, mavlink.MAV_CMD_MISSION_START, 1)[0] == mavlink.MAV_RESULT_ACCEPTED
+    first = 0 if cls is ArduCopterAutopilot else 1  # ArduCopter: MISSION_START(0, 0) only
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, first)[0] == mavlink.MAV_RESULT_ACCEPTED
     run_until(ap, lambda ms: math.hypot(ap.state.body.x_m, ap.state.body.y_m) > 10.0)
     assert _mission_state(ap) == mavlink.MISSION_STATE_ACTIVE
     ap.one_hz(4.9)

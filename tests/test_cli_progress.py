@@ -47,7 +47,7 @@ def test_run_defaults_suit_vehicles_started_by_hand() -> None:
     args = parser.parse_args(["run", "m.yaml"])
     cli._check_run_args(parser, args)
     assert args.timeout == 60.0 and args.link_timeout is None  # None: LINK_TIMEOUT_S, 120
-    from econdor_gcs.losses import LINK_TIMEOUT_S
+    from econdor_gcs.station.losses import LINK_TIMEOUT_S
 
     assert LINK_TIMEOUT_S == 120.0
     with pytest.raises(SystemExit):

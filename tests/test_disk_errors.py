@@ -22,7 +22,7 @@ from disk_helpers import FullDisk
 
 from econdor import cli
 from econdor_gcs.errors import RunError
-from econdor_gcs.rundir import RESERVE_NAME, RunDir
+from econdor_gcs.files.rundir import RESERVE_NAME, RunDir
 
 MISSION = """\
 name: disk

@@ -132,7 +132,7 @@ def test_station_killed_mid_run_resumes_to_the_same_result(tmp_path: Path, capsy
     import signal
     import time
 
-    from econdor_gcs.mission import load_mission
+    from econdor_gcs.config import load_mission
     from econdor_lab.study import run_seed
 
     mission = tmp_path / "killed.yaml"

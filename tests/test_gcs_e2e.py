@@ -18,10 +18,10 @@ import pytest
 from vehicle_helpers import VehicleProcess, free_port
 
 from econdor import cli
-from econdor_gcs.dfc import IterationRecord
+from econdor_gcs.config import load_mission
+from econdor_gcs.dfc.loop import IterationRecord
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.tlog import read_tlog
-from econdor_gcs.mission import load_mission
 from econdor_lab.study import run_seed
 
 MISSION = """\
@@ -129,7 +129,7 @@ def test_report_redraws_the_figures(full_run: tuple[Path, Path, int, str],
 
     from matplotlib.image import imread
 
-    from econdor_gcs.figures import RUN_FIGURES
+    from econdor_gcs.files.figures import RUN_FIGURES
 
     _, out, code, _ = full_run
     assert code == 0

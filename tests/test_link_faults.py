@@ -16,14 +16,14 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from econdor_gcs.commands import ensure
+from econdor_gcs.config import parse_mission
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import CommandRejected, VehicleTimeout
-from econdor_gcs.gcs import MavlinkExecutor
-from econdor_gcs.link.mission import build_mission
 from econdor_gcs.link.router import Received, Sample
+from econdor_gcs.link.transfer import build_mission
 from econdor_gcs.link.vehicles import VehicleLink
-from econdor_gcs.mission import parse_mission
+from econdor_gcs.station.executor import MavlinkExecutor
+from econdor_gcs.station.procedures import ensure
 
 PX4_MISSION = (4 << 16) | (4 << 24)
 PX4_HOLD = (4 << 16) | (3 << 24)
@@ -325,7 +325,7 @@ def test_the_achieved_speed_up_is_the_vehicles_clock_against_ours(
     """Positions' ``time_boot_ms`` against the station's clock over the run: 50x for
     vehicles at 50x, whatever a lossy link does to the flights (a resent sample's older
     time changes nothing; a vehicle given up does not count)."""
-    import econdor_gcs.telemetry as telemetry
+    import econdor_gcs.station.telemetry as telemetry
 
     ex, router = _executor()
     wall = [100.0]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.fields import (
     RasterField,
     authors_field,
@@ -16,7 +17,6 @@ from econdor_gcs.core.fields import (
 )
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.errors import FieldError, MissionError
-from econdor_gcs.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 REGION = Region(0, 100, 0, 100)

@@ -21,10 +21,10 @@ from pathlib import Path
 import pytest
 
 from econdor import cli
-from econdor_gcs.dfc import IterationDone
+from econdor_gcs.config import load_mission
+from econdor_gcs.dfc.loop import IterationDone
 from econdor_gcs.errors import RunError
-from econdor_gcs.mission import load_mission
-from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint
+from econdor_gcs.files.rundir import RunDir, RunDirMode, read_checkpoint
 from econdor_lab.inprocess import run_inprocess
 
 MISSION = """\
@@ -104,7 +104,7 @@ def test_resume_after_an_interrupt_ends_with_the_uninterrupted_result(
 
 _KILLABLE = """\
 import sys
-from econdor_gcs.mission import load_mission
+from econdor_gcs.config import load_mission
 from econdor_lab.inprocess import run_inprocess
 run_inprocess(load_mission(sys.argv[1]), sys.argv[2])
 """

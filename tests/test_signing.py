@@ -12,8 +12,8 @@ import pytest
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.router import Router
+from econdor_gcs.link.signing import SigningKey, load_signing_key
 from econdor_gcs.link.tlog import TlogWriter, read_tlog
-from econdor_gcs.signing import SigningKey, load_signing_key
 
 HEX = "0123456789abcdef" * 4
 KEY = SigningKey(bytes.fromhex(HEX))
@@ -309,7 +309,7 @@ def test_without_the_stored_timestamps_the_replay_would_have_armed_it(
     folder) takes the replayed ARM, as the issue reported."""
     from vehicle_helpers import inproc_vehicle, wait_for
 
-    from econdor_gcs.signing import STATE_DIR_ENV
+    from econdor_gcs.link.signing import STATE_DIR_ENV
 
     with _signed_link(KEY) as station:
         monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path / "first"))
@@ -331,7 +331,7 @@ def test_without_the_stored_timestamps_the_replay_would_have_armed_it(
 def test_a_replay_to_a_restarted_station_is_refused() -> None:
     """The station keeps its timestamps too (per key, as system 255): a vehicle's signed
     packet captured before the station restarted is refused after it."""
-    from econdor_gcs.gcs import Station
+    from econdor_gcs.station.executor import Station
 
     vehicle = Codec(1, 1, KEY)
     captured = vehicle.encode(heartbeat())

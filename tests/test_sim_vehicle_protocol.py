@@ -22,9 +22,9 @@ from vehicle_helpers import (
     wait_for,
 )
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.tasks import Phase
 from econdor_gcs.link.reports import trace_report
-from econdor_gcs.mission import load_mission
 from sim_vehicle.mission_server import MissionServer
 from sim_vehicle.state import PARAM_NAMES
 

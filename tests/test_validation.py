@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from econdor import cli
+from econdor_gcs.config import _FIELD_SCHEMA, _SCHEMA, parse_mission
 from econdor_gcs.errors import MissionError
-from econdor_gcs.mission import _FIELD_SCHEMA, _SCHEMA, parse_mission
 
 BASE = {"field": {"model": "paper"}}
 

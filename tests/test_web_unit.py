@@ -18,19 +18,22 @@ import numpy as np
 import pytest
 
 from econdor import cli
-from econdor_gcs import control as control_module
-from econdor_gcs import rundir as rundir_module
-from econdor_gcs.control import ControlAction, ControlState, RunControl
+from econdor_gcs.app.web import messages
+from econdor_gcs.app.web import server as server_module
+from econdor_gcs.app.web.feed import Cursor, LiveFeed
+from econdor_gcs.app.web.replay import ReplayFeed
+from econdor_gcs.app.web.server import WebServer, parse_web_address
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.contours import ContourPiece
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.planners import Batch, Job
 from econdor_gcs.core.tasks import Phase, SampleLog, TraceTask, Waypoint
-from econdor_gcs.dfc import Dfc, IterationDone, IterationPlanned, IterationRecord, RunDone
+from econdor_gcs.dfc import control as control_module
+from econdor_gcs.dfc.control import ControlAction, ControlState, RunControl
+from econdor_gcs.dfc.loop import Dfc, IterationDone, IterationPlanned, IterationRecord, RunDone
 from econdor_gcs.errors import ControlError, WebError
-from econdor_gcs.gcs import VehicleStatus
-from econdor_gcs.link.router import Sample
-from econdor_gcs.mission import load_mission
-from econdor_gcs.rundir import (
+from econdor_gcs.files import rundir as rundir_module
+from econdor_gcs.files.rundir import (
     IterationFrame,
     PlannedPiece,
     RunDir,
@@ -41,11 +44,8 @@ from econdor_gcs.rundir import (
     read_log,
     write_iteration,
 )
-from econdor_gcs.web import messages
-from econdor_gcs.web import server as server_module
-from econdor_gcs.web.feed import Cursor, LiveFeed
-from econdor_gcs.web.replay import ReplayFeed
-from econdor_gcs.web.server import WebServer, parse_web_address
+from econdor_gcs.link.router import Sample
+from econdor_gcs.station.executor import VehicleStatus
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]

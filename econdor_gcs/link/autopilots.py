@@ -31,15 +31,16 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from dataclasses import dataclass
 from enum import StrEnum
 
-from ..errors import CommandRejected, LinkError, VehicleTimeout
+from ..errors import CommandRejected, EcondorError, LinkError, VehicleTimeout
 from .codec import MAVLinkMessage, mavlink
 from .router import Router
 
 __all__ = ["ARDUPILOT_POSITION_COMMANDS", "AutopilotKind", "FlightMode", "arm_when_ready",
            "flight_mode", "mission_start_params", "mode_params", "set_mode", "start_mission",
-           "takeoff"]
+           "takeoff", "AUTOPILOT_NAMES", "VehicleKind"]
 
 ARDUPILOT_POSITION_COMMANDS = frozenset({
     mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
@@ -207,3 +208,35 @@ async def start_mission(router: Router, sysid: int, first_seq: int = 1,
         await set_mode(router, sysid, FlightMode.GUIDED)
     await arm_when_ready(router, sysid, timeout_s)
     await router.start_mission(sysid, *mission_start_params(kind, first_seq))
+
+
+AUTOPILOT_NAMES = ("px4", "ardupilot")
+
+
+@dataclass(frozen=True)
+class VehicleKind:
+    """A simulated vehicle's personality and whether a companion computer runs the tracer.
+
+    >>> VehicleKind.parse("ardupilot+companion")
+    VehicleKind(autopilot='ardupilot', companion=True)
+    >>> str(VehicleKind("px4", False))
+    'px4'
+    """
+
+    autopilot: str = "px4"
+    companion: bool = True
+
+    @classmethod
+    def parse(cls, text: str) -> VehicleKind:
+        name, plus, extra = text.strip().partition("+")
+        if name not in AUTOPILOT_NAMES or (plus and extra != "companion"):
+            raise EcondorError(f"--autopilot: {text!r} is not one of px4, ardupilot, "
+                               "px4+companion, ardupilot+companion")
+        return cls(name, bool(plus))
+
+    def args(self) -> list[str]:
+        """The ``sim-vehicle`` options for this kind."""
+        return ["--autopilot", self.autopilot, *(["--companion"] if self.companion else [])]
+
+    def __str__(self) -> str:
+        return self.autopilot + ("+companion" if self.companion else "")

@@ -17,7 +17,7 @@ from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from ..signing import (
+from econdor_gcs.link.signing import (
     SigningKey,
     refusal_counts,
     refusal_counts_by_source,
