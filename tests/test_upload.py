@@ -16,7 +16,7 @@ from econdor_gcs.app.upload import compare_items
 from econdor_gcs.files.autopilot_files import read_mission_file
 from econdor_gcs.link.autopilots import AutopilotKind
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.transfer import waypoint_item
+from econdor_gcs.link.items import waypoint_item
 
 ORIGIN_ITEMS = [waypoint_item(0, 47.397742, 8.545594, 0.0),
                 waypoint_item(1, 47.3978, 8.5457, 30.123)]

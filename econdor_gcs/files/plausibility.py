@@ -21,7 +21,7 @@ from econdor_gcs.files.autopilot_files import (
     is_home_item,
 )
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.transfer import MissionItemSpec
+from econdor_gcs.link.items import MissionItemSpec
 
 __all__ = ["MAX_RANGE_M", "check_plausible"]
 
