@@ -1,8 +1,8 @@
 """``econdor run``: one MAVLink run into a run directory, a resumed one, and the command.
 
-:func:`run_mission` sets up the run directory, the :class:`~.gcs.Station`, the simulated
+:func:`run_mission` sets up the run directory, the :class:`~.station.loop.Station`, the simulated
 fleet (or serves vehicles started elsewhere with ``--connect``), the live display or web
-page and the :class:`~.gcs.MavlinkExecutor`, runs the :class:`~.dfc.Dfc` loop and writes the
+page and the :class:`~.station.executor.MavlinkExecutor`, runs the :class:`~.dfc.loop.Dfc` loop and writes the
 results; a run that fails part-way still leaves a usable run directory (samples so far, tlog,
 ``summary.json`` with ``"error"``). :func:`resume_mission` continues an interrupted run after
 its last finished flight; :func:`run_mission_cli` is the command (arguments parsed by
@@ -12,17 +12,18 @@ its last finished flight; :func:`run_mission_cli` is the command (arguments pars
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from econdor_gcs.app.run_failures import checked_disk, refusals, write_partial
+from econdor_gcs.app.run_logging import log_station, logging_to, sigterm_as_interrupt
 from econdor_gcs.config import Mission
 from econdor_gcs.core.tasks import (
     SampleLog,
@@ -32,33 +33,28 @@ from econdor_gcs.errors import (
     RunError,
     VehicleTimeout,
 )
-from econdor_gcs.files.rundir import RunDir, RunDirMode, RunLog, Severity, disk_error, writing
-from econdor_gcs.link.codec import MAVLinkMessage, mavlink
+from econdor_gcs.files.layout import RunDirMode, disk_error, writing
+from econdor_gcs.files.rundir import RunDir
+from econdor_gcs.files.runlog import RunLog, Severity
 from econdor_gcs.link.forward import Forwarder
 from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M
 from econdor_gcs.link.router import (
-    ComponentDiscovered,
-    ForeignVehicle,
-    Received,
     Router,
-    TwinRefused,
-    VehicleDiscovered,
-    VehicleLost,
-    VehicleMoved,
-    VehicleRecovered,
 )
 from econdor_gcs.link.signing import load_signing_key
 from econdor_gcs.link.tlog import TlogWriter
-from econdor_gcs.link.vehicles import EVENTS
 from econdor_gcs.station.executor import MavlinkExecutor
-from econdor_gcs.station.flight import StatusAssembler
 from econdor_gcs.station.loop import Station
 from econdor_gcs.station.losses import LINK_TIMEOUT_S, LOSS_SILENCE_S
 
 if TYPE_CHECKING:
+    from econdor_gcs.app.fleet import Fleet
+    from econdor_gcs.app.live import LiveDisplay
+    from econdor_gcs.app.web.session import LiveWeb
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_gcs.link.autopilots import VehicleKind
 
-__all__ = ["resume_mission", "run_mission", "run_mission_cli"]
+__all__ = ["RunOptions", "resume_mission", "run_mission", "run_mission_cli"]
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
@@ -68,287 +64,351 @@ def _default_out(mission: Mission) -> Path:
     return Path("runs") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
 
 
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, delivered like Ctrl-C so every ``finally`` runs."""
+@dataclass(frozen=True)
+class RunOptions:
+    """How :func:`run_mission` runs a mission (``econdor run``'s options); the defaults are
+    the command's."""
+
+    planner: str | None = None
+    """The planner (None: the mission's ``algorithm.planner``)."""
+    vehicles: int | None = None
+    """How many vehicles (None: the mission's ``vehicles.count``)."""
+    speedup: float | None = None
+    """Simulated time over wall time (None: the mission's ``vehicles.speedup``)."""
+    seed: int | None = None
+    """The field's seed (None: the mission's)."""
+    connect: str | Sequence[str] | None = None
+    """Serve vehicles started elsewhere on these links (None: start simulated ones)."""
+    timeout_s: float = 60.0
+    """How long vehicles may take to appear, to send a position and to pass their pre-arm
+    checks."""
+    link_timeout_s: float = LINK_TIMEOUT_S
+    """How long a vehicle may be silent before it is given up (a shorter drop-out of its link
+    is waited out, and the flight picks up where it left; at least
+    :data:`~.losses.LOSS_SILENCE_S`)."""
+    quiet: bool = True
+    """No live display in the terminal."""
+    mission_path: Path | None = None
+    """The mission's file: copied into the run directory, and what started vehicles read
+    (needed without ``connect``)."""
+    figures: bool = True
+    """Draw the run's figures at the end."""
+    mode: RunDirMode = RunDirMode.NEW
+    """What to do with a non-empty run directory (:class:`~econdor_gcs.files.layout.RunDirMode`); to resume a
+    run use :func:`resume_mission`."""
+    signing_key_file: Path | None = None
+    """MAVLink 2 signing (:func:`~.signing.load_signing_key`): every message is signed,
+    unsigned telemetry is dropped, and the vehicles this run starts sign too (the key is
+    written nowhere)."""
+    web: str | None = None
+    """``[HOST:]PORT`` of the run's page (:mod:`econdor_gcs.app.web`) with pause / resume /
+    stop."""
+    announce: Callable[[str], None] | None = None
+    """Told the page's address (with the token the controls need) as soon as it listens."""
+    warn: Callable[[str], None] | None = None
+    """Told that the page's controls are on the network when ``web`` is not a loopback
+    address."""
+    autopilots: Sequence[VehicleKind] | None = None
+    """The kinds of the simulated vehicles this run starts, in turn (None: PX4 with the
+    tracer on board)."""
+    tolerance_m: float = 1.0
+    """Douglas-Peucker tolerance of the waypoint polylines for vehicles that refuse contour
+    items."""
+    forward: str | None = None
+    """A watcher's ``udpout:HOST:PORT`` that gets every vehicle message
+    (:mod:`.link.forward`)."""
+    forward_commands: bool = False
+    """What the watcher sends reaches the vehicles (else it is dropped)."""
 
 
-def _on_sigterm(signum: int, frame: Any) -> None:
-    raise _Terminated()
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.signal(signal.SIGTERM, _on_sigterm)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
-def run_mission(
-    mission: Mission,
-    out: Path,
-    *,
-    planner: str | None = None,
-    vehicles: int | None = None,
-    speedup: float | None = None,
-    seed: int | None = None,
-    connect: str | Sequence[str] | None = None,
-    timeout_s: float = 60.0,
-    link_timeout_s: float = LINK_TIMEOUT_S,
-    quiet: bool = True,
-    mission_path: Path | None = None,
-    figures: bool = True,
-    mode: RunDirMode = RunDirMode.NEW,
-    signing_key_file: Path | None = None,
-    web: str | None = None,
-    announce: Callable[[str], None] | None = None,
-    warn: Callable[[str], None] | None = None,
-    autopilots: Sequence[VehicleKind] | None = None,
-    tolerance_m: float = 1.0,
-    forward: str | None = None,
-    forward_commands: bool = False,
-) -> dict[str, Any]:
-    """One MAVLink run into ``out``; returns the summary (see ``summary.json``).
-
-    ``timeout_s`` is how long vehicles may take to appear, to send a position and to pass
-    their pre-arm checks; ``link_timeout_s`` how long a vehicle may be silent before it is
-    given up (a shorter drop-out of its link is waited out, and the flight picks up where
-    it left; at least :data:`~.losses.LOSS_SILENCE_S`).
-
-    ``autopilots`` are the kinds of the simulated vehicles this run starts (in turn; default
-    PX4 with the tracer on board); ``tolerance_m`` the Douglas-Peucker tolerance of the
-    waypoint polylines for vehicles that refuse contour items. ``forward`` is a watcher's
-    ``udpout:HOST:PORT`` that gets every vehicle message (:mod:`.link.forward`); what it sends
-    back reaches the vehicles only with ``forward_commands``.
-
-    ``mode`` says what to do with a non-empty ``out`` (:class:`~.rundir.RunDirMode`); to
-    resume a run use :func:`resume_mission`. With ``signing_key_file`` (see
-    :func:`~.signing.load_signing_key`) every message is signed, unsigned telemetry is
-    dropped, and the vehicles this run starts sign too (the key is written nowhere).
-    ``web`` (``[HOST:]PORT``) serves the run's page (:mod:`econdor_gcs.app.web`) with pause /
-    resume / stop; ``announce`` is told its address (with the token the controls need) as
-    soon as it listens, and ``warn`` that the controls are on the network when ``web`` is
-    not a loopback address.
+def run_mission(mission: Mission, out: Path, options: RunOptions | None = None,
+                **fields: Any) -> dict[str, Any]:
+    """One MAVLink run into ``out`` with ``options`` (any of their ``fields`` may be given
+    as keywords instead); returns the summary (see ``summary.json``).
 
     Raises :class:`EcondorError` on failure, after writing a partial run directory
     (samples so far, tlog, ``summary.json`` with ``"error"``).
     """
-    from econdor_gcs.app.fleet import DEFAULT_KIND, Fleet, kinds_for
-    from econdor_gcs.dfc.loop import Dfc
-    from econdor_gcs.files.plans import save_next_batch
-    from econdor_gcs.files.rundir import read_checkpoint
-
-    wall0 = time.perf_counter()
-    if not link_timeout_s >= LOSS_SILENCE_S:
-        raise RunError(f"--link-timeout must be at least {LOSS_SILENCE_S:g} s (vehicles "
-                       f"heartbeat once a second), got {link_timeout_s:g}")
-    signing = load_signing_key(signing_key_file) if signing_key_file is not None else None
-    n = vehicles or mission.vehicles.count
-    speed = speedup or mission.vehicles.speedup
-    seed = mission.seed if seed is None else seed
-    planner = planner or mission.algorithm.planner
-    mission = mission.with_vehicles(count=n, speedup=speed)
-    out = Path(out)
-    kinds = list(autopilots or [DEFAULT_KIND])
-    resume = mode == RunDirMode.RESUME
-    replay = read_checkpoint(out) if resume else []
-    rd = RunDir(out, mode, grid=mission.grid, received=True)
-    try:
-        runlog = RunLog(out / "log.jsonl")
-        if not resume:
-            mission_text = mission_path.read_text(encoding="utf-8") if mission_path else None
-            rd.write_run_config({
-                "transport": "mavlink", "mission": mission.name, "planner": planner,
-                "seed": seed, "vehicles": n, "speedup": speed, "connect": connect,
-                "timeout_s": timeout_s, "link_timeout_s": link_timeout_s,
-                "mission_path": str(mission_path.resolve()) if mission_path else None,
-                "signed": signing is not None,
-                "autopilots": [str(k) for k in kinds] if connect is None else None,
-                "tolerance_m": tolerance_m,
-            }, mission_text)
-        with writing(out / "telemetry.tlog"):
-            tlog = TlogWriter(out / "telemetry.tlog", append=resume)
-    except BaseException:
-        rd.close()  # nothing had begun: no summary to write
-        raise
-    station = Station(connect or "udpin:127.0.0.1:0", tlog,
-                      heartbeat_timeout_s=link_timeout_s, signing=signing)
-    _log_station(station.router, runlog)
-    forwarder: Forwarder | None = None
-    fleet: Fleet | None = None
-    executor: MavlinkExecutor | None = None
-    dfc: Dfc | None = None
-    live = None
-    page: Any = None  # web.session.LiveWeb (aiohttp is imported only with --web)
-    base: dict[str, Any] = {"transport": "mavlink", "truth_known": True,
-                            "mission": mission.name, "planner": planner, "seed": seed,
-                            "vehicles": n, "speedup": speed,
-                            "connect": connect or None}
-    timings: dict[str, float] = {}
-
-    def fill_timings() -> None:
-        timings["total_wall_s"] = time.perf_counter() - wall0
-        if executor is not None:
-            timings.update(executor.timings)
-            timings["sim_s"] = executor.sim_s
-            # how fast the vehicles' clocks ran against ours over the run (not the flights'
-            # sim_s over flying time: a flight's clock starts before its upload, which a
-            # lossy link makes long, so "104x" was shown for vehicles at 50x)
-            timings["achieved_speedup"] = executor.clock_rate()
-        if dfc is not None:
-            timings["reconstruction_s"] = dfc.recon_s
-        timings["requested_speedup"] = speed
-
-    try:
-        with _sigterm_as_interrupt(), _logging_to(runlog):
-            if web is not None:
-                from econdor_gcs.app.web.session import LiveWeb
-
-                page = LiveWeb(web, mission=mission, planner=planner, run_dir=str(out),
-                               runlog=runlog)
-                url = page.start()
-                runlog.add("station", f"web page at {url}")
-                if announce is not None:
-                    announce(url)
-                if page.exposed:
-                    warning = (f"the web page and its controls (pause, resume, stop) are "
-                               f"reachable from the network on {web}: anyone with the "
-                               "address above (its token) can stop the run")
-                    runlog.add("station", warning, Severity.WARNING)
-                    if warn is not None:
-                        warn(warning)
-            host, port = station.start()
-            if forward is not None:
-                forwarder = station.call(
-                    Forwarder(station.router, forward, forward_commands).start())
-            if connect is None:
-                if mission_path is None:
-                    raise RunError("run_mission: mission_path is needed to start vehicles")
-                fleet = Fleet(mission_path, out / "vehicles")
-                fleet.start(n, f"udpout:{host}:{port}", speedup=speed, seed=seed,
-                            signing_key_file=signing_key_file, kinds=kinds)
-                sysids = list(range(1, n + 1))
-                try:
-                    station.call(station.router.wait_for_vehicles(sysids, timeout_s))
-                except VehicleTimeout as exc:
-                    raise VehicleTimeout(fleet.explain(str(exc)
-                                                       + refusals(station.router))) from None
-            else:
-                try:
-                    sysids = station.call(_wait_count(station.router, n, timeout_s))
-                except VehicleTimeout as exc:
-                    raise VehicleTimeout(str(exc) + refusals(station.router)) from None
-            # the fleet is named: any other system on these links is a stranger from now on
-            station.run_sync(lambda: station.router.expect(sysids))
-            t_setup = time.perf_counter() - wall0
-            executor = MavlinkExecutor(station, mission, sysids, out / "missions", timeout_s,
-                                       tolerance_m=tolerance_m, link_timeout_s=link_timeout_s)
-            journal = executor
-            executor.telemetry.on_rows = lambda v, rows: rd.journal(rows, v.index,
-                                                                   journal.iteration)
-            executor.wait_ready()
-            truth = mission.build_field(seed)
-            progress: list[Callable[[Any], None]] = [rd.progress, runlog.progress]
-            on_samples: list[Callable[[SampleLog], None]] = []
-            if not quiet:
-                from econdor_gcs.app.live import LiveDisplay
-
-                live = LiveDisplay(executor, planner=planner, mission=mission.name)
-                live.start()
-                progress.append(live.progress)
-            if page is not None:
-                page.attach(executor.status_rows, sysids, station.router,
-                            on_stop=executor.abort_flight)
-                progress.append(page.progress)
-                on_samples.append(page.add_samples)
-            # the run directory records each flight (samples, then its line) before the DFC
-            # uses it; displays see the samples as the DFC takes them in
-            dfc = Dfc(mission, executor, planner=planner, truth=truth, seed=seed,
-                      progress=_all_of(progress), on_samples=_all_of(on_samples),
-                      on_flight=checked_disk(rd, tlog, runlog), replay=replay,
-                      checkpoint=page.checkpoint if page is not None else None)
-            result = dfc.run()
-            if live is not None:
-                live.stop()
-                live = None
-            fill_timings()
-            timings["setup_s"] = t_setup
-            result.wall_s = time.perf_counter() - wall0
-            result.sim_s = executor.sim_s
-            parser = station.router.parser
-            save_next_batch(out, dfc.planner, mission, result)
-            started = kinds_for(n, kinds) if connect is None else None
-            extra = {**base, "sysids": sysids, "timings": timings,
-                     "fleet": executor.fleet_summary(started),
-                     "forward": ({"to": forward, "commands": forward_commands,
-                                  **forwarder.stats} if forwarder is not None else None),
-                     "samples_dropped_unpaired": station.router.pairer.dropped_total,
-                     "sample_pairing": station.router.pairer.counts(),
-                     "link_conflicts": [c.as_dict() for c in station.router.table.conflicts],
-                     "report_errors": executor.report_errors,
-                     "sample_recovery": executor.sample_accounting(),
-                     "lost_vehicles": executor.losses,
-                     "interrupted_flights": executor.interruptions,
-                     "link_timeout_s": link_timeout_s,
-                     "samples_received": rd.n_received,
-                     "fence": {"margin_m": MISSION_FENCE_MARGIN_M,
-                               "refused_by": executor.fences_refused},
-                     "link": {"bad_packets": parser.bad_packets,
-                              "unknown_packets": parser.unknown_packets,
-                              "unsigned_dropped": parser.unsigned_packets,
-                              "bad_signature_dropped": parser.bad_signature_packets,
-                              "refused_by_sysid": {str(k): v for k, v in sorted(
-                                  parser.refused_by_source().items())}},
-                     "signed": signing is not None}
-            if resume:
-                extra["resumed"] = {"flights_replayed": dfc.replayed,
-                                    "samples_interrupted": rd.interrupted_samples}
-            timings["rundir_s"] = rd.write_s
-            rd.write_result(result, extra=extra)
-            summary = {**result.summary(), **extra, "samples_recorded": rd.n_samples}
-            if page is not None:
-                page.close(summary)
-                page = None
-    except (EcondorError, KeyboardInterrupt, OSError) as exc:
-        if live is not None:
-            live.stop()
-            live = None
-        # a write the run directory does not guard (figures, a library's file): one line
-        failure = disk_error(None, exc) if isinstance(exc, OSError) else exc
-        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(failure)
-        runlog.add("station", f"run failed: {msg}", Severity.ERROR)
-        base["link_conflicts"] = [c.as_dict() for c in station.router.table.conflicts]
-        write_partial(rd, dfc, executor, base, timings, fill_timings, msg,
-                       disk=[e for e in (tlog.error and str(disk_error(tlog.path, tlog.error)),
-                                         runlog.error, rd.journal_error) if e])
-        if page is not None:
-            page.close({**base, "error": msg})
-            page = None
-        if failure is not exc:
-            raise failure from exc
-        raise
-    finally:
-        if live is not None:
-            live.stop()
-        if page is not None:
-            page.close(None)
-        if forwarder is not None:
-            station.loop.call_soon_threadsafe(forwarder.close)
-        station.close()
-        if fleet is not None:
-            fleet.stop()
-        tlog.close()
-        rd.close()
-        runlog.close()
-    if figures:
+    opts = dataclasses.replace(options or RunOptions(), **fields)
+    summary = _MavlinkRun(mission, Path(out), opts).run()
+    if opts.figures:
         from econdor_gcs.files.figures import plot_run
 
         plot_run(out)
     return summary
+
+
+class _MavlinkRun:
+    """One run of :func:`run_mission`: what it holds open, set up and given back in order
+    by one :class:`contextlib.ExitStack` (run directory, log, tlog, station, fleet, forward,
+    web page, live display), so a failure at any step closes exactly what was opened."""
+
+    def __init__(self, mission: Mission, out: Path, opts: RunOptions) -> None:
+        from econdor_gcs.app.fleet import DEFAULT_KIND
+
+        self.wall0 = time.perf_counter()
+        if not opts.link_timeout_s >= LOSS_SILENCE_S:
+            raise RunError(f"--link-timeout must be at least {LOSS_SILENCE_S:g} s (vehicles "
+                           f"heartbeat once a second), got {opts.link_timeout_s:g}")
+        self.opts = opts
+        self.signing = (load_signing_key(opts.signing_key_file)
+                        if opts.signing_key_file is not None else None)
+        self.n = opts.vehicles or mission.vehicles.count
+        self.speed = opts.speedup or mission.vehicles.speedup
+        self.seed = mission.seed if opts.seed is None else opts.seed
+        self.planner = opts.planner or mission.algorithm.planner
+        self.mission = mission.with_vehicles(count=self.n, speedup=self.speed)
+        self.out = out
+        self.kinds = list(opts.autopilots or [DEFAULT_KIND])
+        self.resume = opts.mode == RunDirMode.RESUME
+        self.fleet: Fleet | None = None
+        self.forwarder: Forwarder | None = None
+        self.executor: MavlinkExecutor | None = None
+        self.dfc: Dfc | None = None
+        self.live: LiveDisplay | None = None
+        self.page: LiveWeb | None = None
+        self.base: dict[str, Any] = {
+            "transport": "mavlink", "truth_known": True, "mission": mission.name,
+            "planner": self.planner, "seed": self.seed, "vehicles": self.n,
+            "speedup": self.speed, "connect": opts.connect or None}
+        self.timings: dict[str, float] = {}
+
+    def run(self) -> dict[str, Any]:
+        from econdor_gcs.files.checkpoint import read_checkpoint
+
+        o = self.opts
+        replay = read_checkpoint(self.out) if self.resume else []
+        with contextlib.ExitStack() as stack:
+            self.rd = RunDir(self.out, o.mode, grid=self.mission.grid, received=True)
+            stack.callback(self.rd.close)
+            self.runlog = RunLog(self.out / "log.jsonl")
+            stack.callback(self.runlog.close)
+            if not self.resume:
+                self._write_config()
+            with writing(self.out / "telemetry.tlog"):
+                self.tlog = TlogWriter(self.out / "telemetry.tlog", append=self.resume)
+            stack.callback(self.tlog.close)
+            # the station closes before the fleet stops: what the vehicles say while they
+            # shut down is not the run's
+            stack.callback(self._stop_fleet)
+            self.station = Station(o.connect or "udpin:127.0.0.1:0", self.tlog,
+                                   heartbeat_timeout_s=o.link_timeout_s, signing=self.signing)
+            stack.callback(self.station.close)
+            stack.callback(self._close_outputs)
+            log_station(self.station.router, self.runlog)
+            try:
+                with sigterm_as_interrupt(), logging_to(self.runlog):
+                    return self._fly(replay)
+            except (EcondorError, KeyboardInterrupt, OSError) as exc:
+                failure = self._fail(exc)
+                if failure is not exc:
+                    raise failure from exc
+                raise
+        raise AssertionError("unreachable")  # pragma: no cover - the with returns or raises
+
+    def _write_config(self) -> None:
+        o = self.opts
+        path = o.mission_path
+        self.rd.write_run_config({
+            "transport": "mavlink", "mission": self.mission.name, "planner": self.planner,
+            "seed": self.seed, "vehicles": self.n, "speedup": self.speed,
+            "connect": o.connect, "timeout_s": o.timeout_s,
+            "link_timeout_s": o.link_timeout_s,
+            "mission_path": str(path.resolve()) if path else None,
+            "signed": self.signing is not None,
+            "autopilots": [str(k) for k in self.kinds] if o.connect is None else None,
+            "tolerance_m": o.tolerance_m,
+        }, path.read_text(encoding="utf-8") if path else None)
+
+    def _fill_timings(self) -> None:
+        t = self.timings
+        t["total_wall_s"] = time.perf_counter() - self.wall0
+        if self.executor is not None:
+            t.update(self.executor.timings)
+            t["sim_s"] = self.executor.sim_s
+            # how fast the vehicles' clocks ran against ours over the run, not the flights'
+            # sim_s over flying time: a flight's clock starts before its upload, which a
+            # lossy link makes long
+            t["achieved_speedup"] = self.executor.clock_rate()
+        if self.dfc is not None:
+            t["reconstruction_s"] = self.dfc.recon_s
+        t["requested_speedup"] = self.speed
+
+    def _start_web(self) -> None:
+        from econdor_gcs.app.web.session import LiveWeb
+
+        o = self.opts
+        assert o.web is not None
+        self.page = LiveWeb(o.web, mission=self.mission, planner=self.planner,
+                            run_dir=str(self.out), runlog=self.runlog)
+        url = self.page.start()
+        self.runlog.add("station", f"web page at {url}")
+        if o.announce is not None:
+            o.announce(url)
+        if self.page.exposed:
+            warning = (f"the web page and its controls (pause, resume, stop) are "
+                       f"reachable from the network on {o.web}: anyone with the "
+                       "address above (its token) can stop the run")
+            self.runlog.add("station", warning, Severity.WARNING)
+            if o.warn is not None:
+                o.warn(warning)
+
+    def _vehicles(self, host: str, port: int) -> list[int]:
+        """The fleet's system ids: the vehicles this run starts, or the first ``n`` that
+        appear on the links."""
+        from econdor_gcs.app.fleet import Fleet
+
+        o, station = self.opts, self.station
+        if o.connect is not None:
+            try:
+                return station.call(_wait_count(station.router, self.n, o.timeout_s))
+            except VehicleTimeout as exc:
+                raise VehicleTimeout(str(exc) + refusals(station.router)) from None
+        if o.mission_path is None:
+            raise RunError("run_mission: mission_path is needed to start vehicles")
+        self.fleet = Fleet(o.mission_path, self.out / "vehicles")
+        self.fleet.start(self.n, f"udpout:{host}:{port}", speedup=self.speed, seed=self.seed,
+                         signing_key_file=o.signing_key_file, kinds=self.kinds)
+        sysids = list(range(1, self.n + 1))
+        try:
+            station.call(station.router.wait_for_vehicles(sysids, o.timeout_s))
+        except VehicleTimeout as exc:
+            raise VehicleTimeout(self.fleet.explain(str(exc)
+                                                    + refusals(station.router))) from None
+        return sysids
+
+    def _fly(self, replay: list[Any]) -> dict[str, Any]:
+        from econdor_gcs.dfc.loop import Dfc
+        from econdor_gcs.files.plans import save_next_batch
+
+        o, station, rd, mission = self.opts, self.station, self.rd, self.mission
+        if o.web is not None:
+            self._start_web()
+        host, port = station.start()
+        if o.forward is not None:
+            self.forwarder = station.call(
+                Forwarder(station.router, o.forward, o.forward_commands).start())
+        sysids = self._vehicles(host, port)
+        # the fleet is named: any other system on these links is a stranger from now on
+        station.run_sync(lambda: station.router.expect(sysids))
+        t_setup = time.perf_counter() - self.wall0
+        executor = self.executor = MavlinkExecutor(
+            station, mission, sysids, self.out / "missions", o.timeout_s,
+            tolerance_m=o.tolerance_m, link_timeout_s=o.link_timeout_s)
+        executor.telemetry.on_rows = lambda v, rows: rd.journal(rows, v.index,
+                                                               executor.iteration)
+        executor.wait_ready()
+        truth = mission.build_field(self.seed)
+        progress: list[Callable[[Any], None]] = [rd.progress, self.runlog.progress]
+        on_samples: list[Callable[[SampleLog], None]] = []
+        if not o.quiet:
+            from econdor_gcs.app.live import LiveDisplay
+
+            self.live = LiveDisplay(executor, planner=self.planner, mission=mission.name)
+            self.live.start()
+            progress.append(self.live.progress)
+        page = self.page
+        if page is not None:
+            page.attach(executor.status_rows, sysids, station.router,
+                        on_stop=executor.abort_flight)
+            progress.append(page.progress)
+            on_samples.append(page.add_samples)
+        # the run directory records each flight (samples, then its line) before the DFC
+        # uses it; displays see the samples as the DFC takes them in
+        dfc = self.dfc = Dfc(mission, executor, planner=self.planner, truth=truth,
+                             seed=self.seed, progress=_all_of(progress),
+                             on_samples=_all_of(on_samples),
+                             on_flight=checked_disk(rd, self.tlog, self.runlog),
+                             replay=replay,
+                             checkpoint=page.checkpoint if page is not None else None)
+        result = dfc.run()
+        self._stop_live()
+        self._fill_timings()
+        self.timings["setup_s"] = t_setup
+        result.wall_s = time.perf_counter() - self.wall0
+        result.sim_s = executor.sim_s
+        save_next_batch(self.out, dfc.planner, mission, result)
+        extra = self._summary_extra(sysids)
+        if self.resume:
+            extra["resumed"] = {"flights_replayed": dfc.replayed,
+                                "samples_interrupted": rd.interrupted_samples}
+        self.timings["rundir_s"] = rd.write_s
+        rd.write_result(result, extra=extra)
+        summary = {**result.summary(), **extra, "samples_recorded": rd.n_samples}
+        if page is not None:
+            page.close(summary)
+            self.page = None
+        return summary
+
+    def _summary_extra(self, sysids: list[int]) -> dict[str, Any]:
+        """What ``summary.json`` holds beside the DFC's result: the fleet, the link and the
+        accounting of samples and losses."""
+        from econdor_gcs.app.fleet import kinds_for
+
+        o, router, executor = self.opts, self.station.router, self.executor
+        assert executor is not None
+        parser = router.parser
+        started = kinds_for(self.n, self.kinds) if o.connect is None else None
+        forwarder = self.forwarder
+        return {**self.base, "sysids": sysids, "timings": self.timings,
+                "fleet": executor.fleet_summary(started),
+                "forward": ({"to": o.forward, "commands": o.forward_commands,
+                             **forwarder.stats} if forwarder is not None else None),
+                "samples_dropped_unpaired": router.pairer.dropped_total,
+                "sample_pairing": router.pairer.counts(),
+                "link_conflicts": [c.as_dict() for c in router.table.conflicts],
+                "report_errors": executor.report_errors,
+                "sample_recovery": executor.sample_accounting(),
+                "lost_vehicles": executor.losses,
+                "interrupted_flights": executor.interruptions,
+                "link_timeout_s": o.link_timeout_s,
+                "samples_received": self.rd.n_received,
+                "fence": {"margin_m": MISSION_FENCE_MARGIN_M,
+                          "refused_by": executor.fences_refused},
+                "link": {"bad_packets": parser.bad_packets,
+                         "unknown_packets": parser.unknown_packets,
+                         "unsigned_dropped": parser.unsigned_packets,
+                         "bad_signature_dropped": parser.bad_signature_packets,
+                         "refused_by_sysid": {str(k): v for k, v in sorted(
+                             parser.refused_by_source().items())}},
+                "signed": self.signing is not None}
+
+    def _fail(self, exc: BaseException) -> BaseException:
+        """Leave a usable run directory after ``exc``; the error to raise (a write the run
+        directory does not guard, such as figures or a library's file, as one line)."""
+        self._stop_live()
+        failure = disk_error(None, exc) if isinstance(exc, OSError) else exc
+        msg = "interrupted" if isinstance(exc, KeyboardInterrupt) else str(failure)
+        self.runlog.add("station", f"run failed: {msg}", Severity.ERROR)
+        self.base["link_conflicts"] = [c.as_dict()
+                                       for c in self.station.router.table.conflicts]
+        tlog = self.tlog
+        write_partial(self.rd, self.dfc, self.executor, self.base, self.timings,
+                      self._fill_timings, msg,
+                      disk=[e for e in (tlog.error and str(disk_error(tlog.path, tlog.error)),
+                                        self.runlog.error, self.rd.journal_error) if e])
+        if self.page is not None:
+            self.page.close({**self.base, "error": msg})
+            self.page = None
+        return failure
+
+    def _stop_live(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
+
+    def _close_outputs(self) -> None:
+        """The live display, the web page (without a summary: the run did not get to one)
+        and the forward to a watcher."""
+        self._stop_live()
+        if self.page is not None:
+            self.page.close(None)
+        if self.forwarder is not None:
+            self.station.loop.call_soon_threadsafe(self.forwarder.close)
+
+    def _stop_fleet(self) -> None:
+        if self.fleet is not None:
+            self.fleet.stop()
 
 
 def _all_of(callbacks: Sequence[Callable[[T], None]]) -> Callable[[T], None]:
@@ -358,84 +418,6 @@ def _all_of(callbacks: Sequence[Callable[[T], None]]) -> Callable[[T], None]:
             cb(arg)
 
     return call
-
-
-def _log_station(router: Router, runlog: RunLog) -> None:
-    """Vehicles' STATUSTEXT (chunks joined), discoveries, losses and recoveries into the
-    run's log."""
-
-    assembler = StatusAssembler()
-
-    def on_message(sysid: int, msg: MAVLinkMessage) -> None:
-        if msg.get_type() != "STATUSTEXT":
-            return
-        raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
-            msg.text.encode("utf-8", "replace")
-        text = assembler.add(sysid, raw, getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0))
-        if text is None:
-            return
-        sev = (Severity.ERROR if msg.severity <= mavlink.MAV_SEVERITY_ERROR else
-               Severity.WARNING if msg.severity == mavlink.MAV_SEVERITY_WARNING else
-               Severity.INFO)
-        runlog.add(f"vehicle {sysid}", text, sev)
-
-    def on_event(event: object) -> None:
-        if isinstance(event, VehicleLost):
-            runlog.add(f"vehicle {event.sysid}", f"lost: no heartbeat for {event.silent_s:.0f} s",
-                       Severity.ERROR)
-        elif isinstance(event, VehicleRecovered):
-            runlog.add(f"vehicle {event.sysid}", "heard again", Severity.WARNING)
-        elif isinstance(event, VehicleDiscovered):
-            runlog.add(f"vehicle {event.sysid}", f"discovered at {event.address[0]}:"
-                                                 f"{event.address[1]}")
-        elif isinstance(event, ComponentDiscovered):
-            runlog.add(f"vehicle {event.sysid}", f"component {event.compid} (MAV_TYPE "
-                                                 f"{event.mav_type}) at {event.address[0]}:"
-                                                 f"{event.address[1]}")
-        elif isinstance(event, TwinRefused):
-            runlog.add(f"vehicle {event.sysid}", f"refused a second source of its autopilot at "
-                                                 f"{event.address[0]}:{event.address[1]} (a twin: "
-                                                 f"the vehicle speaks from {event.known[0]}:"
-                                                 f"{event.known[1]}; first message "
-                                                 f"{event.message})", Severity.ERROR)
-        elif isinstance(event, ForeignVehicle):
-            runlog.add(f"vehicle {event.sysid}", f"not in this run's fleet: its messages from "
-                                                 f"{event.address[0]}:{event.address[1]} are "
-                                                 f"dropped (first {event.message})",
-                       Severity.WARNING)
-        elif isinstance(event, VehicleMoved):
-            runlog.add(f"vehicle {event.sysid}", f"now speaks from {event.new[0]}:{event.new[1]} "
-                                                 f"(was {event.old[0]}:{event.old[1]})",
-                       Severity.WARNING)
-
-    router.subscribe(Received, lambda r: on_message(r.sysid, r.msg))
-    router.subscribe(EVENTS, on_event)
-
-
-class _RunLogHandler(logging.Handler):
-    """Station warnings (``logging``, ``econdor_gcs.*``) into the run's log."""
-
-    def __init__(self, runlog: RunLog) -> None:
-        super().__init__(logging.WARNING)
-        self.runlog = runlog
-
-    def emit(self, record: logging.LogRecord) -> None:
-        sev = Severity.ERROR if record.levelno >= logging.ERROR else Severity.WARNING
-        try:
-            self.runlog.add("station", record.getMessage(), sev)
-        except (OSError, ValueError):  # the log file is gone or closed: say so, on stderr
-            self.handleError(record)
-
-
-@contextlib.contextmanager
-def _logging_to(runlog: RunLog) -> Iterator[None]:
-    logger = logging.getLogger("econdor_gcs")
-    handler = _RunLogHandler(runlog)
-    logger.addHandler(handler)
-    try:
-        yield
-    finally:
-        logger.removeHandler(handler)
 
 
 def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
@@ -471,9 +453,9 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
     base_dir = original.parent if original is not None else out
     mission = parse_mission(yaml.safe_load(text), base_dir=base_dir, source=str(copy))
     mission_path = original if original is not None and original.exists() else copy
-    return run_mission(
-        mission, out, planner=config["planner"], vehicles=config["vehicles"],
-        speedup=config["speedup"], seed=config["seed"],
+    return run_mission(mission, out, RunOptions(
+        planner=config["planner"], vehicles=config["vehicles"], speedup=config["speedup"],
+        seed=config["seed"],
         connect=connect if connect is not None else config.get("connect"),
         timeout_s=timeout_s if timeout_s is not None else config.get("timeout_s", 60.0),
         link_timeout_s=(link_timeout_s if link_timeout_s is not None
@@ -481,7 +463,7 @@ def resume_mission(out: Path, *, quiet: bool = True, figures: bool = True,
         quiet=quiet, mission_path=mission_path, figures=figures, mode=RunDirMode.RESUME,
         signing_key_file=signing_key_file,
         autopilots=[VehicleKind.parse(k) for k in config.get("autopilots") or []] or None,
-        tolerance_m=float(config.get("tolerance_m", 1.0)))
+        tolerance_m=float(config.get("tolerance_m", 1.0))))
 
 
 async def _wait_count(router: Router, n: int, timeout_s: float) -> list[int]:
@@ -526,19 +508,17 @@ def run_mission_cli(args: Any) -> int:
         mission = load_mission(args.mission)
         out = args.out or _default_out(mission)
         mode = RunDirMode.FORCE if args.force else RunDirMode.NEW
-        summary = run_mission(mission, out, planner=args.planner, vehicles=args.vehicles,
-                              speedup=args.speedup, seed=args.seed, connect=args.connect,
-                              timeout_s=args.timeout,
-                              link_timeout_s=getattr(args, "link_timeout", None)
-                              or LINK_TIMEOUT_S, quiet=args.quiet,
-                              mission_path=args.mission, mode=mode,
-                              signing_key_file=args.signing_key, web=web,
-                              announce=lambda url: print(f"web: {url}", flush=True),
-                              warn=lambda text: print(f"econdor: warning: {text}",
-                                                      file=sys.stderr, flush=True),
-                              autopilots=kinds,
-                              tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
-                              forward=forward, forward_commands=forward_commands)
+        summary = run_mission(mission, out, RunOptions(
+            planner=args.planner, vehicles=args.vehicles, speedup=args.speedup,
+            seed=args.seed, connect=args.connect, timeout_s=args.timeout,
+            link_timeout_s=getattr(args, "link_timeout", None) or LINK_TIMEOUT_S,
+            quiet=args.quiet, mission_path=args.mission, mode=mode,
+            signing_key_file=args.signing_key, web=web,
+            announce=lambda url: print(f"web: {url}", flush=True),
+            warn=lambda text: print(f"econdor: warning: {text}", file=sys.stderr,
+                                    flush=True),
+            autopilots=kinds, tolerance_m=getattr(args, "tolerance_m", None) or 1.0,
+            forward=forward, forward_commands=forward_commands))
     t = summary.get("timings", {})
     mae_db = summary.get("final_mae_db")
     print(f"{summary['planner']}: {summary['iterations']} iterations, final MAE "
