@@ -25,7 +25,8 @@ from econdor_gcs.core.planners import PLANNER_NAMES as PLANNERS
 from econdor_gcs.core.tasks import TaskStyle
 from econdor_gcs.dfc.loop import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.files.rundir import RunDirMode, write_json
+from econdor_gcs.files.layout import RunDirMode
+from econdor_gcs.files.rundir import write_json
 from sim_vehicle.tracer import warm_up
 
 from .inprocess import InProcessExecutor, run_inprocess
@@ -190,7 +191,7 @@ def run_study(
     }
     write_json(out / "summary.json", summary)
     if figures:
-        from econdor_gcs.files.figures import plot_study
+        from econdor_gcs.files.study_figures import plot_study
 
         maps = {r["summary"]["planner"]: r["run_dir"] for r in results
                 if r["summary"]["seed"] == seeds[0] and r["run_dir"]}

@@ -14,7 +14,8 @@ from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from econdor_gcs.files import figures
-from econdor_gcs.files.figures import RUN_FIGURES, STUDY_FIGURES, plot_run, plot_study
+from econdor_gcs.files.figures import RUN_FIGURES, plot_run
+from econdor_gcs.files.study_figures import STUDY_FIGURES, plot_study
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 METRIC_COLUMNS = (
