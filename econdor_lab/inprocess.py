@@ -31,7 +31,9 @@ from econdor_gcs.core.tasks import (
 from econdor_gcs.core.waypoints import task_waypoints
 from econdor_gcs.dfc.loop import Dfc, Progress, RunResult
 from econdor_gcs.errors import RunError
-from econdor_gcs.files.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
+from econdor_gcs.files.checkpoint import read_checkpoint
+from econdor_gcs.files.layout import RunDirMode
+from econdor_gcs.files.rundir import RunDir, read_run_config
 from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M, fence_items
 from sim_vehicle.body import Sample, SimBody
 from sim_vehicle.executor import run_plan, run_task

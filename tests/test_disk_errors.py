@@ -22,7 +22,8 @@ from disk_helpers import FullDisk
 
 from econdor import cli
 from econdor_gcs.errors import RunError
-from econdor_gcs.files.rundir import RESERVE_NAME, RunDir
+from econdor_gcs.files.layout import RESERVE_NAME
+from econdor_gcs.files.rundir import RunDir
 
 MISSION = """\
 name: disk

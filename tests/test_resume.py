@@ -24,7 +24,9 @@ from econdor import cli
 from econdor_gcs.config import load_mission
 from econdor_gcs.dfc.loop import IterationDone
 from econdor_gcs.errors import RunError
-from econdor_gcs.files.rundir import RunDir, RunDirMode, read_checkpoint
+from econdor_gcs.files.checkpoint import read_checkpoint
+from econdor_gcs.files.layout import RunDirMode
+from econdor_gcs.files.rundir import RunDir
 from econdor_lab.inprocess import run_inprocess
 
 MISSION = """\

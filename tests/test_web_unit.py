@@ -37,13 +37,11 @@ from econdor_gcs.files.rundir import (
     IterationFrame,
     PlannedPiece,
     RunDir,
-    RunLog,
-    Severity,
     planned_pieces,
     read_iteration,
-    read_log,
     write_iteration,
 )
+from econdor_gcs.files.runlog import RunLog, Severity, read_log
 from econdor_gcs.link.router import Sample
 from econdor_gcs.station.telemetry import VehicleRow
 from econdor_lab.inprocess import InProcessExecutor

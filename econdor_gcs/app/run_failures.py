@@ -14,7 +14,9 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from econdor_gcs.errors import RunError
-from econdor_gcs.files.rundir import RunDir, RunLog, disk_error
+from econdor_gcs.files.layout import disk_error
+from econdor_gcs.files.rundir import RunDir
+from econdor_gcs.files.runlog import RunLog
 from econdor_gcs.link.router import Router
 from econdor_gcs.link.tlog import TlogWriter
 

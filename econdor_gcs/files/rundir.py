@@ -30,8 +30,8 @@ A run directory is never clobbered: a non-empty one is refused unless the run is
 with ``--force`` (:attr:`RunDirMode.FORCE`: what an earlier run wrote there is deleted, and
 a file no run writes makes it refuse, naming the file) or ``--resume``
 (:attr:`RunDirMode.RESUME`: it is continued). What a run writes and how a failed write is
-reported live in :mod:`.rundir_files`, the log lines in :mod:`.runlog`, the checkpoint
-(``flights.jsonl``) in :mod:`.checkpoint`; all are re-exported here. The file by file
+reported live in :mod:`.layout`, the log lines in :mod:`.runlog`, the checkpoint
+(``flights.jsonl``) in :mod:`.checkpoint`. The file by file
 description for users is ``docs/run-directory.md``.
 """
 
@@ -63,21 +63,14 @@ from econdor_gcs.dfc.loop import (
     RunResult,
 )
 from econdor_gcs.errors import RunError
-from econdor_gcs.files.checkpoint import flight_to_json as flight_to_json
-from econdor_gcs.files.checkpoint import read_checkpoint as read_checkpoint
-from econdor_gcs.files.checkpoint import read_flight_lines as read_flight_lines
-from econdor_gcs.files.layout import RESERVE_NAME as RESERVE_NAME
-from econdor_gcs.files.layout import RUN_FILES as RUN_FILES
-from econdor_gcs.files.layout import RUN_WRITTEN as RUN_WRITTEN
-from econdor_gcs.files.layout import RunDirMode as RunDirMode
-from econdor_gcs.files.layout import disk_error as disk_error
-from econdor_gcs.files.layout import foreign_files as foreign_files
-from econdor_gcs.files.layout import prepare_run_dir as prepare_run_dir
-from econdor_gcs.files.layout import writing as writing
-from econdor_gcs.files.runlog import LogLine as LogLine
-from econdor_gcs.files.runlog import RunLog as RunLog
-from econdor_gcs.files.runlog import Severity as Severity
-from econdor_gcs.files.runlog import read_log as read_log
+from econdor_gcs.files.checkpoint import flight_to_json, read_flight_lines
+from econdor_gcs.files.layout import (
+    RESERVE_NAME,
+    RunDirMode,
+    disk_error,
+    prepare_run_dir,
+    writing,
+)
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
 RESERVE_BYTES = 2 << 20

@@ -35,7 +35,8 @@ from econdor_gcs.core.tasks import Phase, SampleLog, Task
 from econdor_gcs.dfc.control import ControlState, RunControl
 from econdor_gcs.dfc.loop import DfcEvent, IterationDone, IterationPlanned, RunDone
 from econdor_gcs.errors import ControlError
-from econdor_gcs.files.rundir import PlannedPiece, RunLog, planned_pieces
+from econdor_gcs.files.rundir import PlannedPiece, planned_pieces
+from econdor_gcs.files.runlog import RunLog
 from econdor_gcs.link.router import Sample
 from econdor_gcs.station.telemetry import VehicleRow
 

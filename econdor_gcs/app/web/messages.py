@@ -19,7 +19,8 @@ from skimage import measure
 
 from econdor_gcs.core.geometry import FloatArray
 from econdor_gcs.core.tasks import Phase, SampleLog
-from econdor_gcs.files.rundir import LogLine, PlannedPiece
+from econdor_gcs.files.rundir import PlannedPiece
+from econdor_gcs.files.runlog import LogLine
 from econdor_gcs.station.telemetry import VehicleRow
 
 Message = dict[str, Any]

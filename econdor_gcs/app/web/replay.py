@@ -20,7 +20,8 @@ from econdor_gcs.app.web.feed import Cursor
 from econdor_gcs.app.web.messages import Message
 from econdor_gcs.core.tasks import SampleLog
 from econdor_gcs.errors import ControlError, WebError
-from econdor_gcs.files.rundir import iteration_paths, read_iteration, read_log, read_metrics, read_samples
+from econdor_gcs.files.rundir import iteration_paths, read_iteration, read_metrics, read_samples
+from econdor_gcs.files.runlog import read_log
 
 
 def _read_json(path: Path) -> Any:

@@ -11,7 +11,7 @@ from econdor_gcs.config import Mission
 from econdor_gcs.core.tasks import SampleLog
 from econdor_gcs.dfc.control import ControlState, RunControl
 from econdor_gcs.dfc.loop import DfcEvent
-from econdor_gcs.files.rundir import RunLog
+from econdor_gcs.files.runlog import RunLog
 from econdor_gcs.link.router import Router, Sample
 
 
