@@ -2,7 +2,7 @@
 
 Pieces, from the bottom up:
 
-:class:`~.station.Station`
+:class:`~.loop.Station`
     An asyncio event loop on a background thread that owns the GCS :class:`~.link.Router`
     (one UDP endpoint, vehicles routed by system id, every message to ``telemetry.tlog``).
     The synchronous world (the :class:`~.dfc.Dfc` loop in the main thread) submits
@@ -16,7 +16,7 @@ Pieces, from the bottom up:
 :class:`MavlinkExecutor`
     The :class:`~.dfc.Executor` over MAVLink, the drop-in twin of
     :class:`econdor_lab.inprocess.InProcessExecutor`: per vehicle, a mission "item 0 home,
-    takeoff, DO_CHANGE_SPEED, the tasks" is uploaded (:func:`~.link.mission.plan_mission`;
+    takeoff, DO_CHANGE_SPEED, the tasks" is uploaded (:func:`~econdor_gcs.link.items.plan_mission`;
     a contour piece as a trace item, or as the waypoint polyline of the estimated contour for
     a vehicle that refused trace items), the vehicle started the autopilot's way
     (:func:`~.link.autopilots.start_mission`), and its samples collected until it reports
@@ -24,7 +24,7 @@ Pieces, from the bottom up:
     The executor runs the flights (upload, start, wait, recover, rounds for the work of lost
     vehicles, the way home) with its parts, all on the station's loop thread:
     :class:`~.telemetry.StationTelemetry` (what the vehicles send: the router's callbacks,
-    sample conversion, flight reports, status rows), :class:`~.vehicle_missions.VehicleMissions`
+    sample conversion, flight reports, status rows), :class:`~.sorties.VehicleMissions`
     (each vehicle's missions planned, saved and uploaded, and its geofence),
     :class:`~.losses.VehicleLosses` (vehicles given up, item time limits, and where their
     work goes) and :class:`~.recovery.SampleRecovery` (after each flight, every sample the
@@ -487,6 +487,9 @@ class MavlinkExecutor:
                     with contextlib.suppress(ProtocolError):
                         await self.vehicle_losses.tolerant(
                             v, functools.partial(self._disarm, v))
+                # on the ground already (an operator's stop sent it home, and it is down
+                # before the run ends): landed, whatever its flight was last called
+                v.status = VehicleStatus.LANDED
                 continue
             self.telemetry.begin(v, [])
             going.append(v)

@@ -1,6 +1,6 @@
 """Vehicles given up, and where their work goes.
 
-:class:`VehicleLosses` is a part of :class:`~.gcs.MavlinkExecutor`. A vehicle is given up
+:class:`VehicleLosses` is a part of :class:`~.executor.MavlinkExecutor`. A vehicle is given up
 only when its HEARTBEAT is gone for the link timeout (``--link-timeout``, default
 :data:`LINK_TIMEOUT_S`: the router's :class:`~.link.router.VehicleLost`), or when its
 current mission item takes longer than the item's time limit
@@ -71,7 +71,7 @@ async def run_all(coros: list[Coroutine[Any, Any, None]]) -> None:
 
 class VehicleLosses:
     """Gives vehicles up and hands their work to the others (a part of
-    :class:`~.gcs.MavlinkExecutor`, on the station's loop thread).
+    :class:`~.executor.MavlinkExecutor`, on the station's loop thread).
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ more. Only the machine-readable messages count (never STATUSTEXT).
 
 :func:`ensure` is that loop; :class:`Commands` the procedures of a flight built on it
 (start a mission the autopilot's way, return to launch, disarm). It runs on the station's
-loop thread, a part of :class:`~.gcs.MavlinkExecutor`.
+loop thread, a part of :class:`~.executor.MavlinkExecutor`.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ async def ensure(send: Callable[[], Awaitable[object]], done: Callable[[], bool]
 
 class Commands:
     """A flight's commands, each done when acknowledged or seen done (a part of
-    :class:`~.gcs.MavlinkExecutor`).
+    :class:`~.executor.MavlinkExecutor`).
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ Lua sensor script says MAV_RESULT_UNSUPPORTED) is asked no more: the station kee
 arrives, logs it once and says so in ``summary.json`` (``sample_recovery``), and the run
 goes on.
 
-:class:`SampleRecovery` is a part of :class:`~.gcs.MavlinkExecutor`: it shares the
+:class:`SampleRecovery` is a part of :class:`~.executor.MavlinkExecutor`: it shares the
 executor's router, mission, vehicle states and timings, gives up vehicles through its
 :class:`~.losses.VehicleLosses` and waits with the executor's ``until`` (which wakes on
 whatever the vehicles send), on the station's loop thread like the rest of the executor.
@@ -74,7 +74,7 @@ class Until(Protocol):
 
 
 class SampleRecovery:
-    """The sample recovery of a :class:`~.gcs.MavlinkExecutor`.
+    """The sample recovery of a :class:`~.executor.MavlinkExecutor`.
 
     Parameters
     ----------

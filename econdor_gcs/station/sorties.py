@@ -1,6 +1,6 @@
 """The missions the station gives each vehicle: planned, saved, uploaded.
 
-:class:`VehicleMissions` is a part of :class:`~.gcs.MavlinkExecutor`: per vehicle and
+:class:`VehicleMissions` is a part of :class:`~.executor.MavlinkExecutor`: per vehicle and
 flight, the tasks become a mission "item 0 home, takeoff, DO_CHANGE_SPEED, the tasks"
 (:func:`~.link.mission.plan_mission`), saved in the run directory and uploaded; a vehicle
 that refuses a contour (trace) item gets the estimated contours as waypoint polylines from
@@ -51,7 +51,7 @@ def mission_items_json(items: Sequence[MissionItemSpec]) -> str:
 
 class VehicleMissions:
     """Plans, saves and uploads each vehicle's missions, and its geofence (a part of
-    :class:`~.gcs.MavlinkExecutor`, on the station's loop thread).
+    :class:`~.executor.MavlinkExecutor`, on the station's loop thread).
 
     Parameters
     ----------
@@ -64,7 +64,7 @@ class VehicleMissions:
     mission:
         Origin, altitude and cruise speed of the missions.
     missions_dir, timeout_s, tolerance_m:
-        As for :class:`~.gcs.MavlinkExecutor`.
+        As for :class:`~.executor.MavlinkExecutor`.
     home:
         Item 0 of the missions (local metres).
     """

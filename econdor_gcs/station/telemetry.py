@@ -1,7 +1,6 @@
 """What the ground station knows of each vehicle, from what the vehicle sends.
 
-Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
-:mod:`econdor_gcs.station.executor`):
+Parts of :class:`~.executor.MavlinkExecutor`:
 
 :class:`StationTelemetry`
     The router's sample and message callbacks, on the station's loop thread (which alone
@@ -11,11 +10,12 @@ Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
 :class:`VehicleState`
     One vehicle's bookkeeping across flights.
 :class:`VehicleRow`
-    One vehicle as the live display sees it at one moment.
+    One vehicle as the live display sees it at one moment; its ``status`` is a
+    :class:`~.status.VehicleStatus`.
 
 :class:`~.flight.Flight`, :func:`~.flight.build_report` and
 :class:`~.flight.StatusAssembler` (a flight, its report, STATUSTEXT texts) live in
-:mod:`.flight` and are re-exported here.
+:mod:`.flight`.
 """
 
 from __future__ import annotations
@@ -201,7 +201,7 @@ class StationTelemetry:
     """Keeps every vehicle's :class:`VehicleState` from what it sends: the router's sample
     and message callbacks, the conversion of samples to local metres, and the per-flight
     bookkeeping that ends in a :class:`~.core.tasks.FlightReport` (a part of
-    :class:`~.gcs.MavlinkExecutor`).
+    :class:`~.executor.MavlinkExecutor`).
 
     Everything here runs on the station's loop thread, which alone owns the vehicle state;
     the executor hands other threads' questions to that thread.
@@ -501,7 +501,7 @@ class StationTelemetry:
 
     def pending_samples(self) -> SampleLog:
         """Take out every sample received but not yet in a report (the stray ones and the
-        rows of the flights in progress): :meth:`~.gcs.MavlinkExecutor.pending_samples`."""
+        rows of the flights in progress): :meth:`~.executor.MavlinkExecutor.pending_samples`."""
         logs = []
         self._convert_all()
         for v in self.vehicles.values():
@@ -519,7 +519,7 @@ class StationTelemetry:
 
     # -- snapshots for the displays and the summary -------------------------------------------
     def status_rows(self) -> list[VehicleRow]:
-        """The rows of :meth:`~.gcs.MavlinkExecutor.status_rows` (made here, on the
+        """The rows of :meth:`~.executor.MavlinkExecutor.status_rows` (made here, on the
         station's loop thread)."""
         rows = []
         self._convert_all()
@@ -565,7 +565,7 @@ class StationTelemetry:
 
     def fleet_summary(self, started: Sequence[VehicleKind] | None = None
                       ) -> list[dict[str, Any]]:
-        """The rows of :meth:`~.gcs.MavlinkExecutor.fleet_summary`."""
+        """The rows of :meth:`~.executor.MavlinkExecutor.fleet_summary`."""
         out = []
         for i, (sysid, v) in enumerate(self.vehicles.items()):
             link = self.router.vehicles.get(sysid)
