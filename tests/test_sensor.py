@@ -239,7 +239,8 @@ def test_mission_sensor_keys_and_the_noise_alias():
      r"^vehicles\.noise_std: given twice, also as vehicles\.sensor\.noise_std \(keep one\)$"),
     ({"sensor": {"lag": 1.0}}, r"^vehicles\.sensor\.lag: unknown key \(allowed: lag_correction, "
                                r"lag_s, noise_std, position_std_m, position_tau_s\)$"),
-    ({"sensor": {"lag_s": -1.0}}, r"^vehicles\.sensor\.lag_s: must be >= 0 \(a sensor.s response time\), got -1\.0$"),
+    ({"sensor": {"lag_s": -1.0}},
+     r"^vehicles\.sensor\.lag_s: must be >= 0 \(a sensor.s response time\), got -1\.0$"),
     ({"sensor": {"position_tau_s": 0}}, r"^vehicles\.sensor\.position_tau_s: must be > 0"),
     ({"sensor": {"lag_correction": "wiener"}}, r"^vehicles\.sensor\.lag_correction: must be "
                                                r"one of deconvolve, none"),
