@@ -125,6 +125,26 @@ def test_import_refuses_an_implausible_mission(tmp_path: Path, exported_plan: di
     assert re.search(message, text), text
 
 
+def test_upload_refuses_an_implausible_mission_before_opening_a_link(
+        tmp_path: Path, exported_plan: dict, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+    import socket
+
+    _waypoints(exported_plan)[0]["params"][6] = -30.0  # below home
+    path = tmp_path / "edited.plan"
+    path.write_text(json.dumps(exported_plan))
+    # the port is held, so opening the link would fail with another message
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:
+        held.bind(("127.0.0.1", 0))
+        port = held.getsockname()[1]
+        capsys.readouterr()
+        code = cli.main(["upload", str(path), "--connect", f"udpin:127.0.0.1:{port}",
+                         "--timeout", "1"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.strip().count("\n") == 0, err
+    assert re.search(r"altitude -30 m is below home", err), err
+
+
 def test_import_refuses_an_amsl_altitude_off_the_earth(tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]
                                                        ) -> None:
