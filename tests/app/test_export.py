@@ -23,7 +23,7 @@ from econdor_gcs.files.autopilot_files import (
     write_plan,
     write_wpl,
 )
-from econdor_gcs.link.transfer import MissionItemSpec, build_mission
+from econdor_gcs.link.items import MissionItemSpec, build_mission
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 INT_REL, FLOAT_REL = 6, 3

@@ -22,7 +22,7 @@ from econdor_gcs.errors import EcondorError
 from econdor_gcs.files.autopilot_files import read_mission_file, read_plan, read_wpl
 from econdor_gcs.files.plans import read_next_batch, read_tasks, write_next_batch, write_tasks
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.transfer import plan_mission
+from econdor_gcs.link.items import plan_mission
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "missions" / "demo.yaml"

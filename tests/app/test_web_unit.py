@@ -45,7 +45,7 @@ from econdor_gcs.files.rundir import (
     write_iteration,
 )
 from econdor_gcs.link.router import Sample
-from econdor_gcs.station.executor import VehicleStatus
+from econdor_gcs.station.telemetry import VehicleRow
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -219,13 +219,13 @@ def test_runlog_lines_survive_a_torn_tail(tmp_path: Path) -> None:
 # -- the feeds ---------------------------------------------------------------------------------
 
 
-def _status(sysid: int, x: float, phase: Phase = Phase.TRACE) -> VehicleStatus:
-    return VehicleStatus(sysid=sysid, index=sysid - 1, x_m=x, y_m=2.0, alt_rel_m=30.0,
+def _status(sysid: int, x: float, phase: Phase = Phase.TRACE) -> VehicleRow:
+    return VehicleRow(sysid=sysid, index=sysid - 1, x_m=x, y_m=2.0, alt_rel_m=30.0,
                          heading_deg=90.0, flight_time_s=12.0, armed=True, lost=False, item=2,
                          items=3, phase=phase, flown_m=100.0, samples=10, status="flying")
 
 
-def _live_feed(rate_hz: float = 1000.0) -> tuple[LiveFeed, RunControl, list[VehicleStatus]]:
+def _live_feed(rate_hz: float = 1000.0) -> tuple[LiveFeed, RunControl, list[VehicleRow]]:
     mission = load_mission(DEMO).with_overrides(grid_spacing_m=5.0)
     control = RunControl()
     feed = LiveFeed(mission_name="demo", planner="econdor", grid=mission.grid,
@@ -494,7 +494,7 @@ def test_the_last_update_has_the_vehicles_as_they_ended() -> None:
     feed, _, rows = _live_feed(rate_hz=0.001)  # one snapshot per 1000 s
     cur = Cursor()
     assert feed.updates(cur)[-1]["vehicles"][0]["status"] == "flying"
-    rows[0] = VehicleStatus(**{**_status(1, 0.0).__dict__, "status": "landed"})
+    rows[0] = VehicleRow(**{**_status(1, 0.0).__dict__, "status": "landed"})
     assert "vehicles" not in _types(feed.updates(cur))  # rate-limited
     feed.finish({"stop_reason": "stopped"})
     msgs = feed.updates(cur)

@@ -21,7 +21,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import EcondorError, MissionError
 from econdor_gcs.files.autopilot_files import items_to_plan, items_to_wpl, read_plan, read_wpl
-from econdor_gcs.link.transfer import MissionItemSpec, build_mission
+from econdor_gcs.link.items import MissionItemSpec, build_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = yaml.safe_load((ROOT / "missions" / "demo.yaml").read_text())

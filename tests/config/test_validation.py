@@ -9,7 +9,9 @@ import pytest
 import yaml
 
 from econdor import cli
-from econdor_gcs.config import _FIELD_SCHEMA, _SCHEMA, parse_mission
+from econdor_gcs.config import parse_mission
+from econdor_gcs.config.schema import FIELD_SCHEMA as _FIELD_SCHEMA
+from econdor_gcs.config.schema import SCHEMA as _SCHEMA
 from econdor_gcs.errors import MissionError
 
 BASE = {"field": {"model": "paper"}}

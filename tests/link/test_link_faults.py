@@ -19,8 +19,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from econdor_gcs.config import parse_mission
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import CommandRejected, VehicleTimeout
+from econdor_gcs.link.items import build_mission
 from econdor_gcs.link.router import Received, Sample
-from econdor_gcs.link.transfer import build_mission
 from econdor_gcs.link.vehicles import VehicleLink
 from econdor_gcs.station.executor import MavlinkExecutor
 from econdor_gcs.station.procedures import ensure

@@ -14,15 +14,12 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
+from econdor_gcs.link.items import MissionItemSpec, build_mission, trace_item, waypoint_item
 from econdor_gcs.link.transfer import (
     CommandSender,
     MissionClear,
     MissionDownloader,
-    MissionItemSpec,
     MissionUploader,
-    build_mission,
-    trace_item,
-    waypoint_item,
 )
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)

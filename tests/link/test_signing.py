@@ -331,7 +331,7 @@ def test_without_the_stored_timestamps_the_replay_would_have_armed_it(
 def test_a_replay_to_a_restarted_station_is_refused() -> None:
     """The station keeps its timestamps too (per key, as system 255): a vehicle's signed
     packet captured before the station restarted is refused after it."""
-    from econdor_gcs.station.executor import Station
+    from econdor_gcs.station.loop import Station
 
     vehicle = Codec(1, 1, KEY)
     captured = vehicle.encode(heartbeat())

@@ -12,8 +12,7 @@ from econdor_gcs.config import load_mission
 from econdor_gcs.core.fields import GaussianSumField
 from econdor_gcs.core.geometry import Region
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
-from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M
-from econdor_gcs.link.transfer import fence_items
+from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M, fence_items
 from econdor_lab.inprocess import InProcessExecutor
 from sim_vehicle.body import SimBody
 from sim_vehicle.fence import (

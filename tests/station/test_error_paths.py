@@ -15,8 +15,8 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Waypoint
 from econdor_gcs.errors import RunError
 from econdor_gcs.files.rundir import RunDir
-from econdor_gcs.link.transfer import build_mission
-from econdor_gcs.station.executor import Station
+from econdor_gcs.link.items import build_mission
+from econdor_gcs.station.loop import Station
 from econdor_gcs.station.sorties import VehicleMissions
 from sim_vehicle.transport import UdpTransport, parse_endpoint
 

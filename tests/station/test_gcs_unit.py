@@ -24,17 +24,12 @@ from econdor_gcs.core.tasks import (
 )
 from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.items import build_mission, plan_mission
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Received, Sample, VehicleLink, VehicleLost
-from econdor_gcs.link.transfer import build_mission, plan_mission
-from econdor_gcs.station.executor import (
-    UPLOAD_ATTEMPTS,
-    MavlinkExecutor,
-    StatusAssembler,
-    build_report,
-    mission_items_json,
-)
-from econdor_gcs.station.telemetry import Flight
+from econdor_gcs.station.executor import MavlinkExecutor
+from econdor_gcs.station.flight import Flight, StatusAssembler, build_report
+from econdor_gcs.station.sorties import UPLOAD_ATTEMPTS, mission_items_json
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 
@@ -152,7 +147,7 @@ def test_sample_batches_match_origin_to_local() -> None:
 
 
 def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
-    from econdor_gcs.station.executor import SAMPLE_BATCH
+    from econdor_gcs.station.telemetry import SAMPLE_BATCH
 
     ex, on_sample = _batch_executor()
     n = SAMPLE_BATCH + 10
@@ -407,7 +402,7 @@ def test_the_station_thread_alone_touches_vehicle_state() -> None:
     whichever thread asks (the render used to convert samples on its own thread)."""
     import threading
 
-    from econdor_gcs.station.executor import Station
+    from econdor_gcs.station.loop import Station
 
     station = Station("udpin:127.0.0.1:0")
     station.start()
