@@ -15,12 +15,8 @@ from econdor_gcs.app.upload import compare_items
 from econdor_gcs.files.autopilot_files import read_mission_file
 from econdor_gcs.link.autopilots import AutopilotKind
 from econdor_gcs.link.codec import mavlink
-<<<<<<< HEAD:tests/e2e/test_upload.py
-from econdor_gcs.link.transfer import waypoint_item
-from tests.helpers.vehicles import DEMO, free_port, inproc_vehicle, wait_for
-=======
 from econdor_gcs.link.items import waypoint_item
->>>>>>> house:tests/test_upload.py
+from tests.helpers.vehicles import DEMO, free_port, inproc_vehicle, wait_for
 
 ORIGIN_ITEMS = [waypoint_item(0, 47.397742, 8.545594, 0.0),
                 waypoint_item(1, 47.3978, 8.5457, 30.123)]
