@@ -29,6 +29,7 @@ from pathlib import Path
 
 from econdor_gcs.errors import EcondorError, MissionRejected
 from econdor_gcs.files.autopilot_files import MissionFile, is_global_frame, is_home_item, read_mission_file
+from econdor_gcs.files.plausibility import check_plausible
 from econdor_gcs.link.autopilots import ARDUPILOT_POSITION_COMMANDS, AutopilotKind, start_mission
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.items import INT_TO_FLOAT_FRAME, MissionItemSpec
@@ -181,6 +182,7 @@ def upload_cli(args: argparse.Namespace) -> int:
     mfile = read_mission_file(Path(args.path))
     if not mfile.items:
         raise EcondorError(f"{args.path}: the mission is empty")
+    check_plausible(mfile, str(args.path))  # before a link is opened: nothing reaches the aircraft
     station = Station(args.connect, heartbeat_timeout_s=args.timeout)
     try:
         station.start()

@@ -101,7 +101,7 @@ MAX_ROUNDS = 8
 given up or taken off their missions by their own failsafe, flown again."""
 
 # --------------------------------------------------------------------------------------------
-# pure helpers (unit-tested in tests/test_gcs_unit.py)
+# pure helpers (unit-tested in tests/station/test_gcs_unit.py)
 
 
 def _merge(a: FlightReport, b: FlightReport) -> FlightReport:

@@ -74,7 +74,7 @@ RUNNING_STATES = frozenset({mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_
 """``mission_state``s of a mission that was started."""
 
 # --------------------------------------------------------------------------------------------
-# pure helpers (unit-tested in tests/test_gcs_unit.py)
+# pure helpers (unit-tested in tests/station/test_gcs_unit.py)
 
 
 # --------------------------------------------------------------------------------------------
