@@ -41,7 +41,8 @@ import os
 import sys
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -193,9 +194,24 @@ def main(argv: list[str] | None = None) -> int:
         for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
         ctx = multiprocessing.get_context("spawn")
+        done = [0]
+        total = len(survey_jobs) + len(jobs)
+
+        def tick(what: str) -> Callable[[Future[Any]], None]:
+            def report(fut: Future[Any]) -> None:
+                done[0] += 1
+                if fut.exception() is None:
+                    print(f"[{done[0]}/{total}] {what} {time.perf_counter() - t0:.0f} s",
+                          file=sys.stderr, flush=True)
+            return report
+
         with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
             survey_futs = [pool.submit(scan_survey, j) for j in survey_jobs]
             run_futs = [pool.submit(run_planner, j) for j in jobs]
+            for j, fut in zip(survey_jobs, survey_futs, strict=True):
+                fut.add_done_callback(tick(f"surveys {j[0]} {j[1]}"))
+            for j, fut in zip(jobs, run_futs, strict=True):
+                fut.add_done_callback(tick(f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}"))
             surveys = [f.result() for f in survey_futs]
             runs = [f.result() for f in run_futs]
     wall = time.perf_counter() - t0
