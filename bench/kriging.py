@@ -12,8 +12,16 @@ profile likelihood (:func:`econdor_gcs.core.gp.fit_matern`) and with scikit-lear
 ``GaussianProcessRegressor`` (constant x Matérn 5/2 + a fixed 1e-10 white kernel, L-BFGS,
 one start), the same model, and compares time and the likelihood reached.
 
+With ``--noise SIGMA`` the vehicles' sensor has that noise (``vehicles.noise_std``): both
+reconstructions then estimate it (issue 32), and a third part compares the noise each
+finds: ours from differences of neighbouring samples along the tracks
+(:func:`econdor_gcs.core.noise.estimate_noise`, all samples) and scikit-learn's
+``WhiteKernel`` fitted by marginal likelihood with the Matérn 5/2 on the 400-sample
+subsample.
+
     python bench/kriging.py --quick
     python bench/kriging.py --seeds 0:4 --markdown
+    python bench/kriging.py --seeds 900:906 --fields plume --noise 1 --markdown
 """
 
 from __future__ import annotations
@@ -31,11 +39,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from econdor_gcs.config import parse_mission  # noqa: E402
 from econdor_gcs.core import metrics  # noqa: E402
 from econdor_gcs.core.gp import _profile_nll, fit_matern, kriging_reconstruct, thin_samples  # noqa: E402
 from econdor_gcs.core.spline import reconstruct  # noqa: E402
-from econdor_gcs.dfc import Dfc  # noqa: E402
-from econdor_gcs.mission import parse_mission  # noqa: E402
+from econdor_gcs.dfc.loop import Dfc  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
 from econdor_lab.study import parse_seeds  # noqa: E402
 
@@ -47,9 +55,14 @@ FIELDS = {
 BUCKETS = ((0, 1000), (1000, 3000), (3000, 8000), (8000, 30000))
 
 
+NOISE_STD = [0.0]
+"""The sensor noise of the runs (``--noise``)."""
+
+
 def recorded(field: str, seed: int, planner: str, budget_m: float):
     """Sample sets (prefixes) after every iteration of one real run, and the truth."""
-    raw = {"name": "kriging-bench", "field": FIELDS[field], "vehicles": {"count": 1},
+    raw = {"name": "kriging-bench", "field": FIELDS[field],
+           "vehicles": {"count": 1, "noise_std": NOISE_STD[0]},
            "algorithm": {"planner": planner, "max_iterations": 1000, "min_iterations": 1000,
                          "flight_budget_m": budget_m}}
     mission = parse_mission(raw, base_dir=ROOT / "missions")
@@ -78,6 +91,41 @@ def compare_reconstructions(fields: list[str], seeds: list[int], planners: list[
                                 "spline": metrics.mae(truth, spline),
                                 "kriging": metrics.mae(truth, krig),
                                 "spline_s": t1 - t0, "kriging_s": t2 - t1})
+    return out
+
+
+def compare_noise(fields: list[str], seeds: list[int], budget_m: float
+                  ) -> list[dict[str, float]]:
+    """The noise found by differences along the tracks and by scikit-learn's WhiteKernel."""
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+    from econdor_gcs.core.noise import estimate_noise
+
+    out = []
+    for field in fields:
+        for seed in seeds:
+            s, _, _, _ = recorded(field, seed, "lawnmower", budget_m)
+            t0 = time.perf_counter()
+            ours = estimate_noise(s.x_m, s.y_m, s.value).noise_std
+            t1 = time.perf_counter()
+            idx = thin_samples(s.x_m, s.y_m, 1.0)
+            idx = np.sort(np.random.default_rng(seed).choice(idx, min(400, idx.size), replace=False))
+            x, y, v = s.x_m[idx], s.y_m[idx], s.value[idx]
+            kernel = (ConstantKernel(float(np.var(v)), (1e-6, 1e6))
+                      * Matern(10.0, (0.5, 200.0), nu=2.5)
+                      + WhiteKernel(0.01 * float(np.var(v)), (1e-8, 1e4)))
+            t2 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ConvergenceWarning)
+                gp = GaussianProcessRegressor(kernel, alpha=0.0, n_restarts_optimizer=2,
+                                              random_state=seed).fit(
+                    np.column_stack([x, y]), v - float(np.mean(v)))
+            t3 = time.perf_counter()
+            out.append({"field": field, "seed": seed, "ours": ours, "ours_s": t1 - t0,
+                        "sklearn": math.sqrt(gp.kernel_.k2.noise_level),
+                        "sklearn_s": t3 - t2})
     return out
 
 
@@ -121,7 +169,9 @@ def main() -> int:
     p.add_argument("--budget", type=float, default=6000.0)
     p.add_argument("--quick", action="store_true", help="1 seed, 2 km")
     p.add_argument("--markdown", action="store_true")
+    p.add_argument("--noise", type=float, default=0.0, help="the sensor's noise (field units)")
     a = p.parse_args()
+    NOISE_STD[0] = a.noise
     if a.quick:
         a.seeds, a.budget = "0", 2000.0
     seeds, fields, planners = parse_seeds(a.seeds), a.fields.split(","), a.planners.split(",")
@@ -159,6 +209,18 @@ def main() -> int:
                               f"{f['sklearn_s'] / f['ours_s']:.1f}x", f"{f['ours_l']:.1f}",
                               f"{f['sklearn_l']:.1f}", f"{f['ours_ll']:.1f}",
                               f"{f['sklearn_ll']:.1f}"]) + bar)
+    if a.noise > 0:
+        noise = compare_noise(fields, seeds, a.budget)
+        print(f"\n# the sensor noise ({a.noise:g}) found: differences along the tracks (all "
+              "samples) vs scikit-learn's WhiteKernel by likelihood (400 samples)\n")
+        head = ["field", "seed", "ours", "ours s", "sklearn WhiteKernel", "sklearn s"]
+        print(bar + bar.join(head) + bar)
+        if a.markdown:
+            print(bar + bar.join("---" for _ in head) + bar)
+        for f in noise:
+            print(bar + bar.join([f["field"], str(f["seed"]), f"{f['ours']:.3f}",
+                                  f"{f['ours_s']:.3f}", f"{f['sklearn']:.3f}",
+                                  f"{f['sklearn_s']:.2f}"]) + bar)
     return 0
 
 

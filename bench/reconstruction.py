@@ -1,16 +1,25 @@
-"""Benchmark the reconstructions on samples recorded from real runs.
+"""Benchmark the reconstructions on samples recorded from real runs, and on noisy surveys.
 
 Usage::
 
     python bench/reconstruction.py [--quick] [--sizes 2000,5000,20000,50000]
                                    [--exact-max 5000] [--baseline REV] [--no-stream]
                                    [--libraries] [DATA.npz ...]
+    python bench/reconstruction.py --surveys [--seeds 900:910] [--fields plume,paper]
+                                   [--noise 1,3] [--budgets 2000,4000] [--markdown]
 
 Data: ``bench/data/*.npz`` (written by ``bench/record_samples.py``): every sample of a
 real run in the order the station received it, the sample count of each of its
 reconstructions, and the true field on the mission grid. ``paper-s0`` is an in-process
 run of ``missions/paper.yaml`` (seed 0, one vehicle), cut after its sixth reconstruction;
 ``demo-mavlink`` is an ``econdor run missions/demo.yaml`` over MAVLink (three vehicles).
+The noisy sets were recorded with ``--noise-std``: ``plume-noise1-s900`` and
+``plume-noise3-s900`` are in-process runs of ``missions/plume.yaml`` (the adaptive
+planner, seed 900) with sensor noise 1 and 3 (about 1 and 3 % of the plume's span of 90),
+``paper-noise1-s0`` and ``paper-noise3-s0`` runs of ``missions/paper.yaml`` (seed 0) with
+noise 0.56 and 1.67 (the same fractions of the authors' field's span of 50). Each row
+gives the noise the reconstruction estimated (0: the samples were taken as exact and
+interpolated).
 
 1. **Sizes**: the first N samples of each run (the station's state at that moment) for
    each N in ``--sizes``. Methods: the exact dense solve (the reference, computed where
@@ -27,6 +36,16 @@ run of ``missions/paper.yaml`` (seed 0, one vehicle), cut after its sixth recons
    estimator warm-started on the stream against fresh fits (time, and how many tiles
    were factorised, re-solved from kept factors, or kept).
 
+3. **Surveys** (``--surveys``): the issue's acceptance measure. For each field, noise
+   level and seed, a boustrophedon survey sized to each budget is flown in process
+   (``lawnmower.budget_m``; the same lines for every seed, the noise drawn per seed), and
+   its samples are reconstructed by this checkout (the noise estimated) and by
+   interpolating every sample (``noise_std=0``: the reconstruction before issue 32).
+   Medians over the seeds of the MAE in dB, the noise estimated, the CPU seconds, and in
+   how many seeds each longer survey's map is no worse than the shorter one's.
+   ``--noise`` is relative to the plume's span of 90: the paper field (eqs. 8-9, span
+   about 93) gets the same fraction of its span.
+
 One core: run with ``OMP_NUM_THREADS=1`` (the estimators limit BLAS to one thread
 themselves). Timings are noisy on a shared machine; compare ratios from one run.
 """
@@ -36,6 +55,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -50,14 +70,17 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from econdor_gcs.core.geometry import Grid, Region  # noqa: E402
-from econdor_gcs.core.spline import (  # noqa: E402
-    FastBiharmonicSpline,
-    _thin_pick,
-    reconstruct,
-)
+from econdor_gcs.core.noise import estimate_noise  # noqa: E402
+from econdor_gcs.core.samples import _thin_pick  # noqa: E402
+from econdor_gcs.core.spline import FastBiharmonicSpline, fit_field, reconstruct  # noqa: E402
 
 DATA = sorted((REPO / "bench" / "data").glob("*.npz"))
-BASELINE_REV = "6c88af8"  # the fast spline before issue 7 (thinning, coarse spline, 10 m tiles)
+# The reconstruction before issue 32: every sample interpolated, noise or not (the fast
+# spline of issue 7; ``--baseline 6c88af8`` compares with the one before issue 7).
+BASELINE_REV = "8c646e1"
+PLUME_SPAN = 90.0
+"""The plume field's span: ``--noise`` is in its units, other fields get the same fraction."""
+FIELD_SPANS = {"plume": 90.0, "paper": 93.0}
 
 Method = Callable[[np.ndarray, np.ndarray, np.ndarray, Grid], np.ndarray]
 
@@ -97,6 +120,7 @@ def load_baseline(rev: str) -> ModuleType | None:
     spec = importlib.util.spec_from_file_location(f"spline_{rev}", path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
@@ -126,10 +150,12 @@ def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
         methods[f"fast ({rev})"] = (
             lambda x, y, v, g: baseline.reconstruct(x, y, v, g, method="fast"))
     methods["fast (this)"] = lambda x, y, v, g: reconstruct(x, y, v, g, method="fast")
+    noise: dict[tuple[str, int], float] = {}
     if libraries:
         methods["scipy RBF k=64"] = rbf_local
-    head = (f"{'run':13} {'N':>6} {'method':16} {'wall_s':>7} {'cpu_s':>7} {'MAE':>10} "
-            f"{'MAE/exact':>9} {'|f-ex|/MAEex':>12} {'MAE/base':>8} {'cpu/base':>8}")
+    head = (f"{'run':17} {'N':>6} {'method':16} {'wall_s':>7} {'cpu_s':>7} {'MAE':>10} "
+            f"{'MAE/exact':>9} {'|f-ex|/MAEex':>12} {'MAE/base':>8} {'cpu/base':>8} "
+            f"{'noise':>7}")
     print(head)
     print("-" * len(head))
     for run in runs:
@@ -138,7 +164,8 @@ def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
             if n < n_asked and n_asked != max(sizes):
                 continue
             x, y, v = run.prefix(n)
-            label = f"{run.name:13} {n:6d}"
+            label = f"{run.name:17} {n:6d}"
+            noise[run.name, n] = estimate_noise(x, y, v).noise_std
             exact = None
             if n <= exact_max:
                 exact, wall, cpu = timed(
@@ -167,8 +194,10 @@ def sizes_table(runs: list[Run], sizes: list[int], exact_max: int,
                     cols += f" {'n/a':>9} {'n/a':>12}"
                 if name == f"fast ({rev})":
                     base_mae, base_cpu = mae, cpu
+                    cols += f" {'':>8} {'':>8} {'(0)':>7}"
                 elif base_mae is not None and base_cpu:
                     cols += f" {mae / base_mae:8.3f} {cpu / base_cpu:8.3f}"
+                    cols += f" {noise[run.name, n]:7.3f}"
                 print(cols, flush=True)
 
 
@@ -211,6 +240,89 @@ def stream_table(runs: list[Run], baseline: ModuleType | None) -> None:
               f" fast cold {totals['cold']:.2f} s, warm-started {totals['warm']:.2f} s")
 
 
+def survey_samples(field: str, noise_std: float, budget_m: float, seed: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Grid]:
+    """The samples of a survey sized to ``budget_m`` over ``field`` (in process, the order
+    they were taken) and the true field on the mission grid."""
+    import yaml
+
+    from econdor_gcs.config import parse_mission
+    from econdor_gcs.dfc.loop import Dfc
+    from econdor_lab.inprocess import InProcessExecutor
+
+    raw = yaml.safe_load((REPO / "missions" / "plume.yaml").read_text(encoding="utf-8"))
+    if field != "plume":
+        raw["field"] = {"model": field}
+    raw["vehicles"]["noise_std"] = noise_std
+    # the survey's lines are its first batch; the budget ends the run after them
+    raw["algorithm"].update(planner="lawnmower", flight_budget_m=1.5 * budget_m)
+    raw["lawnmower"] = {"budget_m": budget_m}
+    mission = parse_mission(raw, base_dir=REPO / "missions")
+    truth = mission.build_field(seed)
+    result = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner="lawnmower",
+                 truth=None, seed=seed).run()
+    s = result.samples
+    xx, yy = mission.grid.mesh
+    return s.x_m, s.y_m, s.value, np.asarray(truth(xx, yy), dtype=np.float64), mission.grid
+
+
+def surveys_table(fields: list[str], noises: list[float], budgets: list[float],
+                  seeds: list[int], markdown: bool) -> None:
+    bar = "|" if markdown else " "
+    head = ["field", "noise", "survey", "samples", "interpolated dB", "this dB", "gain dB",
+            "noise estimated", "this cpu s",
+            "seeds where each longer survey is no worse (this / interpolated)"]
+    print(f"# surveys: medians over seeds {seeds[0]}..{seeds[-1]} ({len(seeds)})\n")
+    print(bar + bar.join(head) + bar)
+    if markdown:
+        print(bar + bar.join("---" for _ in head) + bar)
+    for field in fields:
+        for rel in noises:
+            sigma = rel * FIELD_SPANS.get(field, PLUME_SPAN) / PLUME_SPAN
+            per: dict[float, dict[str, list[float]]] = {}
+            for budget in budgets:
+                acc: dict[str, list[float]] = {"this": [], "interp": [], "noise": [],
+                                               "cpu": [], "n": []}
+                for seed in seeds:
+                    x, y, v, truth, grid = survey_samples(field, sigma, budget, seed)
+                    c0 = time.process_time()
+                    rec = fit_field(x, y, v, grid)
+                    acc["cpu"].append(time.process_time() - c0)
+                    acc["this"].append(_db(float(np.mean(np.abs(rec.values - truth)))))
+                    acc["noise"].append(rec.noise_std)
+                    z0 = reconstruct(x, y, v, grid, noise_std=0.0)
+                    acc["interp"].append(_db(float(np.mean(np.abs(z0 - truth)))))
+                    acc["n"].append(float(x.size))
+                per[budget] = acc
+            for budget in budgets:
+                acc = per[budget]
+                cols = [field, f"{sigma:g}", f"{budget / 1000:g} km",
+                        f"{statistics.median(acc['n']):.0f}",
+                        f"{statistics.median(acc['interp']):.1f}",
+                        f"**{statistics.median(acc['this']):.1f}**" if markdown else
+                        f"{statistics.median(acc['this']):.1f}",
+                        f"{statistics.median(acc['interp']) - statistics.median(acc['this']):.1f}",
+                        f"{statistics.median(acc['noise']):.3f}",
+                        f"{statistics.median(acc['cpu']):.2f}"]
+                if budget == budgets[-1] and len(budgets) > 1:
+                    cols.append(f"{_monotone(per, budgets, 'this')} / "
+                                f"{_monotone(per, budgets, 'interp')} of {len(seeds)}")
+                else:
+                    cols.append("")
+                print(bar + bar.join(cols) + bar, flush=True)
+
+
+def _monotone(per: dict[float, dict[str, list[float]]], budgets: list[float], key: str
+              ) -> int:
+    """Seeds in which the MAE never rises from one budget to the next."""
+    rows = np.array([per[b][key] for b in budgets])  # (budgets, seeds)
+    return int(np.count_nonzero(np.all(np.diff(rows, axis=0) <= 0.0, axis=0)))
+
+
+def _db(mae: float) -> float:
+    return 20.0 * float(np.log10(mae))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", nargs="*", type=Path, default=DATA)
@@ -223,7 +335,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-baseline", action="store_true")
     ap.add_argument("--no-stream", action="store_true")
     ap.add_argument("--libraries", action="store_true", help="also scipy's RBFInterpolator")
+    ap.add_argument("--surveys", action="store_true",
+                    help="noisy surveys flown in process, not the recorded runs")
+    ap.add_argument("--seeds", default="900:910", help="--surveys: seeds A:B or a list")
+    ap.add_argument("--fields", default="plume,paper", help="--surveys: field models")
+    ap.add_argument("--noise", default="1,3",
+                    help="--surveys: sensor noise in the plume's units (span 90)")
+    ap.add_argument("--budgets", default="2000,4000", help="--surveys: survey lengths (m)")
+    ap.add_argument("--markdown", action="store_true", help="--surveys: a markdown table")
     args = ap.parse_args(argv)
+    if args.surveys:
+        from econdor_lab.study import parse_seeds
+
+        surveys_table(args.fields.split(","), [float(t) for t in args.noise.split(",")],
+                      [float(t) for t in args.budgets.split(",")], parse_seeds(args.seeds),
+                      args.markdown)
+        return 0
     if not args.data:
         print("error: no data (bench/data/*.npz; record with bench/record_samples.py)",
               file=sys.stderr)

@@ -4,6 +4,8 @@ Usage::
 
     python bench/record_samples.py inprocess missions/paper.yaml --seed 0 --out bench/data/paper-s0.npz
     python bench/record_samples.py mavlink missions/demo.yaml --out bench/data/demo-mavlink.npz
+    python bench/record_samples.py inprocess missions/plume.yaml --seed 900 --noise-std 1 \
+        --out bench/data/plume-noise1-s900.npz
 
 Runs the DFC loop (in-process, or over MAVLink against simulated vehicle processes) and
 writes one ``.npz`` with every sample in the order the station received it, the number of
@@ -17,7 +19,9 @@ mission grid (for MAE):
 ``recon_counts``          samples given to each reconstruction, in order (prefix sizes)
 ``truth``                 the true field on the grid, ``[row=y, col=x]``
 ``region``, ``grid_shape``  ``(xmin, xmax, ymin, ymax)`` and ``(ny, nx)`` of the grid
-``meta``                  JSON: mission, transport, seed, planner, commit, final MAE
+``meta``                  JSON: mission, transport, seed, planner, commit, final MAE,
+                          the sensor's noise (``noise_std``: the mission's, or
+                          ``--noise-std``)
 ========================  ============================================================
 
 ``--max-samples`` keeps the file small: the stream is cut at the last reconstruction at or
@@ -38,8 +42,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from econdor_gcs import dfc as dfc_module  # noqa: E402
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
+from econdor_gcs.dfc import loop as dfc_module  # noqa: E402
 
 
 def _commit() -> str:
@@ -56,8 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--planner", default=None)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--max-samples", type=int, default=0, help="cut the stream (0: keep all)")
+    ap.add_argument("--noise-std", type=float, default=None,
+                    help="the sensor's noise (vehicles.noise_std; default: the mission's)")
     args = ap.parse_args(argv)
     mission = load_mission(args.mission)
+    if args.noise_std is not None:
+        mission = mission.with_vehicles(noise_std=args.noise_std)
     seed = mission.seed if args.seed is None else args.seed
 
     # Note how many samples each reconstruction gets: wrap the DFC's reconstruction step.
@@ -80,8 +88,8 @@ def main(argv: list[str] | None = None) -> int:
             samples = result.samples
             final_mae_db = result.records[-1].mae_db
         else:
-            from econdor_gcs.run import run_mission
-            from econdor_gcs.rundir import read_samples
+            from econdor_gcs.app.run import run_mission
+            from econdor_gcs.files.rundir import read_samples
 
             with tempfile.TemporaryDirectory(prefix="econdor-record-") as tmp:
                 summary = run_mission(mission, Path(tmp) / "run", planner=args.planner,
@@ -103,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"mission": mission.name, "transport": args.transport, "seed": seed,
             "planner": args.planner or mission.algorithm.planner, "commit": _commit(),
             "vehicles": mission.vehicles.count, "final_mae_db": final_mae_db,
+            "noise_std": mission.vehicles.noise_std,
             "all_recon_counts": counts, "total_samples": len(samples)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(

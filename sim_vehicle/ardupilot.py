@@ -16,14 +16,31 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   RTL and LAND ("Mode not armable").
 * Missions: items are requested with MISSION_REQUEST (not ``_INT``); item 0 is home and is
   overwritten with the vehicle's home (frame MAV_FRAME_GLOBAL, altitude AMSL); downloads
-  report the float frames (3 for 6, 0 for 5), altitudes in centimetres and autocontinue 1;
-  unknown commands are refused with MAV_MISSION_UNSUPPORTED (the contour item too, unless a
-  companion computer runs the tracer). A mission is flown from item 1.
+  report the float frames (3 for 6, 0 for 5), altitudes in centimetres and autocontinue 1,
+  and a command stored without a position (DO_CHANGE_SPEED, RTL: not in
+  :data:`POSITION_COMMANDS`) comes back with frame 0 and x, y, z = 0; unknown commands are
+  refused with MAV_MISSION_UNSUPPORTED (the contour item too, unless a companion computer runs
+  the tracer). A mission is flown from item 1.
+* The upload's clock is the vehicle's (sim) time, as ArduPilot's ``AP_HAL::millis()``: a
+  missing item is requested again after 1 s, the transfer is cancelled
+  (MAV_MISSION_OPERATION_CANCELLED) after 8 s without one; an item other than the one
+  requested is answered MAV_MISSION_INVALID_SEQUENCE and the transfer goes on; an item with
+  no transfer running is answered MAV_MISSION_ERROR. For the first
+  :data:`NO_SPACE_AFTER_BOOT_S` of its time it refuses every upload with
+  MAV_MISSION_NO_SPACE (its mission storage is not ready yet).
 * Flying a mission: GUIDED, arm, NAV_TAKEOFF (param7 = altitude *above home*), then AUTO; or
-  arm and MAV_CMD_MISSION_START (AUTO, resumes at the current item, or from item 1 when the
-  mission is complete or was never started; param1 > 0 starts there). Entering AUTO armed on
-  the ground needs a NAV_TAKEOFF as item 1. At the end of the mission the vehicle stays in
-  AUTO, hovering; RTL and LAND land and disarm and keep their mode.
+  arm and MAV_CMD_MISSION_START with param1 = param2 = 0 (anything else is DENIED: "first-item/
+  last item not supported"), which enters AUTO and resumes at the current item, or from item 1
+  when the mission is complete or was never started. Entering AUTO armed on the ground needs a
+  NAV_TAKEOFF as item 1. At the end of the mission the vehicle stays in AUTO, hovering; RTL
+  and LAND land and disarm and keep their mode.
+* Until its position estimate is ready (the pre-arm time) GLOBAL_POSITION_INT says latitude =
+  longitude = 0.
+* Without a companion computer it is a stock autopilot whose payload is a Lua script: the
+  sample commands (MAV_CMD_USER_1..3) are unknown (MAV_RESULT_UNSUPPORTED), and each sample
+  is a ``FIELD`` stamped with the autopilot's clock when the script sends it
+  (:data:`~sim_vehicle.telemetry.LUA_SEND_DELAY_MS` after the position it was taken at), not
+  the stamp of any position; the positions go out at the rate the station asked for.
 
 Not imitated: the RC throttle that real ArduCopter wants before AUTO takes off (``auto_armed``;
 there is no pilot here), failsafes, fences, parameters other than ours.
@@ -33,11 +50,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .autopilot import ACCEPTED, FAILED, MISSION_RETRIES, Autopilot
+from .autopilot import ACCEPTED, DENIED, FAILED, MISSION_RETRIES, Autopilot
 from .mission_server import MISSION, MissionServer, StoredItem
 from .navigator import ModeFlow
 from .state import FlightMode
@@ -68,7 +86,24 @@ COPTER_FLIGHT_SW_VERSION = ((4 << 24) | (5 << 16) | (7 << 8)
                             | mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL)  # "4.5.7 official"
 PREARM_S = 2.0
 UPLOAD_RETRY_S = 1.0
-"""ArduPilot re-requests a missing item after about a second."""
+"""ArduPilot re-requests a missing item after a second of its own time ..."""
+UPLOAD_TIMEOUT_S = 8.0
+"""... and cancels a transfer after 8 s of its time without an item (``upload_timeout_ms``)."""
+NO_SPACE_AFTER_BOOT_S = 3.0
+"""Seconds of its time after boot during which it answers every upload NO_SPACE (seen on
+ArduCopter SITL: about 2.8 s)."""
+POSITION_COMMANDS = frozenset({
+    mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
+    mavlink.MAV_CMD_NAV_LOITER_TURNS, mavlink.MAV_CMD_NAV_LOITER_TIME, mavlink.MAV_CMD_NAV_LAND,
+    mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_CONTINUE_AND_CHANGE_ALT,
+    mavlink.MAV_CMD_NAV_LOITER_TO_ALT, mavlink.MAV_CMD_NAV_SPLINE_WAYPOINT,
+    mavlink.MAV_CMD_NAV_GUIDED_ENABLE, mavlink.MAV_CMD_DO_SET_HOME, mavlink.MAV_CMD_DO_LAND_START,
+    mavlink.MAV_CMD_DO_GO_AROUND, mavlink.MAV_CMD_DO_SET_ROI, mavlink.MAV_CMD_NAV_VTOL_TAKEOFF,
+    mavlink.MAV_CMD_NAV_VTOL_LAND, mavlink.MAV_CMD_NAV_PAYLOAD_PLACE,
+    mavlink.MAV_CMD_WAYPOINT_USER_1,
+})
+"""Commands ArduPilot stores with a position (``AP_Mission::stored_in_location``; the
+contour item, accepted only with a companion, keeps its start point)."""
 
 _FLOAT_FRAME = {
     mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
@@ -78,11 +113,54 @@ _FLOAT_FRAME = {
 
 
 class ArduPilotMissionServer(MissionServer):
-    """The mission protocol as ArduPilot speaks it (item 0 is home; float frames back)."""
+    """The mission protocol as ArduPilot speaks it (item 0 is home; float frames back; its
+    own clock; see the module docstring).
 
-    def __init__(self, home: tuple[float, float, float], **kwargs: Any) -> None:
+    ``sim_time`` is the vehicle's time since boot (s) and ``speedup`` its speed-up: the
+    server is polled with wall time, ArduPilot counts in its own.
+    """
+
+    def __init__(self, home: tuple[float, float, float], sim_time: Callable[[], float],
+                 speedup: Callable[[], float], **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.home = home
+        self.sim_time = sim_time
+        self.speedup = speedup
+        self._last_item_wall = 0.0
+
+    def _wall(self, sim_s: float) -> float:
+        return sim_s / max(self.speedup(), 1e-9)
+
+    def _on_count(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        if self.sim_time() < NO_SPACE_AFTER_BOOT_S and msg.count > 0:
+            return [self._ack(peer, mavlink.MAV_MISSION_NO_SPACE, self._mtype(msg))]
+        self.timeout_s = self._wall(UPLOAD_RETRY_S)
+        self._last_item_wall = now
+        return super()._on_count(msg, peer, now)
+
+    def _on_item(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        up = self.upload
+        mtype = self._mtype(msg)
+        if up is None or up.mission_type != mtype:
+            return [self._ack(peer, mavlink.MAV_MISSION_ERROR, mtype)]
+        if msg.seq != len(up.items):
+            return [self._ack(peer, mavlink.MAV_MISSION_INVALID_SEQUENCE, mtype)]
+        if up.peer != peer:
+            return [self._ack(peer, mavlink.MAV_MISSION_DENIED, mtype)]
+        self._last_item_wall = now
+        self.timeout_s = self._wall(UPLOAD_RETRY_S)
+        return super()._on_item(msg, peer, now)
+
+    def poll(self, now: float) -> list[Any]:
+        up = self.upload
+        if up is not None and now - self._last_item_wall > self._wall(UPLOAD_TIMEOUT_S):
+            self.upload = None
+            self.counters["uploads_failed"] += 1
+            return [self._ack(up.peer, mavlink.MAV_MISSION_OPERATION_CANCELLED,
+                              up.mission_type)]
+        if up is not None:
+            up.retries = 0  # it asks again until the upload times out, not a number of times
+        return super().poll(now)
 
     def stored(self, mtype: int, items: list[StoredItem]) -> list[StoredItem]:
         if mtype != MISSION:
@@ -96,6 +174,9 @@ class ArduPilotMissionServer(MissionServer):
     def reported(self, item: StoredItem) -> StoredItem:
         if item.mission_type != MISSION:
             return item
+        if item.command not in POSITION_COMMANDS:
+            return dataclasses.replace(item, frame=mavlink.MAV_FRAME_GLOBAL, x=0, y=0, z=0.0,
+                                       xf=None, yf=None, autocontinue=1, current=0)
         return dataclasses.replace(item, frame=_FLOAT_FRAME.get(item.frame, item.frame),
                                    z=round(item.z, 2), autocontinue=1, current=0)
 
@@ -111,12 +192,21 @@ class ArduCopterAutopilot(Autopilot):
                          rtl_descent=None, mission_rtl=None, landed=None,
                          mission_done=FlightMode.MISSION)
     streams_on_request = True
+    lua_payload = True
+    no_fix_until_prearm = True
     prearm_s = PREARM_S
 
     def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:
-        return ArduPilotMissionServer(self.state.home, timeout_s=UPLOAD_RETRY_S,
-                                      max_retries=MISSION_RETRIES, request_int=False,
-                                      accepted_commands=accepted_commands)
+        return ArduPilotMissionServer(
+            self.state.home, lambda: self.state.body.t_s, lambda: self.state.params["SPEEDUP"],
+            timeout_s=UPLOAD_RETRY_S, max_retries=MISSION_RETRIES, request_int=False,
+            accepted_commands=accepted_commands)
+
+    @property
+    def answers_sample_commands(self) -> bool:
+        """Only a companion computer answers the sample commands; a stock ArduPilot does not
+        know them (MAV_RESULT_UNSUPPORTED)."""
+        return self.state.settings.companion
 
     def custom_mode(self) -> int:
         return COPTER_MODES[self.state.mode]
@@ -214,10 +304,9 @@ class ArduCopterAutopilot(Autopilot):
         return ACCEPTED, []
 
     def _cmd_mission_start(self, p: list[float]) -> tuple[int, list[Any]]:
-        first = int(p[0]) if math.isfinite(p[0]) and p[0] >= 1 else None
-        if first is not None and first >= len(self.server.mission):
-            return FAILED, []
-        return self._enter_auto(first), []
+        if p[0] != 0 or p[1] != 0:
+            return DENIED, []  # ArduCopter: "first-item/last item not supported"
+        return self._enter_auto(None), []
 
     def _on_request_data_stream(self, msg: Any) -> None:
         self.telemetry.request_data_stream(int(msg.req_stream_id), float(msg.req_message_rate),

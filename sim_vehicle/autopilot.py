@@ -24,7 +24,9 @@ logic brakes before it, whatever the vehicle is doing). MISSION_START is DENIED,
 STATUSTEXT "Geofence violation for waypoint N", while an item to be flown lies outside it.
 
 Parameters (REAL32): SPEED_MPS, SAMPLE_HZ, SEARCH_RAD_M, TEL_RATE_HZ, NOISE_STD, ALT_M,
-SPEEDUP. SAMPLE_HZ / NOISE_STD apply from the next mission item (or at once when idle).
+SPEEDUP, LAG_S, POS_STD_M, POS_TAU_S. SAMPLE_HZ and the sensor's (NOISE_STD, LAG_S,
+POS_STD_M, POS_TAU_S: :mod:`sim_vehicle.sensor`) apply from the next mission item (or at
+once when idle).
 """
 
 from __future__ import annotations
@@ -50,7 +52,14 @@ from .body import Sample
 from .fence import Fence
 from .mission_server import FENCE, MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
 from .navigator import Activity, ModeFlow, Navigator
-from .state import PARAM_NAMES, FlightMode, VehicleSettings, VehicleState
+from .state import (
+    GCS_FAILSAFE_ACTIONS,
+    PARAM_NAMES,
+    SENSOR_PARAMS,
+    FlightMode,
+    VehicleSettings,
+    VehicleState,
+)
 from .telemetry import Outbox, Telemetry
 from .tracer import TracerParams
 
@@ -68,6 +77,8 @@ ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED
 FAILED = mavlink.MAV_RESULT_FAILED
 UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
+_ZERO_OK = ("NOISE_STD", "LAG_S", "POS_STD_M", "GCS_FS_ACT")
+"""Parameters that may be 0 (a perfect sensor); every other one must be > 0."""
 
 
 def _code(value: float) -> int | None:
@@ -110,6 +121,11 @@ class Autopilot:
     """True: only HEARTBEAT until a GCS asks for streams (ArduPilot)."""
     prearm_s = 0.0
     """Default wall seconds after boot during which arming is refused."""
+    lua_payload = False
+    """True: without a companion the samples come from a Lua script on the autopilot
+    (stamped when sent, positions only at the rate asked for; ArduPilot)."""
+    no_fix_until_prearm = False
+    """True: positions are latitude = longitude = 0 until the pre-arm checks pass."""
 
     def __init__(self, field: Callable[[float, float], float], region: Region, origin: Origin,
                  settings: VehicleSettings, home: tuple[float, float, float],
@@ -128,9 +144,17 @@ class Autopilot:
                                    self.mode_flow)
         self.telemetry = Telemetry(self.state, self.server, self.outbox, self, status_line,
                                    streams_on_request=self.streams_on_request)
+        self.outbox.lua_payload = self.lua_payload and not settings.companion
+        self.telemetry.no_fix_until_prearm = self.no_fix_until_prearm
+        self.telemetry.positions_at_sensor_rate()
         self.activity: Activity | None = None
         self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
                                          "commands_repeated": 0}
+        self.gcs_heard_wall: float | None = None
+        """Wall time of the last GCS HEARTBEAT (None: no GCS yet, no failsafe: ArduPilot's
+        rule)."""
+        self.gcs_failsafe = False
+        """The GCS failsafe acted and the GCS has not been heard since."""
         self._last_command: tuple[tuple[Any, ...], int] | None = None
         """The last COMMAND_LONG run (sender, command, params) and its result: a resend of it
         (``confirmation`` > 0) is answered, not run again."""
@@ -186,7 +210,9 @@ class Autopilot:
         """One sim tick: step the activity (or hover); queue its sample if it is reported."""
         st = self.state
         self.counters["ticks"] += 1
-        x0, y0, a0 = st.body.x_m, st.body.y_m, st.alt_rel_m
+        # the velocity an autopilot reports is good (GNSS Doppler, IMU) even where its
+        # position carries the GNSS error: the true path's
+        x0, y0, a0 = st.body.true_x_m, st.body.true_y_m, st.alt_rel_m
         sample: Sample | None = None
         if self.activity is not None:
             try:
@@ -197,7 +223,7 @@ class Autopilot:
             st.apply_pending_body()
             st.body.hold(Phase.TRANSIT)
         dt = st.body.dt_s
-        st.vel_enu_mps = ((st.body.x_m - x0) / dt, (st.body.y_m - y0) / dt,
+        st.vel_enu_mps = ((st.body.true_x_m - x0) / dt, (st.body.true_y_m - y0) / dt,
                           (st.alt_rel_m - a0) / dt)
         if sample is not None and st.sampling:
             self.telemetry.sample(sample)
@@ -213,9 +239,36 @@ class Autopilot:
             self.outbox.put(m)
 
     def one_hz(self, now: float) -> None:
-        """The 1 Hz (wall) telemetry."""
+        """The 1 Hz (wall) telemetry, and the GCS failsafe's watch."""
         self.now = now
+        self.check_gcs_failsafe(now)
         self.telemetry.one_hz()
+
+    def check_gcs_failsafe(self, now: float) -> None:
+        """ArduCopter's GCS failsafe (FS_GCS_ENABLE, FS_GCS_TIMEOUT; PX4: NAV_DLL_ACT,
+        COM_DL_LOSS_T): flying, with no GCS HEARTBEAT for ``GCS_FS_S`` wall seconds, the
+        vehicle leaves what it does for RTL (or holds where it is). Only once a GCS was
+        heard, never on the ground, not again while already returning or landing. The
+        timeout is wall time: it is the link's, whatever the simulation's speed-up.
+
+        When the GCS is heard again the vehicle does not go back to its mission by itself
+        (neither autopilot does): the ground station decides."""
+        st = self.state
+        action = st.params["GCS_FS_ACT"]
+        if (action <= 0 or self.gcs_heard_wall is None or self.gcs_failsafe
+                or not (st.armed and st.in_air)
+                or st.mode in (FlightMode.RTL, FlightMode.LAND)
+                or now - self.gcs_heard_wall < st.params["GCS_FS_S"]):
+            return
+        self.gcs_failsafe = True
+        rtl = action >= GCS_FAILSAFE_ACTIONS["rtl"]
+        self.outbox.statustext(f"Failsafe: GCS heartbeat lost for "
+                               f"{now - self.gcs_heard_wall:.0f} s: "
+                               f"{'RTL' if rtl else 'holding'}", mavlink.MAV_SEVERITY_CRITICAL)
+        if rtl:
+            self._fly_activity(self.navigator.rtl())
+        else:
+            self.set_hold()
 
     def receive(self, msg: Any, now: float) -> bool:
         """Handle one message addressed to this vehicle; False if it is not understood."""
@@ -248,6 +301,7 @@ class Autopilot:
                 continue
             if ev.kind in ("uploaded", "cleared"):
                 st.mission_complete = False
+                st.mission_started = False
                 # a command after a new mission is new, even if it repeats the last one (the
                 # MISSION_START of the next flight, resent because the first was lost)
                 self._last_command = None
@@ -275,7 +329,12 @@ class Autopilot:
     # -- messages ------------------------------------------------------------------------------
 
     def _on_heartbeat(self, msg: Any) -> None:
-        pass
+        if msg.type != mavlink.MAV_TYPE_GCS:
+            return
+        self.gcs_heard_wall = self.now
+        if self.gcs_failsafe:
+            self.gcs_failsafe = False
+            self.outbox.statustext("GCS heartbeat back", mavlink.MAV_SEVERITY_WARNING)
 
     def _on_ping(self, msg: Any) -> None:
         if msg.target_system == 0:
@@ -304,8 +363,14 @@ class Autopilot:
         result = self._command(msg, msg.command, params)
         self._last_command = (key, result)
 
+    @property
+    def answers_sample_commands(self) -> bool:
+        """Whether the sample recovery commands are known here (the payload answers them)."""
+        return True
+
     def _on_command_int(self, msg: Any) -> None:
-        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND):
+        if msg.command in (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND) \
+                and self.answers_sample_commands:
             self._sample_command(msg)
             return
         self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
@@ -505,7 +570,9 @@ class Autopilot:
             self.outbox.statustext(f"unknown parameter {name}", mavlink.MAV_SEVERITY_WARNING)
             return
         value = float(msg.param_value)
-        ok = math.isfinite(value) and (value >= 0 if name == "NOISE_STD" else value > 0)
+        ok = math.isfinite(value) and (value >= 0 if name in _ZERO_OK else value > 0)
+        if name == "GCS_FS_ACT":
+            ok = ok and value in GCS_FAILSAFE_ACTIONS.values()
         if name == "SPEED_MPS":
             ok = ok and value <= st.settings.max_speed_mps
         if name == "SAMPLE_HZ":
@@ -522,7 +589,7 @@ class Autopilot:
         st.params[name] = value
         if name == "SPEED_MPS":
             st.speed_mps = value
-        elif name in ("SAMPLE_HZ", "NOISE_STD"):
+        elif name == "SAMPLE_HZ" or name in SENSOR_PARAMS:
             st.body_dirty = True  # applied at the next item boundary / idle tick
         elif name == "SEARCH_RAD_M":
             st.settings.search_radius_m = value

@@ -1,8 +1,12 @@
 """A simulated vehicle body: point mass, sim clock and a point sensor.
 
-The sensor reads the field **only at the vehicle's own position**, once per tick,
-optionally with additive Gaussian noise. Nothing else in the simulated vehicle may
-evaluate the field.
+The sensor reads the field **only at the vehicle's own position**, once per tick, as its
+:class:`~sim_vehicle.sensor.SensorModel` says (noise, lag, GNSS position error; perfect by
+default). Nothing else in the simulated vehicle may evaluate the field.
+
+Positions (``x_m``, ``y_m``) are where the vehicle *believes* it is (its GNSS), which is
+what it flies on and reports; ``true_x_m``, ``true_y_m`` are where it is (see
+:mod:`sim_vehicle.sensor`). Without a position error the two are the same.
 
 The body's state lives in one :data:`~sim_vehicle.machine.BODY` record that the compiled
 tracer (:mod:`sim_vehicle.machine`) advances in place; the properties here read it. The
@@ -24,11 +28,20 @@ from econdor_gcs.core.geometry import Region
 from .fence import FENCE_MARGIN_M, NO_FENCE, Fence
 from .kinematics import VehicleLimits, check_step
 from .machine import BODY, body_move
+from .sensor import (
+    SensorModel,
+    carry_state,
+    gnss_step,
+    restore_state,
+    sensed_value,
+    state_of,
+)
 
 MAX_SUBSTEP_S = 0.02
 """Kinematics are integrated with sub-steps no longer than this."""
 
 _NO_TERMS = np.zeros(0)
+_NO_NOISE = np.zeros((0, 3))
 _NO_TRACK = np.zeros((0, 5))
 # 8-byte slots of the BODY record, read through plain float64 / int64 views (much cheaper
 # per read than a field lookup on a record)
@@ -43,7 +56,7 @@ _FENCE_ATTEMPTS, _FENCE_BREACHES, _FENCE_OUTSIDE, _FENCE_LIMITED, _FENCE_EVENT =
 
 
 class Sample(NamedTuple):
-    """One sensor reading: sim time (s), position (m), measured value, phase."""
+    """One sensor reading: sim time (s), believed position (m), measured value, phase."""
 
     t_s: float
     x_m: float
@@ -71,7 +84,8 @@ class SimBody:
     sample_rate_hz
         Sensor rate; one :meth:`tick` advances sim time by ``1 / sample_rate_hz``.
     noise_std
-        Standard deviation of additive Gaussian sensor noise (value units).
+        Standard deviation of additive Gaussian sensor noise (value units); the same as
+        ``sensor=SensorModel(noise_std=...)`` (give one of the two).
     rng
         Random generator for the noise; a fresh ``np.random.default_rng()`` if None.
     t_s
@@ -79,6 +93,11 @@ class SimBody:
     fence
         The geofence the flight logic keeps the body inside (:mod:`sim_vehicle.fence`);
         see :meth:`set_fence`.
+    sensor
+        The sensor's and the GNSS's imperfections (:class:`~sim_vehicle.sensor.SensorModel`).
+    position_rng
+        Random generator for the GNSS error; by default a child of ``rng`` (so the
+        reading noise is the same with or without a position error).
     """
 
     def __init__(
@@ -93,19 +112,33 @@ class SimBody:
         rng: np.random.Generator | None = None,
         t_s: float = 0.0,
         fence: Fence = NO_FENCE,
+        sensor: SensorModel | None = None,
+        position_rng: np.random.Generator | None = None,
     ) -> None:
         if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0.0):
             raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz!r}")
         if not (math.isfinite(noise_std) and noise_std >= 0.0):
             raise ValueError(f"noise_std must be >= 0, got {noise_std!r}")
+        if sensor is None:
+            sensor = SensorModel(noise_std=float(noise_std))
+        elif noise_std and noise_std != sensor.noise_std:
+            raise ValueError("noise_std given twice (and differently): as noise_std and in "
+                             "sensor")
         self._field = field
         self.region = region
         self.limits = limits
         self.sample_rate_hz = float(sample_rate_hz)
         self.dt_s = 1.0 / self.sample_rate_hz
-        self.noise_std = float(noise_std)
+        self.sensor_model = sensor
+        self.noise_std = sensor.noise_std
+        self.sensor = sensor.record(self.dt_s)
+        """The sensor's compiled record (:data:`~sim_vehicle.sensor.SENSOR`): model and
+        state (the lagged reading, the GNSS error)."""
         self._rng = rng if rng is not None else np.random.default_rng()
-        self._noise = np.zeros(0)  # drawn ahead, used in order (one value per tick)
+        self._pos_rng = position_rng
+        if self._pos_rng is None and sensor.position_std_m > 0.0:
+            self._pos_rng = self._rng.spawn(1)[0]
+        self._noise = _NO_NOISE  # drawn ahead, used in order (one row per tick)
         self._tracks: dict[float, np.ndarray] = {}  # level: where it was traced
         self.state = np.zeros(1, dtype=BODY)
         s = self._s = self.state[0]
@@ -136,13 +169,23 @@ class SimBody:
 
     @property
     def x_m(self) -> float:
-        """Current easting."""
+        """Current easting, as the vehicle believes it (its GNSS)."""
         return self._f.item(_X)
 
     @property
     def y_m(self) -> float:
-        """Current northing."""
+        """Current northing, as the vehicle believes it (its GNSS)."""
         return self._f.item(_Y)
+
+    @property
+    def true_x_m(self) -> float:
+        """Current easting (where the sensor is)."""
+        return self._f.item(_X) - float(self.sensor[0]["ex_m"])
+
+    @property
+    def true_y_m(self) -> float:
+        """Current northing (where the sensor is)."""
+        return self._f.item(_Y) - float(self.sensor[0]["ey_m"])
 
     @property
     def vx_mps(self) -> float:
@@ -209,12 +252,20 @@ class SimBody:
         return self._f.item(_T0) + self._i.item(_FENCE_EVENT) * self._f.item(_DT)
 
     def noise_ahead(self, n: int) -> np.ndarray:
-        """The sensor noise of the next ``n`` ticks (empty without noise), drawn ahead in
-        order from the body's generator; :meth:`noise_used` consumes it."""
-        if self.noise_std <= 0.0:
-            return _NO_TERMS
-        if len(self._noise) < n:
-            more = self._rng.normal(0.0, self.noise_std, size=n - len(self._noise))
+        """The random numbers of the next ``n`` ticks, ``(n, 3)``: the reading's noise and
+        the GNSS error's two innovations (:mod:`sim_vehicle.sensor`); empty for a sensor
+        that needs none. Drawn ahead in order -- the noise from the body's generator, the
+        innovations from the position generator -- and consumed by :meth:`noise_used`."""
+        model = self.sensor_model
+        if not model.stochastic:
+            return _NO_NOISE
+        k = n - len(self._noise)
+        if k > 0:
+            more = np.zeros((k, 3))
+            if model.noise_std > 0.0:
+                more[:, 0] = self._rng.normal(0.0, model.noise_std, size=k)
+            if self._pos_rng is not None and model.position_std_m > 0.0:
+                more[:, 1:] = self._pos_rng.standard_normal((k, 2))
             self._noise = np.concatenate([self._noise, more])
         return self._noise[:n]
 
@@ -224,11 +275,12 @@ class SimBody:
             self._noise = self._noise[n:]
 
     def read_field(self) -> float:
-        """The true field at the current position (no noise)."""
+        """The true field at the true position (no noise, no lag)."""
         kind, cx, cy, inv, w, scale, offset = self.field_terms
+        x, y = self.true_x_m, self.true_y_m
         if kind == 1:
-            return offset + scale * gaussian_sum_at(self.x_m, self.y_m, cx, cy, inv, w)
-        return float(self._field(np.float64(self.x_m), np.float64(self.y_m)))
+            return offset + scale * gaussian_sum_at(x, y, cx, cy, inv, w)
+        return float(self._field(np.float64(x), np.float64(y)))
 
     def traced_track(self, level: float) -> np.ndarray:
         """Where this vehicle traced ``level`` before: ``(n, 5)`` rows ``x, y, traced_m,
@@ -250,37 +302,54 @@ class SimBody:
         """Take over ``other``'s tracks (a body rebuilt in the same flight)."""
         self._tracks = dict(other._tracks)
 
+    def keep_sensor_of(self, other: SimBody) -> None:
+        """Take over ``other``'s sensor state and believed position (the same vehicle,
+        rebuilt with other settings: its sensor has not settled anew, its GNSS error goes
+        on)."""
+        carry_state(self.sensor, other.sensor)
+        self.state[0]["x_m"], self.state[0]["y_m"] = other.x_m, other.y_m
+
     def checkpoint(self) -> dict[str, Any]:
         """Everything that moves (the machine's record: time, position, velocity, heading,
-        odometer), the noise drawn ahead, the noise generator and the tracks traced,
-        JSON-safe; :meth:`restore` puts it back exactly."""
+        odometer; the sensor's state), the random numbers drawn ahead, the generators and
+        the tracks traced, JSON-safe; :meth:`restore` puts it back exactly."""
         record = {name: self.state[0][name].item() for name in self.state.dtype.names or ()}
-        return {"record": record, "noise_ahead": self._noise.tolist(),
-                "rng": self._rng.bit_generator.state,
-                "tracks": [[level, track.tolist()] for level, track in self._tracks.items()]}
+        out = {"record": record, "noise_ahead": self._noise.tolist(),
+               "rng": self._rng.bit_generator.state, "sensor": state_of(self.sensor),
+               "tracks": [[level, track.tolist()] for level, track in self._tracks.items()]}
+        if self._pos_rng is not None:
+            out["position_rng"] = self._pos_rng.bit_generator.state
+        return out
 
     def restore(self, checkpoint: dict[str, Any]) -> None:
         """Continue from a :meth:`checkpoint` of a body built with the same parameters."""
         for name, value in checkpoint["record"].items():
             self.state[0][name] = value
-        self._noise = np.asarray(checkpoint["noise_ahead"], dtype=float)
+        ahead = np.asarray(checkpoint["noise_ahead"], dtype=float)
+        if ahead.ndim == 1:  # a checkpoint of a noise-only sensor, one value per tick
+            ahead = np.column_stack([ahead, np.zeros((len(ahead), 2))])
+        self._noise = ahead.reshape(-1, 3) if len(ahead) else _NO_NOISE
         self._rng.bit_generator.state = checkpoint["rng"]
+        if "sensor" in checkpoint:
+            restore_state(self.sensor, checkpoint["sensor"])
+        if self._pos_rng is not None and "position_rng" in checkpoint:
+            self._pos_rng.bit_generator.state = checkpoint["position_rng"]
         self._tracks = {float(level): np.asarray(track, dtype=float).reshape(-1, 5)
                         for level, track in checkpoint.get("tracks", [])}
 
     def sense(self) -> float:
-        """Read the sensor at the current position (true value + noise).
+        """The sensor's reading this tick, after the body moved: the GNSS error takes its
+        step, then the sensor reads the field at the true position (its lag and noise).
 
         Returns
         -------
         float
             The measured value.
         """
-        value = self.read_field()
         noise = self.noise_ahead(1)
-        if len(noise):
-            value += float(noise[0])
-            self.noise_used(1)
+        gnss_step(self.sensor[0], self._s, noise, 0)
+        value = sensed_value(self.sensor[0], self.read_field(), noise, 0)
+        self.noise_used(len(noise))
         return value
 
     def tick(self, vx_cmd_mps: float, vy_cmd_mps: float, phase: int) -> Sample:

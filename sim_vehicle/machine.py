@@ -46,8 +46,10 @@ from econdor_gcs.core.fields import gaussian_sum_at
 
 from . import fence as _fence
 from . import kinematics as _kinematics
+from . import sensor as _sensor
 from .fence import FENCE_HARD_MARGIN_M, fence_contains, fence_ray_exit
 from .kinematics import point_step, wrap_angle_rad
+from .sensor import gnss_step, sensed_value
 
 log = logging.getLogger(__name__)
 
@@ -1346,8 +1348,8 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
             fcy: np.ndarray, finv: np.ndarray, fw: np.ndarray, fscale: float, foffset: float,
             fence_verts: np.ndarray, fence_rings: np.ndarray, fence_circles: np.ndarray,
             recent: np.ndarray, window: np.ndarray, turns: np.ndarray, track: np.ndarray,
-            prior: np.ndarray, out: np.ndarray, noise: np.ndarray, ext_value: float,
-            events: np.ndarray) -> tuple[int, int, int]:
+            prior: np.ndarray, out: np.ndarray, noise: np.ndarray, sensor: np.ndarray,
+            ext_value: float, events: np.ndarray) -> tuple[int, int, int]:
     """Run the task in ``state`` on ``body`` for at most ``out.shape[0]`` ticks.
 
     Parameters
@@ -1371,9 +1373,16 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
     out
         ``(n, 5)``: one row ``t_s, x_m, y_m, value, phase`` per tick.
     noise
-        Additive sensor noise for each tick of this call (empty for none).
+        ``(n, 3)``: the random numbers of each tick of this call (the reading's noise, the
+        GNSS error's innovations; :meth:`sim_vehicle.body.SimBody.noise_ahead`), empty
+        for none.
+    sensor
+        One-record array of :data:`sim_vehicle.sensor.SENSOR`: the body's sensor. The
+        machine flies and fits on the believed position (the record's); the field is read
+        at the true one.
     ext_value
-        The field value at the body's position when resuming with ``await_value`` set.
+        The field value at the body's true position when resuming with ``await_value``
+        set.
     events
         ``(m, 2)`` buffer for ``(code, samples before it)``.
 
@@ -1384,6 +1393,7 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
     """
     b = body[0]
     s = state[0]
+    sn = sensor[0]
     n_out = 0
     n_events = 0
     n_max = out.shape[0]
@@ -1403,12 +1413,13 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
             _guard(s, b, fence_verts, fence_rings, fence_circles)
             s.odo_before = b.odometer_m
             body_move(b, s.cmd_vx, s.cmd_vy)
+            gnss_step(sn, b, noise, n_out)
             if field_kind == 0:
                 s.await_value = 1
                 break
-            value = foffset + fscale * gaussian_sum_at(b.x_m, b.y_m, fcx, fcy, finv, fw)
-        if n_out < noise.shape[0]:
-            value += noise[n_out]
+            value = foffset + fscale * gaussian_sum_at(b.x_m - sn.ex_m, b.y_m - sn.ey_m, fcx,
+                                                       fcy, finv, fw)
+        value = sensed_value(sn, value, noise, n_out)
         if s.cmd_phase == _TRACE:
             s.traced_m += b.odometer_m - s.odo_before
         s.rec_start, s.rec_len = _ring_push(recent, s.rec_start, s.rec_len, b.x_m, b.y_m,
@@ -1466,12 +1477,12 @@ def _drop_stale_cache() -> None:
     """Forget this module's cached machine code when a kernel it inlines has changed.
 
     numba checks a cached function against its own source file only, but the code here
-    inlines :func:`~econdor_gcs.core.fields.gaussian_sum_at`, the kinematics and the fence
-    tests: after an edit of those files alone the cache would still hand out the old code.
-    A digest of the four files, kept beside the cache, decides.
+    inlines :func:`~econdor_gcs.core.fields.gaussian_sum_at`, the kinematics, the fence
+    tests and the sensor: after an edit of those files alone the cache would still hand out
+    the old code. A digest of the five files, kept beside the cache, decides.
     """
     sources = (Path(__file__), Path(_kinematics.__file__), Path(_fields.__file__),
-               Path(_fence.__file__))
+               Path(_fence.__file__), Path(_sensor.__file__))
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
     caches = [getattr(d, "_cache", None) for d in globals().values()
               if isinstance(d, CPUDispatcher)]

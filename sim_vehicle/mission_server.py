@@ -29,6 +29,7 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -194,11 +195,12 @@ class MissionServer:
 
     def receive(self, msg: Any, now: float) -> list[Any]:
         """Handle one message addressed to this vehicle; return the replies."""
-        handler = self._HANDLERS.get(msg.get_type())
-        if handler is None:
+        name = self._HANDLERS.get(msg.get_type())
+        if name is None:
             return []
         peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        return handler(self, msg, peer, now)
+        handler: Callable[[Any, tuple[int, int], float], list[Any]] = getattr(self, name)
+        return handler(msg, peer, now)
 
     def poll(self, now: float) -> list[Any]:
         """Resend the outstanding request, or give up, if the deadline has passed."""
@@ -363,26 +365,32 @@ class MissionServer:
         self.events.append(MissionEvent("set_current", MISSION, self.current_seq))
         return [self.mission_current_msg(active=False)]
 
-    def mission_current_msg(self, active: bool, complete: bool = False) -> Any:
+    def mission_current_msg(self, active: bool, complete: bool = False,
+                            paused: bool = False) -> Any:
+        """MISSION_CURRENT with its ``mission_state``: ACTIVE while flown, COMPLETE after its
+        end, PAUSED when it was left before its end (a mode change, a failsafe), else
+        NOT_STARTED (PX4's and ArduPilot's meanings)."""
         n = len(self.mission)
         if n == 0:
             state = mavlink.MISSION_STATE_NO_MISSION
         elif complete or self.current_seq >= n:
             state = mavlink.MISSION_STATE_COMPLETE
+        elif active:
+            state = mavlink.MISSION_STATE_ACTIVE
         else:
-            state = mavlink.MISSION_STATE_ACTIVE if active else mavlink.MISSION_STATE_NOT_STARTED
+            state = mavlink.MISSION_STATE_PAUSED if paused else mavlink.MISSION_STATE_NOT_STARTED
         return mavlink.MAVLink_mission_current_message(min(self.current_seq, 0xFFFF), n, state,
                                                        1 if active else 0)
 
-    _HANDLERS = {
-        "MISSION_COUNT": _on_count,
-        "MISSION_ITEM_INT": _on_item,
-        "MISSION_ITEM": _on_item,
-        "MISSION_ACK": _on_ack,
-        "MISSION_REQUEST_LIST": _on_request_list,
-        "MISSION_REQUEST_INT": _on_request,
-        "MISSION_REQUEST": _on_request,
-        "MISSION_CLEAR_ALL": _on_clear,
-        "MISSION_SET_CURRENT": _on_set_current,
+    _HANDLERS = {  # by method name, so that a personality's override is the one called
+        "MISSION_COUNT": "_on_count",
+        "MISSION_ITEM_INT": "_on_item",
+        "MISSION_ITEM": "_on_item",
+        "MISSION_ACK": "_on_ack",
+        "MISSION_REQUEST_LIST": "_on_request_list",
+        "MISSION_REQUEST_INT": "_on_request",
+        "MISSION_REQUEST": "_on_request",
+        "MISSION_CLEAR_ALL": "_on_clear",
+        "MISSION_SET_CURRENT": "_on_set_current",
     }
 

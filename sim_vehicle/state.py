@@ -25,10 +25,21 @@ from econdor_gcs.core.geometry import Region
 from .body import SimBody
 from .fence import NO_FENCE, Fence
 from .kinematics import VehicleLimits
+from .sensor import SensorModel
 
 PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD",
-               "ALT_M", "SPEEDUP")
-"""The vehicle's parameters (REAL32), in PARAM_VALUE index order."""
+               "ALT_M", "SPEEDUP", "LAG_S", "POS_STD_M", "POS_TAU_S", "GCS_FS_ACT", "GCS_FS_S")
+"""The vehicle's parameters (REAL32), in PARAM_VALUE index order. ``GCS_FS_ACT`` /
+``GCS_FS_S``: the GCS failsafe (:data:`GCS_FAILSAFE_ACTIONS`; ArduPilot's FS_GCS_ENABLE /
+FS_GCS_TIMEOUT, PX4's NAV_DLL_ACT / COM_DL_LOSS_T)."""
+GCS_FAILSAFE_ACTIONS = {"off": 0.0, "hold": 1.0, "rtl": 2.0}
+"""``GCS_FS_ACT`` values: what the vehicle does on its own when the ground station's
+HEARTBEAT has been missing for ``GCS_FS_S`` wall seconds while it flies."""
+
+SENSOR_PARAMS = {"NOISE_STD": "noise_std", "LAG_S": "lag_s", "POS_STD_M": "position_std_m",
+                 "POS_TAU_S": "position_tau_s"}
+"""The parameters that set the sensor model (:class:`~sim_vehicle.sensor.SensorModel`),
+applied from the next mission item (or at once when idle), like SAMPLE_HZ."""
 
 
 @dataclasses.dataclass
@@ -43,6 +54,9 @@ class VehicleSettings:
     sample_rate_hz: float = 10.0
     altitude_m: float = 30.0
     noise_std: float = 0.0
+    lag_s: float = 0.0
+    position_std_m: float = 0.0
+    position_tau_s: float = 10.0
     speedup: float = 50.0
     search_radius_m: float = 10.0
     tel_rate_hz: float = 10.0
@@ -51,6 +65,10 @@ class VehicleSettings:
     """A companion computer runs the tracer: contour items are accepted (else refused)."""
     prearm_s: float | None = None
     """Wall seconds after boot during which arming is refused (None: the personality's)."""
+    gcs_failsafe: str = "rtl"
+    """What to do when the GCS heartbeat is lost in flight (:data:`GCS_FAILSAFE_ACTIONS`)."""
+    gcs_failsafe_s: float = 5.0
+    """After how many wall seconds without it (ArduPilot's FS_GCS_TIMEOUT default)."""
 
 
 class FlightMode(StrEnum):
@@ -96,20 +114,29 @@ class VehicleState:
             "SPEED_MPS": s.speed_mps, "SAMPLE_HZ": s.sample_rate_hz,
             "SEARCH_RAD_M": s.search_radius_m, "TEL_RATE_HZ": s.tel_rate_hz,
             "NOISE_STD": s.noise_std, "ALT_M": s.altitude_m, "SPEEDUP": s.speedup,
+            "LAG_S": s.lag_s, "POS_STD_M": s.position_std_m, "POS_TAU_S": s.position_tau_s,
+            "GCS_FS_ACT": GCS_FAILSAFE_ACTIONS[s.gcs_failsafe], "GCS_FS_S": s.gcs_failsafe_s,
         }
         self._rng = np.random.default_rng(s.seed * 1000 + s.sysid)
+        self._pos_rng = self._rng.spawn(1)[0]
+        """The GNSS error's generator (its own stream: the reading noise does not change
+        when a position error is added)."""
         self.fence = NO_FENCE
         """The uploaded geofence (kept when the body is rebuilt)."""
         self.body = self.make_body(hx, hy, 0.0)
         self.odo_base_m = 0.0
         self.body_dirty = False
-        """SAMPLE_HZ or NOISE_STD changed: rebuild the body at the next item boundary."""
+        """SAMPLE_HZ or a sensor parameter changed: rebuild the body at the next item
+        boundary."""
         self.armed = False
         self.alt_rel_m = 0.0
         self.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
         self.mode = FlightMode.HOLD
         self.mission_active = False
         self.mission_complete = False
+        self.mission_started = False
+        """The stored mission was started (and has not been replaced since): left before its
+        end, it is paused (MISSION_CURRENT's ``mission_state``)."""
         self.speed_mps = s.speed_mps
         self.sampling = False
         """The current tick is a sample to report (set by the navigator's activities)."""
@@ -120,9 +147,13 @@ class VehicleState:
         limits = VehicleLimits(max_speed_mps=s.max_speed_mps, max_accel_mps2=s.max_accel_mps2,
                                max_turn_rate_dps=s.max_turn_rate_dps)
         return SimBody(self.field, self.region, x_m, y_m, limits,
-                       sample_rate_hz=self.params["SAMPLE_HZ"],
-                       noise_std=self.params["NOISE_STD"], rng=self._rng, t_s=t_s,
-                       fence=self.fence)
+                       sample_rate_hz=self.params["SAMPLE_HZ"], rng=self._rng, t_s=t_s,
+                       fence=self.fence, sensor=self.sensor_model(),
+                       position_rng=self._pos_rng)
+
+    def sensor_model(self) -> SensorModel:
+        """The sensor as the parameters set it now."""
+        return SensorModel(**{key: self.params[name] for name, key in SENSOR_PARAMS.items()})
 
     def set_fence(self, fence: Fence) -> None:
         """Fly inside ``fence`` from the next tick on."""
@@ -130,11 +161,13 @@ class VehicleState:
         self.body.set_fence(fence)
 
     def rebuild_body(self, t_s: float) -> None:
-        """A new body at the same place (new sample rate / noise), the odometer carried on."""
+        """A new body at the same place (new sample rate / sensor), the odometer, the
+        sensor's state and the GNSS error carried on."""
         self.odo_base_m += self.body.odometer_m
         old = self.body
         self.body = self.make_body(old.x_m, old.y_m, t_s)
         self.body.keep_tracks_of(old)
+        self.body.keep_sensor_of(old)
         self.body_dirty = False
 
     def apply_pending_body(self) -> None:

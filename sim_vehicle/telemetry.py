@@ -79,6 +79,9 @@ DATA_STREAMS[mavlink.MAV_DATA_STREAM_ALL] = tuple(
     m for group in list(DATA_STREAMS.values()) for m in group)
 STATUSTEXT_CHUNK = 50
 """Bytes of text in one STATUSTEXT; longer texts are sent in chunks with a common id."""
+LUA_SEND_DELAY_MS = 1
+"""A Lua payload's sample is stamped when the script sends it, this long after the position
+it read (so no stamp is a position's)."""
 
 
 class _QueuedSample(NamedTuple):
@@ -197,6 +200,13 @@ class Outbox:
         self.samples_sent = 0
         self.last_sample_wall = -1.0
         """Wall time of the last drain that carried samples."""
+        self.lua_payload = False
+        """The samples are a Lua script's (a stock ArduPilot): ``FIELD`` alone, stamped
+        :data:`LUA_SEND_DELAY_MS` after the position; positions only with
+        :attr:`positions_with_samples`."""
+        self.positions_with_samples = True
+        """A Lua payload's vehicle: whether the station asked for positions at least at the
+        sensor's rate (then each sample tick's position goes out)."""
 
     def put(self, msg: Any) -> None:
         self._queue.append(msg)
@@ -260,10 +270,13 @@ class Outbox:
                 out.append(q)
                 continue
             la, lo = next(places)
-            out.append(gpi_message(self.home_alt_amsl_m, q.time_boot_ms, la, lo, q.alt_rel_m,
-                                   q.vel_enu_mps))
-            out.append(mavlink.MAVLink_named_value_float_message(q.time_boot_ms, b"FIELD",
-                                                                 q.value))
+            if self.positions_with_samples or not self.lua_payload:
+                out.append(gpi_message(self.home_alt_amsl_m, q.time_boot_ms, la, lo,
+                                       q.alt_rel_m, q.vel_enu_mps))
+            ms = q.time_boot_ms
+            if self.lua_payload:
+                ms = (ms + LUA_SEND_DELAY_MS) & 0xFFFFFFFF
+            out.append(mavlink.MAVLink_named_value_float_message(ms, b"FIELD", q.value))
         self.samples_sent += n  # resent ones included
         self.last_sample_wall = wall
         return out
@@ -325,6 +338,8 @@ class Telemetry:
         self._last_sent_sim: dict[str, float] = {}
         self.phase: int | None = None
         """Phase of the last sample sent (None before the first)."""
+        self.no_fix_until_prearm = False
+        """Positions say latitude = longitude = 0 until the pre-arm checks pass."""
         self.fence = FenceMonitor()
         self._builders: dict[str, Callable[[], Any]] = {
             "GLOBAL_POSITION_INT": self.global_position_int,
@@ -373,7 +388,10 @@ class Telemetry:
 
     def global_position_int(self) -> Any:
         st = self.state
-        lat, lon, _ = st.origin.to_global(st.body.x_m, st.body.y_m, 0.0)
+        if self.no_fix_until_prearm and not self.modes.prearm_ok():
+            lat = lon = 0.0  # ArduPilot: no position estimate yet
+        else:
+            lat, lon, _ = st.origin.to_global(st.body.x_m, st.body.y_m, 0.0)
         return gpi_message(st.home[2], st.time_boot_ms, lat, lon, st.alt_rel_m, st.vel_enu_mps)
 
     def local_position_ned(self) -> Any:
@@ -390,7 +408,9 @@ class Telemetry:
                                                 0.0, 0.0)
 
     def mission_current(self) -> Any:
-        return self.server.mission_current_msg(self.state.mission_active)
+        st = self.state
+        return self.server.mission_current_msg(st.mission_active, st.mission_complete,
+                                               st.mission_started)
 
     def counters_text(self) -> Any:
         return mavlink.MAVLink_statustext_message(
@@ -424,6 +444,7 @@ class Telemetry:
             self.intervals[message_id] = -1.0 if interval_us < 0 else interval_us / 1e6
         if interval_us >= 0:
             self.enabled.add(message_id)
+        self.positions_at_sensor_rate()
         return True
 
     def request_data_stream(self, stream_id: int, rate_hz: float, start: bool) -> bool:
@@ -440,7 +461,18 @@ class Telemetry:
             self.enabled.add(mid)
             if mid in periodic and rate_hz > 0:
                 self.intervals[mid] = 1.0 / rate_hz
+        self.positions_at_sensor_rate()
         return True
+
+    def positions_at_sensor_rate(self) -> None:
+        """A Lua payload's vehicle sends its positions with the samples only when they are
+        asked for at the sensor's rate (else at the rate asked, as the periodic stream)."""
+        gpi = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+        rate = self.state.params["TEL_RATE_HZ"]
+        period = self.intervals.get(gpi, 1.0 / rate if rate > 0 else -1.0)
+        sample_hz = self.state.params["SAMPLE_HZ"]
+        self.outbox.positions_with_samples = self.streaming(gpi) and 0 < period <= \
+            1.0 / sample_hz + 1e-9
 
     def streaming(self, message_id: int) -> bool:
         """Whether ``message_id`` goes out on its own (not only on request)."""
@@ -456,8 +488,7 @@ class Telemetry:
             if self.streaming(mid):
                 self.outbox.put(make())
         if self.server.mission and self.streaming(mavlink.MAVLINK_MSG_ID_MISSION_CURRENT):
-            self.outbox.put(self.server.mission_current_msg(self.state.mission_active,
-                                                            self.state.mission_complete))
+            self.outbox.put(self.mission_current())
         if not self.state.fence.empty and self.streaming(mavlink.MAVLINK_MSG_ID_FENCE_STATUS):
             self.outbox.put(self.fence_status())
 
@@ -491,7 +522,7 @@ class Telemetry:
                 continue
             if wall - self._last_sent_wall.get(name, -1e9) < 1.0 / MAX_STREAM_WALL_HZ:
                 continue
-            if name == "GLOBAL_POSITION_INT" and \
+            if name == "GLOBAL_POSITION_INT" and self.outbox.positions_with_samples and \
                     wall - self.outbox.last_sample_wall < 0.5 / MAX_STREAM_WALL_HZ:
                 continue  # sample pairs are flowing; they carry the position already
             self.outbox.put(self._builders[name]())

@@ -270,12 +270,13 @@ class _TaskRun:
                                       offset, fence_verts, fence_rings, fence_circles,
                                       self.recent, self.window, self.turns, self.track,
                                       self.prior, out[done:],
-                                      noise, value, self.events)
+                                      noise, body.sensor, value, self.events)
             body.noise_used(used)
             events.extend((_EVENTS[int(c)], done + int(i)) for c, i in self.events[:n_ev])
             done += k
             if self._s["await_value"]:  # a field the compiled code cannot read
-                value = float(body._field(np.float64(body.x_m), np.float64(body.y_m)))
+                value = float(body._field(np.float64(body.true_x_m),
+                                          np.float64(body.true_y_m)))
         if self.done and isinstance(self.task, TraceTask) and not self._remembered:
             self._remembered = True
             body.remember_track(self.task.level, self.track[: int(self._s["tk_len"])])

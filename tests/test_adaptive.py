@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from econdor_gcs import dfc
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.adaptive import (
     AdaptiveParams,
     AdaptivePlanner,
@@ -41,7 +41,7 @@ from econdor_gcs.core.uncertainty import (
     expected_error,
     resample_polyline,
 )
-from econdor_gcs.mission import load_mission
+from econdor_gcs.dfc import loop as dfc
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -280,10 +280,12 @@ def test_level_crossings_come_from_survey_and_transit_samples_only():
     two = SampleLog(x, x, np.zeros_like(x), value, np.full(x.size, Phase.SURVEY, dtype=np.int8),
                     (x > 4.2).astype(np.int16))
     assert len(level_crossings(two, np.array([4.25]))[0]) == 0
-    assert len(level_crossings(s, np.array([4.25]), max_step_m=0.1)[0]) == 0
-    # a sample exactly on the level: one crossing there (the pair arriving at it)
+    # survey samples 0.5 m apart: a pair farther apart than max_step_m is no crossing
     survey = SampleLog(x, x, np.zeros_like(x), value, np.full(x.size, Phase.SURVEY, np.int8),
                        np.zeros(x.size, np.int16))
+    assert len(level_crossings(survey, np.array([4.25]), max_step_m=1.0)[0]) == 1
+    assert len(level_crossings(survey, np.array([4.25]), max_step_m=0.1)[0]) == 0
+    # a sample exactly on the level: one crossing there (the pair arriving at it)
     on = level_crossings(survey, np.array([4.0]))[0]
     assert on.tolist() == [[4.0, 0.0]]
 

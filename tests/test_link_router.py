@@ -11,9 +11,10 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask
 from econdor_gcs.errors import LinkError, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
-from econdor_gcs.link.mission import CommandSender, MissionItemSpec, build_mission
+from econdor_gcs.link.pairing import DropReason, Placement
 from econdor_gcs.link.router import (
     MissionItemReached,
+    Received,
     Router,
     Sample,
     SamplePairer,
@@ -24,6 +25,9 @@ from econdor_gcs.link.router import (
     parse_endpoint,
 )
 from econdor_gcs.link.tlog import TlogWriter, read_tlog
+from econdor_gcs.link.transfer import CommandSender, MissionItemSpec, build_mission
+from econdor_gcs.link.transports import EndpointKind
+from econdor_gcs.link.vehicles import EVENTS
 
 ENDPOINT = "udpin:127.0.0.1:0"
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
@@ -127,9 +131,18 @@ def run(coro):
 
 
 def test_parse_endpoint():
-    assert parse_endpoint("udpin:127.0.0.1:14550") == ("127.0.0.1", 14550)
-    assert parse_endpoint("udp:0.0.0.0:14551") == ("0.0.0.0", 14551)
-    for bad in ("tcp:1.2.3.4:5", "udpin:host", "udpin:h:port", "udpin:h:70000", "14550"):
+    ep = parse_endpoint("udpin:127.0.0.1:14550")
+    assert (ep.kind, ep.host, ep.port) == (EndpointKind.UDPIN, "127.0.0.1", 14550)
+    assert parse_endpoint("udp:0.0.0.0:14551").kind == EndpointKind.UDPIN
+    assert parse_endpoint("tcp:1.2.3.4:5").kind == EndpointKind.TCP
+    assert parse_endpoint("tcpin:0.0.0.0:5760").kind == EndpointKind.TCPIN
+    assert parse_endpoint("udpout:10.0.0.2:14550").kind == EndpointKind.UDPOUT
+    serial = parse_endpoint("/dev/ttyUSB0:57600")
+    assert (serial.kind, serial.host, serial.port) == (EndpointKind.SERIAL, "/dev/ttyUSB0",
+                                                       57600)
+    assert parse_endpoint("serial:/dev/ttyS1,115200").port == 115200
+    for bad in ("udpin:host", "udpin:h:port", "udpin:h:70000", "14550", "tcp:h:0",
+                "udpout:h:0", "ftp:h:21", "/dev/ttyUSB0:fast"):
         with pytest.raises(LinkError):
             parse_endpoint(bad)
 
@@ -137,7 +150,7 @@ def test_parse_endpoint():
 def test_two_vehicles_discovered_and_routed_by_sysid():
     async def main():
         async with Router(ENDPOINT, gcs_heartbeat_s=0.1) as router:
-            events = router.event_queue()
+            events = router.queue(EVENTS)
             v1 = await FakeUdpVehicle(1).start(router.local_address)
             v2 = await FakeUdpVehicle(2).start(router.local_address)
             v1.heartbeat()
@@ -160,12 +173,7 @@ def test_two_vehicles_discovered_and_routed_by_sysid():
             assert (hb.type, hb.autopilot) == (mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID)
             assert (hb.get_srcSystem(), hb.get_srcComponent()) == (255, 190)
 
-            # a vehicle that moves to another port is followed
-            v1b = await FakeUdpVehicle(1).start(router.local_address)
-            v1b.heartbeat()
-            await v1b.wait_for("HEARTBEAT")
-            assert router.vehicles[1].address == v1b.address
-            for v in (v1, v2, v1b):
+            for v in (v1, v2):
                 v.close()
 
             with pytest.raises(LinkError, match="vehicle 9"):
@@ -192,7 +200,7 @@ def test_wait_for_vehicles_names_the_missing_ones():
 def test_silent_vehicle_is_lost_then_recovered():
     async def main():
         async with Router(ENDPOINT, heartbeat_timeout_s=0.3) as router:
-            events = router.event_queue()
+            events = router.queue(EVENTS)
             v = await FakeUdpVehicle(4).start(router.local_address)
             v.heartbeat()
             await next_event(events, VehicleDiscovered)
@@ -242,7 +250,7 @@ def test_mission_transfer_and_commands_over_udp_with_loss():
             await router.wait_for_vehicles(2, timeout_s=3.0)
 
             # lose every 3rd datagram the router sends (simulated loss by patching sendto)
-            transport = router._transport
+            transport = router.links[0]._transport
             real_sendto = transport.sendto
             counter = {"n": 0, "dropped": 0}
 
@@ -304,15 +312,16 @@ def test_telemetry_events_samples_and_tlog(tmp_path):
     async def main():
         tlog = TlogWriter(path)
         async with Router(ENDPOINT, tlog=tlog) as router:
-            events = router.event_queue()
-            samples = router.sample_queue()
+            events = router.queue(EVENTS)
+            samples = router.queue(Sample)
             seen_msgs: list[tuple[int, str]] = []
 
-            def broken(sysid, msg):
+            def broken(received):
                 raise RuntimeError("a buggy consumer")
 
-            router.add_message_handler(broken)  # must not starve the others
-            router.add_message_handler(lambda s, m: seen_msgs.append((s, m.get_type())))
+            router.subscribe(Received, broken)  # must not starve the others
+            router.subscribe(Received,
+                             lambda r: seen_msgs.append((r.sysid, r.msg.get_type())))
             v1 = await FakeUdpVehicle(1).start(router.local_address)
             v2 = await FakeUdpVehicle(2).start(router.local_address)
             v1.heartbeat()
@@ -377,42 +386,73 @@ def test_port_in_use_is_a_link_error():
 # -- SamplePairer without sockets -----------------------------------------------------------
 
 
+def _rx(msg, sysid: int = 1, compid: int = 1):
+    """``msg`` as it arrives from (sysid, compid): encoded, then parsed."""
+    [got] = Parser().feed(Codec(sysid, compid).encode(msg))
+    return got
+
+
 def _pos(t, lat=47.0, lon=8.0, rel_mm=15_000):
-    return mavlink.MAVLink_global_position_int_message(t, int(lat * 1e7), int(lon * 1e7),
-                                                      0, rel_mm, 0, 0, 0, 0)
+    return _rx(mavlink.MAVLink_global_position_int_message(t, int(lat * 1e7), int(lon * 1e7),
+                                                          0, rel_mm, 0, 0, 0, 0))
 
 
 def _val(t, v, name=b"FIELD"):
-    return mavlink.MAVLink_named_value_float_message(t, name, v)
+    return _rx(mavlink.MAVLink_named_value_float_message(t, name, v))
 
 
-def test_pairer_pairs_either_order():
-    p = SamplePairer(horizon_s=2.0)
-    assert p.add(1, _val(10, 3.0), 0.0) is None
-    assert p.add(1, _pos(20), 0.0) is None
-    assert p.add(1, _pos(10, 47.5, 8.5), 0.1) == Sample(1, 10, 47.5, 8.5, 15.0, 3.0)
-    assert p.add(1, _val(20, 4.0), 0.2) == Sample(1, 20, 47.0, 8.0, 15.0, 4.0)
-    assert p.pending == 0 and p.paired == 2 and p.dropped == 0
+def test_pairer_pairs_exact_stamps_in_either_order():
+    p = SamplePairer(hold_s=2.0)
+    assert p.add(1, _val(10, 3.0), 0.0) == []  # no position yet: it waits
+    assert p.add(1, _pos(10, 47.5, 8.5), 0.1) == [Sample(1, 10, 47.5, 8.5, 15.0, 3.0)]
+    assert p.add(1, _pos(20), 0.1) == []
+    assert p.add(1, _val(20, 4.0), 0.2) == [Sample(1, 20, 47.0, 8.0, 15.0, 4.0)]
+    assert p.pending == 0 and p.exact == 2 and p.interpolated == 0 and p.dropped_total == 0
 
 
 def test_pairer_ignores_other_names_and_keeps_vehicles_apart():
     p = SamplePairer()
-    assert p.add(1, _val(10, 1.0, b"OTHER"), 0.0) is None
-    assert p.add(1, _pos(10), 0.0) is None
-    assert p.add(2, _val(10, 2.0), 0.0) is None  # same time_boot_ms, other vehicle
-    assert p.add(1, mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 3, 3), 0.0) is None
-    assert p.pending == 2
-    assert p.add(2, _pos(10), 0.1).sysid == 2
+    assert p.add(1, _val(10, 1.0, b"OTHER"), 0.0) == []
+    assert p.add(1, _pos(10), 0.0) == []
+    assert p.add(2, _val(10, 2.0), 0.0) == []  # same time_boot_ms, other vehicle
+    assert p.add(1, mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 3, 3), 0.0) == []
+    assert p.pending == 1
+    assert p.add(2, _pos(10), 0.1)[0].sysid == 2
 
 
-def test_pairer_drops_stale_halves():
-    p = SamplePairer(horizon_s=1.0)
-    p.add(1, _pos(10), 0.0)
-    p.add(1, _val(11, 5.0), 0.5)
-    p.add(1, _pos(12), 1.2)  # expires the first position (waited 1.2 s > 1.0 s)
-    assert p.dropped == 1
-    assert p.add(1, _val(10, 9.0), 1.3) is None  # its partner is gone: it waits in turn
-    assert p.expire(5.0) == 3 and p.pending == 0 and p.dropped == 4
+def test_pairer_interpolates_between_positions_in_time():
+    """A Lua script's stamp falls between two positions: the sample goes where the vehicle
+    was at that moment, linearly between them."""
+    p = SamplePairer(max_gap_ms=500)
+    p.add(1, _pos(1000, 47.0, 8.0, 10_000), 0.0)
+    assert p.add(1, _val(1050, 7.0), 0.0) == []  # after the newest position: it waits
+    [s] = p.add(1, _pos(1200, 47.0, 8.004, 20_000), 0.1)
+    assert s.placement == Placement.INTERPOLATED and s.time_boot_ms == 1050
+    assert s.lon_deg == pytest.approx(8.001) and s.rel_alt_m == pytest.approx(12.5)
+    [s2] = p.add(1, _val(1100, 8.0), 0.2)  # between two known positions: placed at once
+    assert s2.lon_deg == pytest.approx(8.002)
+    assert (p.exact, p.interpolated) == (0, 2)
+
+
+def test_pairer_drops_what_it_cannot_place_with_a_reason():
+    p = SamplePairer(max_gap_ms=500, hold_s=1.0)
+    p.add(1, _val(500, 1.0), 0.0)               # before any position
+    p.add(1, _pos(1000), 0.0)
+    p.add(1, _pos(1800), 0.0)
+    p.add(1, _val(1500, 2.0), 0.1)              # between positions 0.8 s apart: a gap
+    p.add(1, _val(2500, 3.0), 0.2)              # after the newest, and none comes
+    assert p.pending == 3 and p.expire(0.9) == 0
+    # a late position fills the gap before the hold ends: placed after all
+    assert [s.value for s in p.add(1, _pos(1400), 0.95)] == [2.0]
+    assert p.expire(5.0) == 2 and p.pending == 0
+    assert p.dropped == {DropReason.NO_POSITION_BEFORE: 1, DropReason.NO_POSITION_AFTER: 1}
+
+
+def test_position_track_restarts_with_a_rebooted_autopilot():
+    p = SamplePairer()
+    p.add(1, _pos(500_000), 0.0)
+    p.add(1, _pos(1_000), 0.0)  # its clock started again
+    assert len(p.track(1)) == 1 and p.track(1).newest_ms == 1_000
 
 
 async def _with_sim_vehicle(body) -> None:

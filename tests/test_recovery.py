@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
-from econdor_gcs import recovery
 from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND
-from econdor_gcs.recovery import RECOVERY_STALLED_ROUNDS, SampleRecovery
-from econdor_gcs.telemetry import VehicleState
+from econdor_gcs.station import recovery
+from econdor_gcs.station.recovery import RECOVERY_STALLED_ROUNDS, SampleRecovery
+from econdor_gcs.station.telemetry import VehicleState
 
 TAKEN_MS = list(range(1000, 10_001, 100))  # 10 Hz
 MISSING_MS = 5000
@@ -28,15 +28,17 @@ class ScriptedVehicle:
         self.state = state
         self.lost_answers = lost_answers
         self.requests = 0
-        self.vehicles = {state.sysid: SimpleNamespace(time_boot_ms=TAKEN_MS[-1])}
+        self.vehicles = {state.sysid: SimpleNamespace(time_boot_ms=TAKEN_MS[-1],
+                                                      sample_compid=1)}
 
     async def command_int(self, sysid: int, command: int, x: int, y: int, *,
-                          timeout_s: float, retries: int) -> Any:
-        assert command == SAMPLE_COUNT_COMMAND
+                          timeout_s: float, retries: int, compid: int = 1) -> Any:
+        assert command == SAMPLE_COUNT_COMMAND and compid == 1  # the payload's component
         return SimpleNamespace(result_param2=sum(x <= t <= y for t in TAKEN_MS))
 
-    def send_command_int(self, sysid: int, command: int, x: int, y: int) -> None:
-        assert command == SAMPLE_RESEND_COMMAND
+    def send_command_int(self, sysid: int, command: int, x: int, y: int, *,
+                         compid: int = 1) -> None:
+        assert command == SAMPLE_RESEND_COMMAND and compid == 1
         if not x <= MISSING_MS <= y:
             return
         self.requests += 1
@@ -54,8 +56,8 @@ class NoLosses:
     def check_lost(self) -> None:
         pass
 
-    async def tolerant(self, v: VehicleState, coro: Any) -> None:
-        await coro
+    async def tolerant(self, v: VehicleState, step: Any) -> None:
+        await step()
 
 
 async def until(cond: Any, *, tick_s: float = 0.25, on_tick: Any = None,

@@ -2,8 +2,9 @@
 
 In-process, a resumed run must end exactly where an uninterrupted run of the same seed
 ends: the finished flights are replayed from ``flights.jsonl`` and ``samples.csv``, the
-vehicles (position, velocity, clock and the sensor's noise generator) restored. The mission
-has sensor noise, so a resume that did not restore the generator would end elsewhere.
+vehicles (position, velocity, clock, the sensor's state and its generators) restored. The
+mission's sensor is noisy, lags and is mispositioned, so a resume that did not restore the
+generators, the lagged reading or the GNSS error would end elsewhere.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ from pathlib import Path
 import pytest
 
 from econdor import cli
-from econdor_gcs.dfc import IterationDone
+from econdor_gcs.config import load_mission
+from econdor_gcs.dfc.loop import IterationDone
 from econdor_gcs.errors import RunError
-from econdor_gcs.mission import load_mission
-from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint
+from econdor_gcs.files.rundir import RunDir, RunDirMode, read_checkpoint
 from econdor_lab.inprocess import run_inprocess
 
 MISSION = """\
@@ -33,7 +34,7 @@ area: {width_m: 100, height_m: 100}
 origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
 field: {model: paper, n1: 4, n2: 4}
 vehicles: {count: 2, speed_mps: 8, max_speed_mps: 12, sample_rate_hz: 10, altitude_m: 30,
-           noise_std: 0.2}
+           sensor: {noise_std: 0.2, lag_s: 0.3, position_std_m: 0.5, position_tau_s: 5}}
 initiation: {pattern: diagonals}
 algorithm: {planner: econdor, max_iterations: 3, min_iterations: 3, search_radius_m: 10,
             grid_spacing_m: 2, max_trace_length_m: 200}
@@ -103,7 +104,7 @@ def test_resume_after_an_interrupt_ends_with_the_uninterrupted_result(
 
 _KILLABLE = """\
 import sys
-from econdor_gcs.mission import load_mission
+from econdor_gcs.config import load_mission
 from econdor_lab.inprocess import run_inprocess
 run_inprocess(load_mission(sys.argv[1]), sys.argv[2])
 """
@@ -155,17 +156,41 @@ def test_a_non_empty_run_directory_is_refused(tmp_path: Path) -> None:
 
 def test_force_replaces_a_run_directory_but_nothing_else(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    out.mkdir()
+    (out / "figures").mkdir(parents=True)
     (out / "summary.json").write_text("{}")
-    (out / "old.txt").write_text("old")
+    (out / "figures" / "maps.png").write_bytes(b"png")
     RunDir(out, RunDirMode.FORCE).close()
-    assert not (out / "old.txt").exists() and (out / "samples.csv").exists()
+    assert (out / "samples.csv").exists() and (out / "summary.json").exists() is False
+    assert not (out / "figures" / "maps.png").exists()
     other = tmp_path / "home"
     other.mkdir()
     (other / "thesis.tex").write_text("years of work")
     with pytest.raises(RunError, match="not a run directory; refusing to replace it"):
         RunDir(other, RunDirMode.FORCE)
     assert (other / "thesis.tex").exists()
+
+
+@pytest.mark.parametrize("added", ["notes.txt", "analysis/plot.py", "figures/mine.svg",
+                                   "missions/site.plan"])
+def test_force_never_deletes_a_file_the_run_did_not_write(tmp_path: Path, mission_path: Path,
+                                                          added: str,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    """A user's notes or analysis in an earlier run directory: ``--force`` refuses in one
+    line naming the file, and deletes nothing (not even the run's own files)."""
+    out = tmp_path / "run"
+    (out / "figures").mkdir(parents=True)
+    (out / "summary.json").write_text("{}")
+    (out / "samples.csv").write_text("t_s\n")
+    mine = out / added
+    mine.parent.mkdir(parents=True, exist_ok=True)
+    mine.write_text("my work")
+    code = cli.main(["run", str(mission_path), "--out", str(out), "--quiet", "--force"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.strip().count("\n") == 0, err
+    assert f"{mine}: not written by a run" in err and "move it out of" in err
+    assert mine.read_text() == "my work"
+    assert (out / "summary.json").read_text() == "{}" and (out / "samples.csv").exists()
 
 
 def test_resume_sets_the_samples_of_an_unfinished_flight_aside(tmp_path: Path) -> None:

@@ -237,7 +237,8 @@ def test_auto_solves_exactly_on_thinned_samples_where_tiles_would_extrapolate():
     # 0.5 m square, 1 000-odd samples are left, which auto solves exactly (MAE 4.26,
     # iso-line error 0.04 m, within 0.6 of the exact solve on all samples).
     from econdor_gcs.core.metrics import isoline_error
-    from econdor_gcs.core.spline import AUTO_EXACT_MAX_SAMPLES, AUTO_THIN_CELL_M, _thin_pick
+    from econdor_gcs.core.samples import _thin_pick
+    from econdor_gcs.core.spline import AUTO_EXACT_MAX_SAMPLES, AUTO_THIN_CELL_M
 
     x, y, v, grid, truth = recorded_run("threshold-paper-s9", 2014)
     assert x.size > AUTO_EXACT_MAX_SAMPLES

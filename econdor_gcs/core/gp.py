@@ -52,11 +52,13 @@ from typing import Self
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
 from scipy.spatial import cKDTree
 
 from ..errors import ReconstructionError
 from .geometry import FloatArray, Grid
+from .noise import NoiseEstimate, estimate_noise
+from .samples import _block_mean_counts
 
 __all__ = ["Kriging", "MaternHyper", "fit_matern", "kriging_reconstruct", "matern", "thin_samples"]
 
@@ -169,6 +171,7 @@ def fit_matern(
     length_bounds_m: tuple[float, float] = (0.5, 200.0),
     cell_m: float = 1.0,
     seed: int = 0,
+    noise_std: float = 0.0,
 ) -> MaternHyper:
     """Maximum-likelihood Matérn hyperparameters from (a subsample of) the samples.
 
@@ -177,6 +180,15 @@ def fit_matern(
     and amplitude are profiled out (closed form, see :func:`_profile_nll`); ``log l`` is
     found by a bounded scalar search.
 
+    With the noise known (``noise_std > 0``, e.g. from
+    :func:`~econdor_gcs.core.noise.estimate_noise`) the nugget is ``(noise_std /
+    sigma_f)^2``, so the amplitude no longer profiles out: ``(log l, log sigma_f)`` are
+    found together (L-BFGS-B from three starting lengths; the mean still in closed
+    form). A nugget fitted by likelihood alone on a few hundred points a few metres apart
+    comes out low (the field's short-range variation and the noise look alike at that
+    spacing); the noise seen between neighbouring samples along a track is the
+    better-founded number.
+
     Parameters
     ----------
     x, y, v : array_like
@@ -184,7 +196,8 @@ def fit_matern(
     nu : {0.5, 1.5, 2.5}
         Matérn smoothness.
     nugget : float
-        Relative nugget ``eta`` (noise variance over ``sigma_f^2``).
+        Relative nugget ``eta`` (noise variance over ``sigma_f^2``); with ``noise_std > 0``
+        it is fitted instead.
     max_points : int
         Size of the subsample the likelihood is evaluated on.
     length_bounds_m : (float, float)
@@ -193,6 +206,9 @@ def fit_matern(
         Thinning cell before the subsample is drawn.
     seed : int
         Seed of the subsample.
+    noise_std : float
+        Standard deviation of the samples' noise in field units, when known (``0``: the
+        relative ``nugget`` is used as given).
 
     Returns
     -------
@@ -218,12 +234,56 @@ def fit_matern(
         return MaternHyper(float(np.mean(pv)), 0.0, length_bounds_m[1], nugget, nu)
     d = np.hypot(px[:, None] - px[None, :], py[:, None] - py[None, :])
     lo, hi = (math.log(b) for b in length_bounds_m)
+    if noise_std > 0:
+        return _fit_known_noise(d, pv, nu, noise_std, (lo, hi))
     res = minimize_scalar(lambda t: _profile_nll(t, d, pv, nu, nugget)[0], bounds=(lo, hi),
                           method="bounded", options={"xatol": 1e-3})
     _, mean, amp = _profile_nll(float(res.x), d, pv, nu, nugget)
     if not math.isfinite(amp):
         raise ReconstructionError("GP fit failed: the covariance is singular at every length scale")
     return MaternHyper(mean, amp, math.exp(float(res.x)), nugget, nu)
+
+
+def _known_noise_nll(theta: FloatArray, d: FloatArray, v: FloatArray, nu: float,
+                     noise_var: float) -> float:
+    """Negative log-likelihood (constants dropped) at ``theta = (log l, log sigma_f)`` with
+    the noise variance fixed and the mean in closed form (generalised least squares)."""
+    n = v.size
+    c = math.exp(2.0 * theta[1]) * matern(d / math.exp(theta[0]), nu)
+    c[np.diag_indices(n)] += noise_var
+    try:
+        chol = scipy.linalg.cho_factor(c, lower=True, check_finite=False)
+    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return math.inf
+    ci_1 = scipy.linalg.cho_solve(chol, np.ones(n), check_finite=False)
+    ci_v = scipy.linalg.cho_solve(chol, v, check_finite=False)
+    mean = float(ci_v.sum() / ci_1.sum())
+    quad = float((v - mean) @ (ci_v - mean * ci_1))
+    return 0.5 * quad + float(np.sum(np.log(np.diag(chol[0]))))
+
+
+def _fit_known_noise(d: FloatArray, v: FloatArray, nu: float, noise_std: float,
+                     log_length_bounds: tuple[float, float]) -> MaternHyper:
+    noise_var = noise_std * noise_std
+    spread = max(float(np.std(v)), noise_std)
+    amp_bounds = (math.log(1e-3 * spread), math.log(1e3 * spread))
+    best = None
+    for length in (3.0, 10.0, 30.0):
+        start = np.array([min(max(math.log(length), log_length_bounds[0]),
+                              log_length_bounds[1]), math.log(spread)])
+        res = minimize(_known_noise_nll, start, args=(d, v, nu, noise_var), method="L-BFGS-B",
+                       bounds=[log_length_bounds, amp_bounds])
+        if math.isfinite(float(res.fun)) and (best is None or res.fun < best.fun):
+            best = res
+    if best is None:
+        raise ReconstructionError("GP fit failed: the covariance is singular at every length scale")
+    length, amp = math.exp(float(best.x[0])), math.exp(float(best.x[1]))
+    c = matern(d / length, nu)
+    c[np.diag_indices(v.size)] += noise_var / amp**2
+    chol = scipy.linalg.cho_factor(c, lower=True, check_finite=False)
+    ci_1 = scipy.linalg.cho_solve(chol, np.ones(v.size), check_finite=False)
+    mean = float(scipy.linalg.cho_solve(chol, v, check_finite=False).sum() / ci_1.sum())
+    return MaternHyper(mean, amp, length, noise_var / amp**2, nu)
 
 
 def _as_samples(x: ArrayLike, y: ArrayLike, v: ArrayLike) -> tuple[FloatArray, ...]:
@@ -279,6 +339,14 @@ class Kriging:
         Tile side, sample margin around a tile and blending width (metres).
     max_tile : int
         Largest sample count of one tile system.
+    noise_std : float or None
+        Standard deviation of the samples' noise when the hyperparameters are fitted:
+        ``None`` estimates it from the samples in the order they were taken
+        (:func:`~econdor_gcs.core.noise.estimate_noise`), ``0`` takes them as exact. With
+        noise the samples are averaged per ``cell_m`` square instead of thinned (a mean
+        of ``n`` has ``1/n`` of the noise variance, and the nugget of its row is divided
+        by ``n``), and :func:`fit_matern` fits the length and amplitude with the noise
+        fixed. Ignored when ``hyper`` is given: its nugget says what noise it assumes.
 
     Attributes
     ----------
@@ -288,6 +356,13 @@ class Kriging:
         Samples after thinning.
     tiles_ : list
         The kriging systems (one when global).
+    noise_std_ : float
+        The noise the model assumes: estimated or given, ``0`` when the samples are taken
+        as exact (the default nugget is then numerical conditioning only); with ``hyper``
+        given, ``sigma_f sqrt(eta)``. :meth:`predict`'s standard deviation is the field's
+        under this noise (the noise of a new sample would add ``noise_std_^2``).
+    noise_ : NoiseEstimate or None
+        The estimate itself (``None`` when not estimated).
 
     Examples
     --------
@@ -302,7 +377,8 @@ class Kriging:
 
     def __init__(self, hyper: MaternHyper | None = None, nu: float = 2.5, cell_m: float = 1.0,
                  max_global: int = 1500, tile_m: float = 25.0, margin_m: float = 15.0,
-                 overlap_m: float = 4.0, max_tile: int = 1500) -> None:
+                 overlap_m: float = 4.0, max_tile: int = 1500,
+                 noise_std: float | None = None) -> None:
         self.hyper = hyper
         self.nu = nu
         self.cell_m = cell_m
@@ -311,6 +387,7 @@ class Kriging:
         self.margin_m = margin_m
         self.overlap_m = overlap_m
         self.max_tile = max_tile
+        self.noise_std = noise_std
 
     def fit(self, x: ArrayLike, y: ArrayLike, v: ArrayLike) -> Self:
         """Thin the samples, fit the hyperparameters (unless given), factor the systems.
@@ -321,13 +398,23 @@ class Kriging:
             Fewer than 3 samples, mismatched lengths or non-finite input.
         """
         xa, ya, va = _as_samples(x, y, v)
-        idx = thin_samples(xa, ya, self.cell_m)
-        x, y, v = xa[idx], ya[idx], va[idx]
+        self.noise_ = self._noise(xa, ya, va)
+        noise = self.noise_.noise_std if self.noise_ is not None else 0.0
+        if noise > 0:
+            x, y, v, counts = _block_mean_counts(xa, ya, va, self.cell_m)
+            self.counts_: FloatArray | None = counts
+        else:
+            idx = thin_samples(xa, ya, self.cell_m)
+            x, y, v = xa[idx], ya[idx], va[idx]
+            self.counts_ = None
         self.n_used_ = int(x.size)
-        self.hyper_ = self.hyper or fit_matern(x, y, v, nu=self.nu, cell_m=max(self.cell_m, 1.0))
+        self.hyper_ = self.hyper or fit_matern(x, y, v, nu=self.nu, cell_m=max(self.cell_m, 1.0),
+                                               noise_std=noise)
+        hyp = self.hyper_
+        self.noise_std_ = noise if self.hyper is None else hyp.amplitude * math.sqrt(hyp.nugget)
         x0, x1, y0, y1 = float(x.min()), float(x.max()), float(y.min()), float(y.max())
         if x.size <= self.max_global:
-            self.tiles_ = [self._tile(x0, x1, y0, y1, 1.0, x, y, v)]
+            self.tiles_ = [self._tile(x0, x1, y0, y1, 1.0, np.arange(x.size), x, y, v)]
             return self
         n = max(1, int(np.ceil(max(x1 - x0, y1 - y0) / self.tile_m - 1e-9)))
         xe, ye = np.linspace(x0, x1, n + 1), np.linspace(y0, y1, n + 1)
@@ -347,14 +434,27 @@ class Kriging:
                 stack += [(tx0, xm, ty0, ym, h), (xm, tx1, ty0, ym, h), (tx0, xm, ym, ty1, h),
                           (xm, tx1, ym, ty1, h)]
                 continue
-            self.tiles_.append(self._tile(tx0, tx1, ty0, ty1, scale, x[sel], y[sel], v[sel]))
+            self.tiles_.append(self._tile(tx0, tx1, ty0, ty1, scale, np.flatnonzero(sel),
+                                          x[sel], y[sel], v[sel]))
         return self
 
-    def _tile(self, x0: float, x1: float, y0: float, y1: float, scale: float, px: FloatArray,
-              py: FloatArray, pv: FloatArray) -> _Tile:
+    def _noise(self, x: FloatArray, y: FloatArray, v: FloatArray) -> NoiseEstimate | None:
+        if self.hyper is not None:
+            return None
+        if self.noise_std is None:
+            return estimate_noise(x, y, v)
+        if not (math.isfinite(self.noise_std) and self.noise_std >= 0):
+            raise ValueError(f"noise_std: must be None or a finite number >= 0, "
+                             f"got {self.noise_std}")
+        return NoiseEstimate(float(self.noise_std), float(self.noise_std), 0, float(np.ptp(v)))
+
+    def _tile(self, x0: float, x1: float, y0: float, y1: float, scale: float,
+              rows: NDArray[np.intp], px: FloatArray, py: FloatArray, pv: FloatArray) -> _Tile:
         h = self.hyper_
         c = h.correlation(np.hypot(px[:, None] - px[None, :], py[:, None] - py[None, :]))
-        c[np.diag_indices(px.size)] += h.nugget
+        # a cell mean of n samples has 1/n of their noise variance
+        c[np.diag_indices(px.size)] += (h.nugget if self.counts_ is None
+                                        else h.nugget / self.counts_[rows])
         chol = scipy.linalg.cho_factor(c, lower=True, overwrite_a=True, check_finite=False)
         alpha = scipy.linalg.cho_solve(chol, pv - h.mean, check_finite=False)
         return _Tile(x0, x1, y0, y1, self.overlap_m * scale, px, py, chol, alpha)
@@ -432,8 +532,9 @@ def _bump(t: FloatArray, lo: float, hi: float) -> FloatArray:
 
 
 def kriging_reconstruct(x: ArrayLike, y: ArrayLike, v: ArrayLike, grid: Grid,
-                        nu: float = 2.5) -> FloatArray:
-    """Reconstruct the field on ``grid`` by kriging (``algorithm.reconstruction: kriging``).
+                        nu: float = 2.5, noise_std: float | None = None) -> FloatArray:
+    """Reconstruct the field on ``grid`` by kriging (``algorithm.reconstruction: kriging``),
+    the noise estimated from the samples unless given (:class:`Kriging`).
 
     Returns
     -------
@@ -441,6 +542,6 @@ def kriging_reconstruct(x: ArrayLike, y: ArrayLike, v: ArrayLike, grid: Grid,
         Shape ``grid.shape``, indexed ``[row=y, col=x]``.
     """
     xx, yy = grid.mesh
-    out = Kriging(nu=nu).fit(x, y, v).predict(xx, yy)
+    out = Kriging(nu=nu, noise_std=noise_std).fit(x, y, v).predict(xx, yy)
     assert isinstance(out, np.ndarray)
     return out

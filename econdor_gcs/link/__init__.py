@@ -1,7 +1,13 @@
-"""The ground station's MAVLink layer: codec, tlog, protocol state machines, UDP router."""
+"""The ground station's MAVLink layer.
 
-from .codec import Codec, Parser, mavlink
-from .mission import (
+``codec`` (pymavlink as a codec), ``transports`` (UDP, TCP, serial links), ``vehicles`` (the
+sans-IO vehicle table: routes, companions, twins, strangers, liveness), ``pairing`` (samples
+placed on each vehicle's position track), ``mission`` (protocol state machines),
+``commands`` (the command vocabulary), ``router`` (the thin asyncio shell over them),
+``autopilots`` (per-family procedures), ``tlog``, ``forward``, ``relay``.
+"""
+
+from econdor_gcs.link.transfer import (
     CommandSender,
     MissionClear,
     MissionDownloader,
@@ -9,18 +15,20 @@ from .mission import (
     MissionUploader,
     build_mission,
 )
-from .router import (
+
+from .codec import Codec, Parser, mavlink
+from .pairing import Sample, SamplePairer
+from .router import Received, Router
+from .tlog import TlogWriter, read_tlog
+from .vehicles import (
     MissionItemReached,
-    Router,
-    Sample,
-    SamplePairer,
     StatusText,
     VehicleDiscovered,
     VehicleLink,
     VehicleLost,
     VehicleRecovered,
+    VehicleTable,
 )
-from .tlog import TlogWriter, read_tlog
 
 __all__ = [
     "Codec",
@@ -31,6 +39,7 @@ __all__ = [
     "MissionItemSpec",
     "MissionUploader",
     "Parser",
+    "Received",
     "Router",
     "Sample",
     "SamplePairer",
@@ -40,6 +49,7 @@ __all__ = [
     "VehicleLink",
     "VehicleLost",
     "VehicleRecovered",
+    "VehicleTable",
     "build_mission",
     "mavlink",
     "read_tlog",

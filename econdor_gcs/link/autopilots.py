@@ -13,7 +13,8 @@ takeoff param7    altitude AMSL                          altitude above home
 arming            any hold/auto mode                     GUIDED (or LOITER / STABILIZE), not
                                                          AUTO; fails until the pre-arm checks
                                                          pass
-starting          arm, ``MISSION_START(first)``          GUIDED, arm, ``MISSION_START(first)``
+starting          arm, ``MISSION_START(first)``          GUIDED, arm, ``MISSION_START(0, 0)``
+                                                         (DENIED for any other first/last)
 mission upload    ``MISSION_REQUEST_INT``                ``MISSION_REQUEST``; item 0 becomes
                                                          home
 telemetry         streams from boot                      only after REQUEST_DATA_STREAM /
@@ -30,15 +31,29 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from dataclasses import dataclass
 from enum import StrEnum
 
-from ..errors import CommandRejected, LinkError, VehicleTimeout
+from ..errors import CommandRejected, EcondorError, LinkError, VehicleTimeout
 from .codec import MAVLinkMessage, mavlink
 from .router import Router
 
-__all__ = ["AutopilotKind", "FlightMode", "arm_when_ready", "mode_params", "set_mode",
-           "start_mission", "takeoff"]
+__all__ = ["ARDUPILOT_POSITION_COMMANDS", "AutopilotKind", "FlightMode", "arm_when_ready",
+           "flight_mode", "mission_start_params", "mode_params", "set_mode", "start_mission",
+           "takeoff", "AUTOPILOT_NAMES", "VehicleKind"]
 
+ARDUPILOT_POSITION_COMMANDS = frozenset({
+    mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
+    mavlink.MAV_CMD_NAV_LOITER_TURNS, mavlink.MAV_CMD_NAV_LOITER_TIME, mavlink.MAV_CMD_NAV_LAND,
+    mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_CONTINUE_AND_CHANGE_ALT,
+    mavlink.MAV_CMD_NAV_LOITER_TO_ALT, mavlink.MAV_CMD_NAV_SPLINE_WAYPOINT,
+    mavlink.MAV_CMD_NAV_GUIDED_ENABLE, mavlink.MAV_CMD_DO_SET_HOME, mavlink.MAV_CMD_DO_LAND_START,
+    mavlink.MAV_CMD_DO_GO_AROUND, mavlink.MAV_CMD_DO_SET_ROI, mavlink.MAV_CMD_NAV_VTOL_TAKEOFF,
+    mavlink.MAV_CMD_NAV_VTOL_LAND, mavlink.MAV_CMD_NAV_PAYLOAD_PLACE,
+})
+"""The mission commands ArduPilot stores with a position (``AP_Mission::stored_in_location``).
+Any other comes back with frame 0 (MAV_FRAME_GLOBAL) and x, y, z = 0, whatever was sent:
+DO_CHANGE_SPEED, RTL, ..."""
 PX4_MAIN_AUTO = 4
 PX4_SUB = {"mission": 4, "hold": 3, "rtl": 5, "land": 6, "takeoff": 2}
 COPTER_NUMBER = {"mission": 3, "guided": 4, "hold": 5, "rtl": 6, "land": 9}
@@ -95,6 +110,28 @@ def mode_params(kind: AutopilotKind, mode: FlightMode) -> tuple[float, float, fl
                     "numbers are not known")
 
 
+def flight_mode(kind: AutopilotKind, custom_mode: int) -> FlightMode | None:
+    """The mode a HEARTBEAT's ``custom_mode`` names, the inverse of :func:`mode_params`
+    (None: a mode the station never asks for, e.g. PX4's AUTO.TAKEOFF, or an unknown
+    autopilot).
+
+    >>> flight_mode(AutopilotKind.PX4, (4 << 16) | (5 << 24)).value
+    'rtl'
+    >>> flight_mode(AutopilotKind.ARDUPILOT, 3).value
+    'mission'
+    """
+    if kind == AutopilotKind.PX4:
+        if (custom_mode >> 16) & 0xFF != PX4_MAIN_AUTO:
+            return None
+        sub = (custom_mode >> 24) & 0xFF
+        return next((FlightMode(name) for name, n in PX4_SUB.items()
+                     if n == sub and name in FlightMode.__members__.values()), None)
+    if kind == AutopilotKind.ARDUPILOT:
+        return next((FlightMode(name) for name, n in COPTER_NUMBER.items()
+                     if n == custom_mode), None)
+    return None
+
+
 def _kind(router: Router, sysid: int) -> AutopilotKind:
     link = router.vehicles.get(sysid)
     if link is None:
@@ -146,15 +183,60 @@ async def arm_when_ready(router: Router, sysid: int, timeout_s: float = 30.0,
         await asyncio.sleep(retry_s)
 
 
+def mission_start_params(kind: AutopilotKind, first_seq: int) -> tuple[int, int]:
+    """``MAV_CMD_MISSION_START`` params 1-2 (first, last item) for a mission flown from
+    ``first_seq``: ArduCopter denies any but ``(0, 0)`` ("first-item/last item not supported",
+    its ``GCS_MAVLink_Copter.cpp``) and flies a mission from item 1 anyway (item 0 is home).
+
+    >>> mission_start_params(AutopilotKind.ARDUPILOT, 1), mission_start_params(AutopilotKind.PX4, 1)
+    ((0, 0), (1, 0))
+    """
+    return (0, 0) if kind == AutopilotKind.ARDUPILOT else (first_seq, 0)
+
+
 async def start_mission(router: Router, sysid: int, first_seq: int = 1,
                         timeout_s: float = 30.0) -> None:
     """Arm (when ready) and start the uploaded mission at ``first_seq``, the autopilot's way.
 
     ArduCopter is first put in GUIDED (it does not arm in AUTO); both then get
-    ``MAV_CMD_MISSION_START(first_seq)``, which switches to the mission mode.
+    ``MAV_CMD_MISSION_START`` (:func:`mission_start_params`), which switches to the mission
+    mode.
     """
     link = router.vehicles.get(sysid)
-    if _kind(router, sysid) == AutopilotKind.ARDUPILOT and not (link and link.armed):
+    kind = _kind(router, sysid)
+    if kind == AutopilotKind.ARDUPILOT and not (link and link.armed):
         await set_mode(router, sysid, FlightMode.GUIDED)
     await arm_when_ready(router, sysid, timeout_s)
-    await router.start_mission(sysid, first_seq, 0)
+    await router.start_mission(sysid, *mission_start_params(kind, first_seq))
+
+
+AUTOPILOT_NAMES = ("px4", "ardupilot")
+
+
+@dataclass(frozen=True)
+class VehicleKind:
+    """A simulated vehicle's personality and whether a companion computer runs the tracer.
+
+    >>> VehicleKind.parse("ardupilot+companion")
+    VehicleKind(autopilot='ardupilot', companion=True)
+    >>> str(VehicleKind("px4", False))
+    'px4'
+    """
+
+    autopilot: str = "px4"
+    companion: bool = True
+
+    @classmethod
+    def parse(cls, text: str) -> VehicleKind:
+        name, plus, extra = text.strip().partition("+")
+        if name not in AUTOPILOT_NAMES or (plus and extra != "companion"):
+            raise EcondorError(f"--autopilot: {text!r} is not one of px4, ardupilot, "
+                               "px4+companion, ardupilot+companion")
+        return cls(name, bool(plus))
+
+    def args(self) -> list[str]:
+        """The ``sim-vehicle`` options for this kind."""
+        return ["--autopilot", self.autopilot, *(["--companion"] if self.companion else [])]
+
+    def __str__(self) -> str:
+        return self.autopilot + ("+companion" if self.companion else "")

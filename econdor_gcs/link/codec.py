@@ -12,11 +12,19 @@ Build messages with the dialect module re-exported here, e.g.
 from __future__ import annotations
 
 import struct
+from collections import Counter
 from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from ..signing import SigningKey, refusal_counts, refused, share_signing
+from econdor_gcs.link.signing import (
+    SigningKey,
+    refusal_counts,
+    refusal_counts_by_source,
+    refused,
+    share_signing,
+    unsigned_sources,
+)
 
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "Codec", "MAVLinkMessage", "Parser", "mavlink"]
 
@@ -59,11 +67,13 @@ class Codec:
 
 
 class Parser:
-    """Datagram bytes -> MAVLink messages, robustly.
+    """Datagram or stream bytes -> MAVLink messages, robustly.
 
-    Every call to :meth:`feed` is one datagram: a packet cut off at the end of a datagram is
-    discarded rather than glued to the next one (UDP keeps packets whole, so a fragment can only
-    be damage).  Counters:
+    A call to :meth:`feed` without ``stream`` is one datagram: a packet cut off at the end of
+    a datagram is discarded rather than glued to the next one (UDP keeps packets whole, so a
+    fragment can only be damage). With ``stream`` (any hashable key, e.g. a TCP peer) the
+    bytes continue that stream, and a packet split across reads is put back together.
+    Counters:
 
     ``packets``
         messages decoded and returned
@@ -79,40 +89,75 @@ class Parser:
     def __init__(self, signing: SigningKey | None = None) -> None:
         self.signing = signing
         self._signing_state: mavlink.MAVLinkSigning | None = None
-        self._new_mav()
+        self._mav = self._new_mav()
+        self._streams: dict[object, mavlink.MAVLink] = {}
         self.packets = 0
         self.bad_packets = 0
         self.unknown_packets = 0
         self.unsigned_packets = 0
         self.bad_signature_packets = 0
+        self.unsigned_by: Counter[int] = Counter()
+        """Unsigned packets dropped, by the system id they claim."""
         self.bytes = 0
 
-    def _new_mav(self) -> None:
-        self._mav = mavlink.MAVLink(None)
-        self._mav.robust_parsing = True
+    def _new_mav(self) -> mavlink.MAVLink:
+        mav = mavlink.MAVLink(None)
+        mav.robust_parsing = True
         if self.signing is not None:
             if self._signing_state is None:
-                self.signing.apply(self._mav, sign_outgoing=False)
-                self._signing_state = self._mav.signing
+                self.signing.apply(mav, sign_outgoing=False)
+                self._signing_state = mav.signing
             else:  # a fresh parser keeps the streams' timestamps: replays stay refused
-                share_signing(self._mav, self._signing_state)
+                share_signing(mav, self._signing_state)
+        return mav
 
-    def feed(self, data: bytes) -> list[MAVLinkMessage]:
-        """Decode every packet in one datagram; never raises."""
+    @property
+    def signing_state(self) -> mavlink.MAVLinkSigning | None:
+        """The signing state every packet is checked against (None: not signing)."""
+        return self._signing_state
+
+    def refused_by_source(self) -> dict[int, dict[str, int]]:
+        """Per system id: packets refused as ``bad_signature`` (signed with another key),
+        ``replayed`` and ``unsigned`` (empty when not signing)."""
+        out: dict[int, dict[str, int]] = {}
+        if self._signing_state is not None:
+            for (reason, sysid), n in refusal_counts_by_source(self._signing_state).items():
+                out.setdefault(sysid, {})[reason] = n
+        for sysid, n in self.unsigned_by.items():
+            out.setdefault(sysid, {})["unsigned"] = n
+        return out
+
+    def forget(self, stream: object) -> None:
+        """Drop what is buffered of ``stream`` (its connection closed)."""
+        self._streams.pop(stream, None)
+
+    def feed(self, data: bytes, stream: object = None) -> list[MAVLinkMessage]:
+        """Decode every packet in one datagram, or in ``stream`` so far; never raises."""
         self.bytes += len(data)
         out: list[MAVLinkMessage] = []
-        sig = self._mav.signing
+        if stream is None:
+            mav = self._mav
+        else:
+            mav = self._streams.get(stream)
+            if mav is None:
+                mav = self._streams[stream] = self._new_mav()
+        sig = mav.signing
         before = refusal_counts(sig)
         try:
-            found = self._mav.parse_buffer(data) or []
+            found = mav.parse_buffer(data) or []
         except (mavlink.MAVError, struct.error, IndexError, ValueError, UnboundLocalError):
             # robust_parsing covers almost everything; whatever slips through is damage.
             self.bad_packets += 1
-            self._new_mav()
+            if stream is None:
+                self._mav = self._new_mav()
+            else:
+                self._streams[stream] = self._new_mav()
             return out
         wrong, unsigned = refused(sig, before)  # these came back as BAD_DATA too
         self.bad_signature_packets += wrong
         self.unsigned_packets += unsigned
+        if unsigned:
+            self.unsigned_by.update(unsigned_sources(data))
         refusals = wrong + unsigned
         for msg in found:
             kind = msg.get_type()
@@ -126,7 +171,7 @@ class Parser:
             else:
                 self.packets += 1
                 out.append(msg)
-        if self._mav.buf_len() > 0:  # a truncated packet at the end of the datagram
+        if stream is None and mav.buf_len() > 0:  # a truncated packet ends the datagram
             self.bad_packets += 1
-            self._new_mav()
+            self._mav = self._new_mav()
         return out

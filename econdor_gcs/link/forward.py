@@ -19,8 +19,8 @@ import logging
 from typing import Any
 
 from ..errors import LinkError
-from .codec import MAVLinkMessage, Parser
-from .router import Router
+from .codec import Parser
+from .router import Received, Router
 
 __all__ = ["Forwarder", "parse_forward_endpoint"]
 
@@ -74,7 +74,7 @@ class Forwarder(asyncio.DatagramProtocol):
             raise LinkError(f"--forward: cannot send to UDP {host}:{port}: "
                             f"{exc.strerror or exc}") from exc
         self._transport = transport
-        self.router.add_message_handler(self._on_vehicle_message)
+        self.router.subscribe(Received, self._on_vehicle_message)
         return self
 
     def close(self) -> None:
@@ -83,10 +83,10 @@ class Forwarder(asyncio.DatagramProtocol):
             self._transport = None
 
     # -- to the watcher ---------------------------------------------------------------------------
-    def _on_vehicle_message(self, sysid: int, msg: MAVLinkMessage) -> None:
+    def _on_vehicle_message(self, received: Received) -> None:
         if self._transport is None:
             return
-        self._transport.sendto(bytes(msg.get_msgbuf()))
+        self._transport.sendto(bytes(received.msg.get_msgbuf()))
         self.stats["forwarded"] += 1
 
     def error_received(self, exc: Exception) -> None:

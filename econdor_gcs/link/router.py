@@ -1,370 +1,169 @@
-"""One GCS UDP endpoint serving many vehicles, routed by system id (DESIGN.md §4).
+"""The station's MAVLink shell: its links, one parser, and subscriptions (DESIGN.md §4).
 
-pymavlink's ``udpin`` connection remembers a single peer, so the ground station does its own
-routing: :class:`Router` binds one UDP socket, remembers the address each system id was last
-heard from, and sends a vehicle's messages there.  It is the only asyncio part of the link
-layer; the protocols themselves are the pure state machines of :mod:`.mission`, driven by
-:meth:`Router.run_protocol`.
+The :class:`Router` is the only asyncio part of the link layer, and stays thin: it opens the
+``--connect`` links (:mod:`.transports`: UDP, TCP, serial; several at once), decodes what
+arrives (:mod:`.codec`), and hands each message with its source and the time to the pure
+parts: the :class:`~.vehicles.VehicleTable` (who is who, routes, twins, strangers, liveness),
+the :class:`~.pairing.SamplePairer` (samples placed on the position track) and the protocol
+machines of :mod:`.mission`, driven by :meth:`Router.run_protocol`. The command vocabulary
+(arm, modes, missions, ...) is :class:`~.commands.CommandVocabulary`.
 
-Events (dataclasses, delivered to :meth:`Router.add_event_handler` callbacks and to queues
-from :meth:`Router.event_queue`): :class:`VehicleDiscovered`, :class:`VehicleLost`,
-:class:`VehicleRecovered`, :class:`MissionItemReached`, :class:`StatusText`.  Paired samples
-(:class:`Sample`) go to :meth:`Router.sample_queue` queues and :meth:`Router.add_sample_handler`
-callbacks; every message to :meth:`Router.add_message_handler` callbacks.
+One subscription style: :meth:`Router.subscribe` ``(kinds, handler)`` calls ``handler`` on the
+station's loop thread with every object of those types: the table's events
+(:class:`VehicleDiscovered`, :class:`VehicleLost`, :class:`TwinRefused`, ...), each placed
+:class:`Sample`, and every accepted message as :class:`Received`. :meth:`Router.queue` is
+the same subscription delivering into an :class:`asyncio.Queue`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
-import socket
 import time
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from econdor_gcs.link.signing import SigningKey
 
 from ..errors import LinkError, VehicleTimeout
-from ..signing import SigningKey
 from .codec import GCS_COMPONENT_ID, GCS_SYSTEM_ID, Codec, MAVLinkMessage, Parser, mavlink
-from .mission import (
-    DEFAULT_RETRIES,
-    DEFAULT_TIMEOUT_S,
-    CommandSender,
-    MissionClear,
-    MissionDownloader,
-    MissionItemSpec,
-    MissionUploader,
-)
+from .commands import CommandVocabulary, Machine
+from .pairing import Sample, SamplePairer
 from .tlog import TlogWriter
+from .transports import Address, Endpoint, Transport, open_transport, parse_endpoint
+from .vehicles import (
+    AIRBORNE_ALT_M,
+    AUTOPILOT_COMPONENT,
+    ComponentDiscovered,
+    Event,
+    ForeignVehicle,
+    MissionItemReached,
+    Source,
+    StatusText,
+    TwinRefused,
+    VehicleDiscovered,
+    VehicleLink,
+    VehicleLost,
+    VehicleMoved,
+    VehicleRecovered,
+    VehicleTable,
+)
 
 __all__ = [
+    "AIRBORNE_ALT_M",
     "DEFAULT_ENDPOINT",
+    "ComponentDiscovered",
+    "ForeignVehicle",
     "MissionItemReached",
+    "Received",
     "Router",
     "Sample",
     "SamplePairer",
     "StatusText",
+    "Subscription",
+    "TwinRefused",
     "VehicleDiscovered",
     "VehicleLink",
     "VehicleLost",
+    "VehicleMoved",
     "VehicleRecovered",
     "parse_endpoint",
 ]
 
 DEFAULT_ENDPOINT = "udpin:127.0.0.1:14550"
-RCVBUF_BYTES = 4 << 20
-"""Requested UDP receive buffer (the kernel caps it at net.core.rmem_max)."""
 log = logging.getLogger(__name__)
-SAMPLE_NAME = "FIELD"
-HDG_UNKNOWN = 0xFFFF
-"""``GLOBAL_POSITION_INT.hdg`` when the heading is unknown (UINT16_MAX, MAVLink common)."""
-AIRBORNE_ALT_M = 0.5
-"""Above home by more than this, a vehicle counts as flying (for ``VehicleLink.airborne_s``)."""
-REBOOT_MS = 10_000
-"""A ``time_boot_ms`` this far behind the last one means the vehicle restarted."""
-Address = tuple[str, int]
-
-
-def parse_endpoint(endpoint: str) -> Address:
-    """``"udpin:HOST:PORT"`` (or ``"udp:HOST:PORT"``, same meaning) -> ``(HOST, PORT)``."""
-    scheme, sep, rest = endpoint.partition(":")
-    host, sep2, port_text = rest.rpartition(":")
-    if not sep or not sep2 or scheme not in ("udpin", "udp") or not host:
-        raise LinkError(
-            f"cannot serve {endpoint!r}: expected udpin:HOST:PORT, e.g. {DEFAULT_ENDPOINT}")
-    try:
-        port = int(port_text)
-    except ValueError:
-        raise LinkError(f"bad port {port_text!r} in endpoint {endpoint!r}") from None
-    if not 0 <= port <= 65535:
-        raise LinkError(f"port {port} out of range in endpoint {endpoint!r}")
-    return host.strip("[]"), port
-
-
-# --------------------------------------------------------------------------------------------
-# events and per-vehicle state
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
-class VehicleDiscovered:
-    """The first HEARTBEAT from a system id."""
+class Received:
+    """A message from vehicle ``sysid`` that the vehicle table accepted."""
 
     sysid: int
-    address: Address
+    msg: MAVLinkMessage
 
 
-@dataclass(frozen=True)
-class VehicleLost:
-    """No HEARTBEAT from ``sysid`` for longer than the router's ``heartbeat_timeout_s``."""
+class Subscription:
+    """One handler for some types of object; :meth:`close` ends it."""
 
-    sysid: int
-    silent_s: float
+    def __init__(self, router: Router, kinds: tuple[type, ...], handler: Callable[[Any], None],
+                 sysid: int | None) -> None:
+        self.router, self.kinds, self.handler, self.sysid = router, kinds, handler, sysid
 
-
-@dataclass(frozen=True)
-class VehicleRecovered:
-    """A lost vehicle's heartbeat is back."""
-
-    sysid: int
-    address: Address
+    def close(self) -> None:
+        with contextlib.suppress(ValueError):
+            self.router._subs.remove(self)
 
 
-@dataclass(frozen=True)
-class MissionItemReached:
-    sysid: int
-    seq: int
-
-
-@dataclass(frozen=True)
-class StatusText:
-    sysid: int
-    severity: int
-    text: str
-
-
-@dataclass(frozen=True)
-class Sample:
-    """One field measurement: ``NAMED_VALUE_FLOAT("FIELD")`` + ``GLOBAL_POSITION_INT`` with the
-    same ``time_boot_ms`` from the same vehicle.  ``rel_alt_m`` is above home."""
-
-    sysid: int
-    time_boot_ms: int
-    lat_deg: float
-    lon_deg: float
-    rel_alt_m: float
-    value: float
-
-
-Event = VehicleDiscovered | VehicleLost | VehicleRecovered | MissionItemReached | StatusText
-
-
-@dataclass
-class VehicleLink:
-    """What the ground station knows about one vehicle (updated from its messages)."""
-
-    sysid: int
-    address: Address
-    compid: int = 1
-    first_seen: float = 0.0          # wall time (Unix s)
-    last_heartbeat: float = 0.0      # wall time (Unix s)
-    last_heartbeat_mono: float = 0.0  # time.monotonic() of the same heartbeat
-    lost: bool = False
-    # last HEARTBEAT
-    mav_type: int = 0
-    autopilot: int = 0
-    base_mode: int = 0
-    custom_mode: int = 0
-    system_status: int = 0
-    # last GLOBAL_POSITION_INT
-    time_boot_ms: int | None = None
-    lat_deg: float | None = None
-    lon_deg: float | None = None
-    alt_m: float | None = None       # AMSL
-    rel_alt_m: float | None = None   # above home
-    heading_deg: float | None = None  # last known (GLOBAL_POSITION_INT.hdg; kept while unknown)
-    airborne_s: float = 0.0
-    """Vehicle (sim) time spent above ``AIRBORNE_ALT_M``: the sum of the ``time_boot_ms``
-    steps between consecutive positions that were both airborne (late, out-of-order
-    positions are left out)."""
-    last_fix_ms: int | None = None
-    last_fix_airborne: bool = False
-    # last SYS_STATUS
-    sensors_present: int | None = None
-    sensors_health: int = 0
-    # mission progress
-    mission_current: int | None = None
-    mission_reached: int | None = None
-    statustexts: list[tuple[float, int, str]] = field(default_factory=list)
-    messages: int = 0
-
-    @property
-    def armed(self) -> bool:
-        return bool(self.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-
-    @property
-    def prearm_ok(self) -> bool | None:
-        """The pre-arm checks pass (SYS_STATUS health bit); None if the vehicle does not say."""
-        bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
-        if self.sensors_present is None or not self.sensors_present & bit:
-            return None
-        return bool(self.sensors_health & bit)
-
-
-class SamplePairer:
-    """Pair ``NAMED_VALUE_FLOAT("FIELD")`` with ``GLOBAL_POSITION_INT`` by (sysid, time_boot_ms).
-
-    Whichever half arrives first waits; :meth:`add` returns the :class:`Sample` when the second
-    arrives.  Halves still unpaired ``horizon_s`` after they arrived are dropped (counted in
-    ``dropped``); at most ``max_pending`` halves per kind are kept.
-    """
-
-    def __init__(self, horizon_s: float = 5.0, name: str = SAMPLE_NAME,
-                 max_pending: int = 100_000) -> None:
-        self.horizon_s = horizon_s
-        self.name = name
-        self.max_pending = max_pending
-        self.dropped = 0
-        self.paired = 0
-        # key -> (arrival time, payload)
-        self._positions: dict[tuple[int, int], tuple[float, tuple[float, float, float]]] = {}
-        self._values: dict[tuple[int, int], tuple[float, float]] = {}
-
-    def add(self, sysid: int, msg: MAVLinkMessage, now: float) -> Sample | None:
-        """Offer one message from ``sysid`` (others are ignored); return a completed sample."""
-        kind = msg.get_type()
-        if kind == "GLOBAL_POSITION_INT":
-            key = (sysid, msg.time_boot_ms)
-            pos = (msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
-            waiting = self._values.pop(key, None)
-            if waiting is None:
-                self._positions[key] = (now, pos)
-                self._limit(self._positions)
-                self.expire(now)
-                return None
-            value = waiting[1]
-        elif kind == "NAMED_VALUE_FLOAT" and _text(msg.name) == self.name:
-            key = (sysid, msg.time_boot_ms)
-            value = float(msg.value)
-            waiting_pos = self._positions.pop(key, None)
-            if waiting_pos is None:
-                self._values[key] = (now, value)
-                self._limit(self._values)
-                self.expire(now)
-                return None
-            pos = waiting_pos[1]
-        else:
-            return None
-        self.paired += 1
-        return Sample(sysid, key[1], pos[0], pos[1], pos[2], value)
-
-    @property
-    def pending(self) -> int:
-        return len(self._positions) + len(self._values)
-
-    def expire(self, now: float) -> int:
-        """Drop halves that waited longer than the horizon; return how many."""
-        limit = now - self.horizon_s
-        n = 0
-        for table in (self._positions, self._values):
-            # dicts keep insertion order, which is arrival order
-            while table:
-                key = next(iter(table))
-                if table[key][0] >= limit:
-                    break
-                del table[key]
-                n += 1
-        self.dropped += n
-        return n
-
-    def _limit(self, table: dict[Any, Any]) -> None:
-        while len(table) > self.max_pending:
-            del table[next(iter(table))]
-            self.dropped += 1
-
-
-def _text(value: object) -> str:
-    if isinstance(value, bytes | bytearray):
-        value = value.decode("utf-8", "replace")
-    return str(value).rstrip("\x00")
-
-
-# --------------------------------------------------------------------------------------------
-# the asyncio shell
-
-
-class Machine(Protocol):
-    done: bool
-    result: object
-    error: Exception | None
-
-    def receive(self, msg: MAVLinkMessage, now: float) -> None: ...
-    def poll(self, now: float) -> list[MAVLinkMessage]: ...
-    def next_deadline(self) -> float | None: ...
-
-
-class _Datagrams(asyncio.DatagramProtocol):
-    def __init__(self, router: Router) -> None:
-        self._router = router
-
-    def datagram_received(self, data: bytes, addr: Any) -> None:
-        self._router._on_datagram(data, (addr[0], addr[1]))
-
-    def error_received(self, exc: Exception) -> None:
-        # ICMP port unreachable from a vehicle that went away: count, keep serving.
-        self._router.stats["socket_errors"] += 1
-
-
-MessageHandler = Callable[[int, MAVLinkMessage], None]
-
-
-class Router:
-    """The GCS endpoint: one UDP socket, many vehicles.
+class Router(CommandVocabulary):
+    """The GCS endpoint: one or more links, many vehicles.
 
     Parameters
     ----------
     endpoint:
-        ``"udpin:HOST:PORT"`` (``"udp:"`` accepted as a synonym); port 0 picks a free port, see
-        :attr:`local_address` after :meth:`start`.
+        A ``--connect`` value (:func:`~.transports.parse_endpoint`), or several: each is one
+        link, and a vehicle is routed to the link and address its autopilot speaks from.
+        ``udpin`` with port 0 picks a free port, see :attr:`local_address`.
     tlog:
         Every message in and out is written here when given.
     heartbeat_timeout_s:
-        A vehicle silent for longer is marked lost (:class:`VehicleLost`).
+        A vehicle silent for longer is lost (:class:`VehicleLost`); a second source of its
+        autopilot is refused until then.
     gcs_heartbeat_s:
-        Period of our own HEARTBEAT (MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID) to every known vehicle.
-    sample_horizon_s:
-        How long an unpaired sample half waits (:class:`SamplePairer`).
+        Period of our own HEARTBEAT (MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID) to every known vehicle
+        and to every link's fixed peer (``udpout``, ``tcp``, serial).
     signing:
         MAVLink 2 signing: everything we send is signed with this key, and whatever
         arrives unsigned or wrongly signed is dropped and counted
         (``parser.unsigned_packets``, ``parser.bad_signature_packets``).
     """
 
-    def __init__(self, endpoint: str = DEFAULT_ENDPOINT, *, tlog: TlogWriter | None = None,
-                 heartbeat_timeout_s: float = 5.0, gcs_heartbeat_s: float = 1.0,
-                 sample_horizon_s: float = 5.0, system_id: int = GCS_SYSTEM_ID,
+    def __init__(self, endpoint: str | Sequence[str] = DEFAULT_ENDPOINT, *,
+                 tlog: TlogWriter | None = None, heartbeat_timeout_s: float = 5.0,
+                 gcs_heartbeat_s: float = 1.0, system_id: int = GCS_SYSTEM_ID,
                  component_id: int = GCS_COMPONENT_ID, signing: SigningKey | None = None
                  ) -> None:
-        self.endpoint = endpoint
-        self.bind_address = parse_endpoint(endpoint)
+        texts = [endpoint] if isinstance(endpoint, str) else list(endpoint)
+        if not texts:
+            raise LinkError("no endpoint to serve")
+        self.endpoints: list[Endpoint] = [parse_endpoint(t) for t in texts]
+        self.links: list[Transport] = [open_transport(ep) for ep in self.endpoints]
         self.tlog = tlog
-        self.heartbeat_timeout_s = heartbeat_timeout_s
         self.gcs_heartbeat_s = gcs_heartbeat_s
         self.codec = Codec(system_id, component_id, signing)
         self.parser = Parser(signing)
-        self.pairer = SamplePairer(sample_horizon_s)
-        self.vehicles: dict[int, VehicleLink] = {}
+        self.table = VehicleTable(heartbeat_timeout_s)
+        self.pairer = SamplePairer()
+        self.vehicles: dict[int, VehicleLink] = self.table.vehicles
         self.stats: dict[str, int] = {
             "datagrams_in": 0, "messages_in": 0, "messages_out": 0, "foreign": 0,
-            "socket_errors": 0, "handler_errors": 0,
+            "not_vehicle": 0, "handler_errors": 0,
         }
-        self._transport: asyncio.DatagramTransport | None = None
-        self._housekeeping: asyncio.Task[None] | None = None
-        self._message_handlers: list[MessageHandler] = []
-        self._event_handlers: list[Callable[[Event], None]] = []
-        self._sample_handlers: list[Callable[[Sample], None]] = []
-        self._event_queues: list[asyncio.Queue[Event]] = []
-        self._sample_queues: list[asyncio.Queue[Sample]] = []
-        self._protocol_queues: dict[int, list[asyncio.Queue[MAVLinkMessage]]] = {}
+        self._subs: list[Subscription] = []
         self._mission_locks: dict[int, asyncio.Lock] = {}
+        self._housekeeping: asyncio.Task[None] | None = None
+        self._open: list[Transport] = []
         self._changed = asyncio.Event()
+
+    @property
+    def heartbeat_timeout_s(self) -> float:
+        return self.table.heartbeat_timeout_s
 
     # -- lifecycle ------------------------------------------------------------------------------
     async def start(self) -> Router:
-        if self._transport is not None:
+        if self._housekeeping is not None:
             return self
-        loop = asyncio.get_running_loop()
         try:
-            transport, _ = await loop.create_datagram_endpoint(
-                lambda: _Datagrams(self), local_addr=self.bind_address)
-        except OSError as exc:
-            host, port = self.bind_address
-            raise LinkError(f"cannot listen on UDP {host}:{port}: {exc.strerror or exc}") from exc
-        self._transport = transport
-        sock = transport.get_extra_info("socket")
-        if sock is not None:  # bursts of samples from many vehicles: a roomy receive buffer
-            with contextlib.suppress(OSError):
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            for i, transport in enumerate(self.links):
+                await transport.open(functools.partial(self._on_bytes, i),
+                                     functools.partial(self._on_gone, i))
+                self._open.append(transport)
+        except LinkError:
+            self._close_links()
+            raise
         self._housekeeping = asyncio.create_task(self._housekeeping_loop())
         return self
 
@@ -374,11 +173,14 @@ class Router:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        self._close_links()
         if self.tlog is not None:
             self.tlog.flush()
+
+    def _close_links(self) -> None:
+        for transport in self._open:
+            transport.close()
+        self._open.clear()
 
     async def __aenter__(self) -> Router:
         return await self.start()
@@ -388,11 +190,10 @@ class Router:
 
     @property
     def local_address(self) -> Address:
-        """The bound ``(host, port)`` (after :meth:`start`)."""
-        if self._transport is None:
+        """The first link's local ``(host, port)`` (after :meth:`start`)."""
+        if not self._open:
             raise LinkError("the GCS endpoint is not started")
-        sock = self._transport.get_extra_info("sockname")
-        return sock[0], sock[1]
+        return self.links[0].local_address
 
     @property
     def bad_packets(self) -> int:
@@ -400,72 +201,92 @@ class Router:
         return self.parser.bad_packets
 
     # -- subscriptions --------------------------------------------------------------------------
-    def add_message_handler(self, handler: MessageHandler) -> None:
-        """``handler(sysid, msg)`` for every message from a vehicle."""
-        self._message_handlers.append(handler)
+    def subscribe(self, kinds: type | tuple[type, ...], handler: Callable[[Any], None], *,
+                  sysid: int | None = None) -> Subscription:
+        """Call ``handler(obj)`` for every event, :class:`Sample` or :class:`Received` of
+        ``kinds`` from now on (of vehicle ``sysid`` only, if given). A failing handler is
+        logged and counted (``stats["handler_errors"]``), never stops the others."""
+        sub = Subscription(self, kinds if isinstance(kinds, tuple) else (kinds,), handler,
+                           sysid)
+        self._subs.append(sub)
+        return sub
 
-    def add_event_handler(self, handler: Callable[[Event], None]) -> None:
-        self._event_handlers.append(handler)
-
-    def add_sample_handler(self, handler: Callable[[Sample], None]) -> None:
-        self._sample_handlers.append(handler)
-
-    def event_queue(self) -> asyncio.Queue[Event]:
-        """A new queue receiving every event from now on."""
-        q: asyncio.Queue[Event] = asyncio.Queue()
-        self._event_queues.append(q)
+    def queue(self, kinds: type | tuple[type, ...], *, sysid: int | None = None
+              ) -> asyncio.Queue[Any]:
+        """A queue receiving every object of ``kinds`` from now on (:meth:`subscribe`)."""
+        q: asyncio.Queue[Any] = asyncio.Queue()
+        self.subscribe(kinds, q.put_nowait, sysid=sysid)
         return q
 
-    def sample_queue(self) -> asyncio.Queue[Sample]:
-        """A new queue receiving every paired :class:`Sample` from now on."""
-        q: asyncio.Queue[Sample] = asyncio.Queue()
-        self._sample_queues.append(q)
-        return q
+    def _emit(self, obj: Event | Sample | Received) -> None:
+        sysid = obj.sysid
+        for sub in list(self._subs):
+            if isinstance(obj, sub.kinds) and (sub.sysid is None or sub.sysid == sysid):
+                try:
+                    sub.handler(obj)
+                except Exception:
+                    self.stats["handler_errors"] += 1
+                    log.exception("GCS endpoint: a %s handler failed", type(obj).__name__)
+        self._changed.set()
+
+    # -- the fleet ------------------------------------------------------------------------------
+    def expect(self, sysids: Iterable[int]) -> None:
+        """The run's fleet: any other system is a stranger from now on (reported, dropped)."""
+        for event in self.table.expect(sysids):
+            self._emit(event)
 
     # -- sending --------------------------------------------------------------------------------
-    def send(self, sysid: int, msg: MAVLinkMessage) -> None:
-        """Send ``msg`` to the address ``sysid`` was last heard from."""
+    def _route(self, sysid: int) -> tuple[Transport, Address]:
         link = self.vehicles.get(sysid)
         if link is None:
             raise LinkError(f"vehicle {sysid} has never been heard from")
-        self._send_to(link.address, msg)
+        if not self._open:
+            raise LinkError("the GCS endpoint is not started")
+        return self.links[link.link], link.address
+
+    def send(self, sysid: int, msg: MAVLinkMessage) -> None:
+        """Send ``msg`` to vehicle ``sysid``'s route (where its autopilot speaks from)."""
+        transport, address = self._route(sysid)
+        self._send_to(transport, address, self.codec.encode(msg))
 
     def send_raw(self, sysid: int, data: bytes) -> None:
         """Send already encoded MAVLink bytes (another sender's message) to ``sysid``."""
-        link = self.vehicles.get(sysid)
-        if link is None:
-            raise LinkError(f"vehicle {sysid} has never been heard from")
-        if self._transport is None:
-            raise LinkError("the GCS endpoint is not started")
-        self._transport.sendto(data, link.address)
-        self.stats["messages_out"] += 1
-        if self.tlog is not None:
-            self.tlog.write(data)
+        transport, address = self._route(sysid)
+        self._send_to(transport, address, data)
 
-    def _send_to(self, address: Address, msg: MAVLinkMessage) -> None:
-        if self._transport is None:
-            raise LinkError("the GCS endpoint is not started")
-        data = self.codec.encode(msg)
-        self._transport.sendto(data, address)
+    def _send_to(self, transport: Transport, address: Address, data: bytes) -> None:
+        transport.send(data, address)
         self.stats["messages_out"] += 1
         if self.tlog is not None:
             self.tlog.write(data)
 
     def send_heartbeat(self) -> None:
-        """Our HEARTBEAT to every known vehicle."""
-        for link in list(self.vehicles.values()):
-            msg = mavlink.MAVLink_heartbeat_message(
-                mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
-                mavlink.MAV_STATE_ACTIVE, 3)
-            self._send_to(link.address, msg)
+        """Our HEARTBEAT to every known vehicle, and to each link's fixed peer (a vehicle
+        behind ``udpout`` hears of us only this way)."""
+        if not self._open:
+            return
+        data = self.codec.encode(mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE,
+            3))
+        targets = {(link.link, link.address) for link in self.vehicles.values()}
+        for i, transport in enumerate(self.links):
+            targets.update((i, peer) for peer in transport.peers)
+        for i, address in sorted(targets):
+            self._send_to(self.links[i], address, data)
 
     # -- receiving ------------------------------------------------------------------------------
-    def _on_datagram(self, data: bytes, addr: Address) -> None:
+    def _on_bytes(self, link: int, data: bytes, peer: Address) -> None:
         self.stats["datagrams_in"] += 1
-        for msg in self.parser.feed(data):
-            self._on_message(msg, addr)
+        stream = (link, peer) if self.links[link].stream else None
+        source = Source(link, peer)
+        for msg in self.parser.feed(data, stream):
+            self._on_message(msg, source)
 
-    def _on_message(self, msg: MAVLinkMessage, addr: Address) -> None:
+    def _on_gone(self, link: int, peer: Address) -> None:
+        self.parser.forget((link, peer))
+        self.table.source_gone(Source(link, peer))
+
+    def _on_message(self, msg: MAVLinkMessage, source: Source) -> None:
         sysid = msg.get_srcSystem()
         if sysid == self.codec.system_id or sysid == 0:
             self.stats["foreign"] += 1  # our own echo, another GCS with our id, or nonsense
@@ -474,82 +295,22 @@ class Router:
         if target not in (0, self.codec.system_id):
             self.stats["foreign"] += 1  # addressed to someone else
             return
+        now = time.monotonic()
+        link, events = self.table.receive(msg, source, now)
+        for event in events:
+            self._emit(event)
+        if link is None:
+            self.stats["not_vehicle"] += 1  # before its heartbeat, a twin's, a stranger's
+            return
         self.stats["messages_in"] += 1
         if self.tlog is not None:
             self.tlog.write(msg)
-        now_mono, now_wall = time.monotonic(), time.time()
         kind = msg.get_type()
-        link = self.vehicles.get(sysid)
-        if kind == "HEARTBEAT" and msg.type != mavlink.MAV_TYPE_GCS:
-            if link is None:
-                link = VehicleLink(sysid, addr, compid=msg.get_srcComponent(),
-                                   first_seen=now_wall)
-                self.vehicles[sysid] = link
-                self._emit(VehicleDiscovered(sysid, addr))
-                self._changed.set()
-            elif link.lost:
-                link.lost = False
-                self._emit(VehicleRecovered(sysid, addr))
-            link.compid = msg.get_srcComponent()
-            link.last_heartbeat, link.last_heartbeat_mono = now_wall, now_mono
-            link.mav_type, link.autopilot = msg.type, msg.autopilot
-            link.base_mode, link.custom_mode = msg.base_mode, msg.custom_mode
-            link.system_status = msg.system_status
-        if link is None:
-            return  # not a vehicle until it heartbeats
-        link.address = addr
-        link.messages += 1
-        if kind == "GLOBAL_POSITION_INT":
-            rel_alt_m = msg.relative_alt / 1000.0
-            t_ms, last_ms = msg.time_boot_ms, link.last_fix_ms
-            if last_ms is None or t_ms > last_ms or t_ms < last_ms - REBOOT_MS:
-                airborne = rel_alt_m > AIRBORNE_ALT_M
-                if last_ms is not None and t_ms > last_ms and airborne and link.last_fix_airborne:
-                    link.airborne_s += (t_ms - last_ms) / 1000.0
-                link.last_fix_ms, link.last_fix_airborne = t_ms, airborne
-            link.time_boot_ms = msg.time_boot_ms
-            link.lat_deg, link.lon_deg = msg.lat / 1e7, msg.lon / 1e7
-            link.alt_m, link.rel_alt_m = msg.alt / 1000.0, rel_alt_m
-            if msg.hdg != HDG_UNKNOWN:
-                link.heading_deg = msg.hdg / 100.0
-        elif kind == "SYS_STATUS":
-            link.sensors_present = msg.onboard_control_sensors_present
-            link.sensors_health = msg.onboard_control_sensors_health
-        elif kind == "MISSION_CURRENT":
-            link.mission_current = msg.seq
-        elif kind == "MISSION_ITEM_REACHED":
-            link.mission_reached = msg.seq
-            self._emit(MissionItemReached(sysid, msg.seq))
-        elif kind == "STATUSTEXT":
-            text = _text(msg.text)
-            link.statustexts.append((now_wall, msg.severity, text))
-            del link.statustexts[:-200]
-            self._emit(StatusText(sysid, msg.severity, text))
         if kind in ("GLOBAL_POSITION_INT", "NAMED_VALUE_FLOAT"):
-            sample = self.pairer.add(sysid, msg, now_mono)
-            if sample is not None:
-                for on_sample in self._sample_handlers:
-                    self._call(on_sample, sample)
-                for q in self._sample_queues:
-                    q.put_nowait(sample)
-        for handler in self._message_handlers:
-            self._call(handler, sysid, msg)
-        for q in self._protocol_queues.get(sysid, ()):
-            q.put_nowait(msg)
-
-    def _call(self, handler: Callable[..., None], *args: Any) -> None:
-        """Run a user callback; a failing one is logged and counted, never kills the endpoint."""
-        try:
-            handler(*args)
-        except Exception:
-            self.stats["handler_errors"] += 1
-            log.exception("GCS endpoint: a %s handler failed", type(args[-1]).__name__)
-
-    def _emit(self, event: Event) -> None:
-        for handler in self._event_handlers:
-            self._call(handler, event)
-        for q in self._event_queues:
-            q.put_nowait(event)
+            autopilot = msg.get_srcComponent() == AUTOPILOT_COMPONENT
+            for sample in self.pairer.add(sysid, msg, now, position_source=autopilot):
+                self._emit(sample)
+        self._emit(Received(sysid, msg))
 
     async def _housekeeping_loop(self) -> None:
         tick = max(0.02, min(self.gcs_heartbeat_s, self.heartbeat_timeout_s / 4))
@@ -565,28 +326,29 @@ class Router:
 
     def check_liveness(self, now: float | None = None) -> list[int]:
         """Mark vehicles silent for > ``heartbeat_timeout_s`` lost; return the newly lost."""
-        now = time.monotonic() if now is None else now
-        newly: list[int] = []
-        for link in self.vehicles.values():
-            silent = now - link.last_heartbeat_mono
-            if not link.lost and silent > self.heartbeat_timeout_s:
-                link.lost = True
-                newly.append(link.sysid)
-                self._emit(VehicleLost(link.sysid, silent))
-        return newly
+        events = self.table.check(time.monotonic() if now is None else now)
+        for event in events:
+            self._emit(event)
+        return [e.sysid for e in events]
 
     # -- driving protocols ----------------------------------------------------------------------
     async def run_protocol(self, sysid: int, machine: Machine,
                            timeout_s: float | None = None) -> Any:
         """Drive ``machine`` against vehicle ``sysid`` until it is done; return its result.
 
-        Raises the machine's error, or :class:`VehicleTimeout` if ``timeout_s`` (overall) runs
-        out first.
+        The machine sees only what its target component sends. Raises the machine's error, or
+        :class:`VehicleTimeout` if ``timeout_s`` (overall) runs out first.
         """
         if sysid not in self.vehicles:
             raise LinkError(f"vehicle {sysid} has never been heard from")
-        queue: asyncio.Queue[MAVLinkMessage] = asyncio.Queue()
-        self._protocol_queues.setdefault(sysid, []).append(queue)
+        queue: asyncio.Queue[Received] = asyncio.Queue()
+        compid = machine.target_component
+
+        def mine(r: Received) -> None:
+            if compid == 0 or r.msg.get_srcComponent() == compid:
+                queue.put_nowait(r)
+
+        sub = self.subscribe(Received, mine, sysid=sysid)
         try:
             async with asyncio.timeout(timeout_s):
                 while True:
@@ -598,139 +360,21 @@ class Router:
                     deadline = machine.next_deadline()
                     wait = None if deadline is None else max(0.0, deadline - time.monotonic())
                     try:
-                        msg = await asyncio.wait_for(queue.get(), wait)
+                        got = await asyncio.wait_for(queue.get(), wait)
                     except TimeoutError:
                         continue
-                    machine.receive(msg, time.monotonic())
+                    machine.receive(got.msg, time.monotonic())
                     while not queue.empty() and not machine.done:
-                        machine.receive(queue.get_nowait(), time.monotonic())
+                        machine.receive(queue.get_nowait().msg, time.monotonic())
         except TimeoutError:
             raise VehicleTimeout(
                 f"vehicle {sysid}: {getattr(machine, 'what', 'protocol')} did not finish "
                 f"within {timeout_s:g} s") from None
         finally:
-            self._protocol_queues[sysid].remove(queue)
+            sub.close()
         if machine.error is not None:
             raise machine.error
         return machine.result
-
-    def _lock(self, sysid: int) -> asyncio.Lock:
-        return self._mission_locks.setdefault(sysid, asyncio.Lock())
-
-    def _compid(self, sysid: int) -> int:
-        link = self.vehicles.get(sysid)
-        return link.compid if link is not None else 1
-
-    async def upload_mission(self, sysid: int, items: list[MissionItemSpec], *,
-                             mission_type: int = 0, timeout_s: float = DEFAULT_TIMEOUT_S,
-                             retries: int = DEFAULT_RETRIES, legacy_items: bool = False) -> int:
-        """Upload a mission; return the number of items.  One mission transfer per vehicle at a
-        time (later calls wait)."""
-        async with self._lock(sysid):
-            machine = MissionUploader(sysid, self._compid(sysid), items, mission_type,
-                                      timeout_s=timeout_s, retries=retries,
-                                      legacy_items=legacy_items)
-            return int(await self.run_protocol(sysid, machine))
-
-    async def download_mission(self, sysid: int, *, mission_type: int = 0,
-                               timeout_s: float = DEFAULT_TIMEOUT_S,
-                               retries: int = DEFAULT_RETRIES) -> list[MissionItemSpec]:
-        async with self._lock(sysid):
-            machine = MissionDownloader(sysid, self._compid(sysid), mission_type,
-                                        timeout_s=timeout_s, retries=retries)
-            return list(await self.run_protocol(sysid, machine))
-
-    async def clear_mission(self, sysid: int, *, mission_type: int = 0,
-                            timeout_s: float = DEFAULT_TIMEOUT_S,
-                            retries: int = DEFAULT_RETRIES) -> None:
-        async with self._lock(sysid):
-            machine = MissionClear(sysid, self._compid(sysid), mission_type,
-                                   timeout_s=timeout_s, retries=retries)
-            await self.run_protocol(sysid, machine)
-
-    async def command(self, sysid: int, cmd: int, *params: float,
-                      timeout_s: float = DEFAULT_TIMEOUT_S,
-                      retries: int = DEFAULT_RETRIES) -> MAVLinkMessage:
-        """COMMAND_LONG with up to 7 params; return the accepting COMMAND_ACK."""
-        machine = CommandSender(sysid, self._compid(sysid), cmd, params, timeout_s=timeout_s,
-                                retries=retries)
-        return await self.run_protocol(sysid, machine)
-
-    async def command_int(self, sysid: int, cmd: int, x: int, y: int, z: float = 0.0,
-                          *params: float, timeout_s: float = DEFAULT_TIMEOUT_S,
-                          retries: int = DEFAULT_RETRIES) -> MAVLinkMessage:
-        """COMMAND_INT with exact int32 ``x``/``y``; return the accepting COMMAND_ACK."""
-        machine = CommandSender(sysid, self._compid(sysid), cmd, params, timeout_s=timeout_s,
-                                retries=retries, position=(x, y, z))
-        return await self.run_protocol(sysid, machine)
-
-    def send_command_int(self, sysid: int, cmd: int, x: int, y: int, z: float = 0.0) -> None:
-        """COMMAND_INT without waiting for its answer (requests whose effect is seen)."""
-        self.send(sysid, mavlink.MAVLink_command_int_message(
-            sysid, self._compid(sysid), mavlink.MAV_FRAME_GLOBAL_INT, cmd, 0, 0, 0.0, 0.0, 0.0,
-            0.0, x, y, z))
-
-    async def arm(self, sysid: int, *, force: bool = False) -> MAVLinkMessage:
-        return await self.command(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1,
-                                  21196 if force else 0)
-
-    async def disarm(self, sysid: int, *, force: bool = False) -> MAVLinkMessage:
-        return await self.command(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0,
-                                  21196 if force else 0)
-
-    async def set_mode(self, sysid: int, main_mode: int, sub_mode: int = 0,
-                       base_mode: int = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-                       ) -> MAVLinkMessage:
-        """MAV_CMD_DO_SET_MODE: param1 ``base_mode``, param2 the custom main mode, param3 the
-        custom sub mode.
-
-        PX4 reads its main mode (4 = AUTO) from param2 and the AUTO sub mode (2 TAKEOFF,
-        3 LOITER, 4 MISSION, 5 RTL, 6 LAND) from param3 -- not the packed
-        ``main << 16 | sub << 24`` of its HEARTBEAT; ArduPilot reads its mode number from
-        param2 (``sub_mode`` 0).
-        """
-        return await self.command(sysid, mavlink.MAV_CMD_DO_SET_MODE, base_mode, main_mode,
-                                  sub_mode)
-
-    async def takeoff(self, sysid: int, alt_rel_m: float) -> MAVLinkMessage:
-        """MAV_CMD_NAV_TAKEOFF to ``alt_rel_m`` above home, here.
-
-        PX4 (and our simulated vehicle) read param7 as an altitude AMSL: home's AMSL altitude
-        comes from the vehicle's last GLOBAL_POSITION_INT (``alt - relative_alt``). ArduPilot
-        reads param7 above home, so it gets ``alt_rel_m`` as is.
-        """
-        link = self.vehicles.get(sysid)
-        if link is None:
-            raise LinkError(f"vehicle {sysid} has never been heard from")
-        param7 = alt_rel_m
-        if link.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
-            if link.alt_m is None or link.rel_alt_m is None:
-                raise LinkError(f"vehicle {sysid}: no position yet, so no home altitude to "
-                                "take off from")
-            param7 = link.alt_m - link.rel_alt_m + alt_rel_m
-        nan = float("nan")
-        return await self.command(sysid, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan,
-                                  param7)
-
-    async def start_mission(self, sysid: int, first: int = 0, last: int = 0) -> MAVLinkMessage:
-        """MAV_CMD_MISSION_START (``first = last = 0``: the whole mission)."""
-        return await self.command(sysid, mavlink.MAV_CMD_MISSION_START, first, last)
-
-    async def return_to_launch(self, sysid: int) -> MAVLinkMessage:
-        return await self.command(sysid, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
-
-    async def set_message_interval(self, sysid: int, message_id: int,
-                                   interval_s: float) -> MAVLinkMessage:
-        """MAV_CMD_SET_MESSAGE_INTERVAL (``interval_s <= 0``: -1, stop the stream)."""
-        interval_us = -1 if interval_s <= 0 else interval_s * 1e6
-        return await self.command(sysid, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, message_id,
-                                  interval_us)
-
-    def request_data_streams(self, sysid: int, rate_hz: int = 4) -> None:
-        """Ask for all telemetry streams the legacy way (REQUEST_DATA_STREAM; ArduPilot sends only
-        heartbeats until asked).  Fire and forget; PX4 and our simulated vehicle ignore it."""
-        self.send(sysid, mavlink.MAVLink_request_data_stream_message(
-            sysid, self._compid(sysid), mavlink.MAV_DATA_STREAM_ALL, rate_hz, 1))
 
     async def wait_for_vehicles(self, vehicles: int | Iterable[int],
                                 timeout_s: float = 10.0) -> list[int]:
@@ -765,4 +409,3 @@ class Router:
         if count is not None:
             return sorted(self.vehicles)[:count]
         return wanted or []
-

@@ -1,0 +1,79 @@
+"""econdor run against ArduCopter SITL, repeated: the spread of the final MAE.
+
+    python bench/sitl.py --runs 10 --vehicles 3 --speedup 20 [--mission missions/demo.yaml]
+
+Each run starts ``--vehicles`` SITL copters (``../shared/sitl/arducopter`` or ``$ECONDOR_SITL``)
+with the mission's Lua field script, runs ``econdor run --connect tcp:...`` and prints one
+line per run (final MAE, samples placed against those the scripts sent, wall time), then the
+median and range. SITL's timing differs from run to run, so the missions, and the MAE, do too;
+the suite's SITL test asserts one run, this measures many.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+
+from sitl_helpers import Sitl, sitl_binary, sitls  # noqa: E402
+from test_sitl_run import lua_counts  # noqa: E402
+
+from econdor_gcs.config import load_mission  # noqa: E402
+from econdor_gcs.payload import field_script  # noqa: E402
+
+
+def one_run(mission_path: Path, n: int, speedup: float, work: Path) -> dict[str, float]:
+    lua = field_script(load_mission(mission_path))
+    vehicles = [Sitl(work / f"sitl{i}", sysid=i, speedup=speedup,
+                     scripts={"econdor_field.lua": lua}) for i in range(1, n + 1)]
+    out = work / "run"
+    t0 = time.monotonic()
+    with sitls(*vehicles):
+        cmd = [sys.executable, "-m", "econdor", "run", str(mission_path), "--vehicles", str(n),
+               "--speedup", f"{speedup:g}", "--out", str(out), "--quiet", "--timeout", "60"]
+        for v in vehicles:
+            cmd += ["--connect", f"tcp:127.0.0.1:{v.port}"]
+        run = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    if run.returncode != 0:
+        return {"error": 1.0, "wall_s": time.monotonic() - t0}
+    s = json.loads((out / "summary.json").read_text())
+    received, sent = lua_counts(out / "telemetry.tlog")
+    return {"mae_db": s["final_mae_db"], "samples": s["samples"],
+            "placed_of_sent": s["samples"] / max(1, sum(sent.values())),
+            "flown_m": s["flight_distance_m"], "wall_s": time.monotonic() - t0}
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--vehicles", type=int, default=3)
+    p.add_argument("--speedup", type=float, default=20.0)
+    p.add_argument("--mission", type=Path, default=REPO / "missions" / "demo.yaml")
+    args = p.parse_args()
+    if sitl_binary() is None:
+        print("no ArduPilot SITL (../shared/sitl/arducopter or $ECONDOR_SITL)", file=sys.stderr)
+        return 1
+    results = []
+    for k in range(args.runs):
+        with tempfile.TemporaryDirectory(prefix="econdor-sitl-") as tmp:
+            r = one_run(args.mission, args.vehicles, args.speedup, Path(tmp))
+        results.append(r)
+        print(f"run {k}: " + ", ".join(f"{key} {val:.4g}" for key, val in r.items()), flush=True)
+    maes = [r["mae_db"] for r in results if "mae_db" in r]
+    if maes:
+        print(f"final MAE dB: median {statistics.median(maes):.1f}, min {min(maes):.1f}, "
+              f"max {max(maes):.1f}, <= -40 dB in {sum(m <= -40 for m in maes)} of "
+              f"{len(maes)}; failed runs: {len(results) - len(maes)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
