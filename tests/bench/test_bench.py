@@ -139,3 +139,11 @@ def test_tables_from_saved_runs_of_several_files(tmp_path, capsys):
     assert "## Field: plume" in text and "## Field: paper" in text
     assert "2 planner runs and 18 surveys" in text
     assert "Threshold mapping, every field" in text
+
+
+def test_the_survey_cache_key_names_code_that_exists():
+    """A moved module must move in the key too: a path that is gone would fail every run
+    with a cache (and one left out would let a changed survey come from the cache)."""
+    for entry in surveys.SURVEY_SOURCES:
+        assert (ROOT / entry).exists(), entry
+    assert len(surveys.code_fingerprint()) == 64
