@@ -41,7 +41,8 @@ import os
 import sys
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -141,7 +142,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cache", default=None, help="directory memoising survey runs")
     p.add_argument("--json", default=None, help="write every run's rows here")
-    p.add_argument("--from-json", default=None, help="print tables (and figures) from a saved run")
+    p.add_argument("--from-json", default=None,
+                   help="print tables (and figures) from saved runs: one --json file, or "
+                        "several, comma-separated (their runs and surveys together, e.g. one "
+                        "field each)")
     p.add_argument("--figures", default=None, help="draw MAE-against-distance figures here")
     p.add_argument("--quick", action="store_true", help="2 seeds, 3 km budget")
     p.add_argument("--markdown", action="store_true", help="print Markdown tables")
@@ -187,28 +191,48 @@ def main(argv: list[str] | None = None) -> int:
                    for f in fields for s in seeds]
     t0 = time.perf_counter()
     if a.from_json:
-        saved = json.loads(Path(a.from_json).read_text())
-        runs, surveys = saved["runs"], saved["surveys"]
+        runs, surveys = [], []
+        for name in a.from_json.split(","):
+            saved = json.loads(Path(name).read_text())
+            runs += saved["runs"]
+            surveys += saved["surveys"]
     else:
         for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
         ctx = multiprocessing.get_context("spawn")
+        done = [0]
+        total = len(survey_jobs) + len(jobs)
+
+        def tick(what: str) -> Callable[[Future[Any]], None]:
+            def report(fut: Future[Any]) -> None:
+                done[0] += 1
+                if fut.exception() is None:
+                    print(f"[{done[0]}/{total}] {what} {time.perf_counter() - t0:.0f} s",
+                          file=sys.stderr, flush=True)
+            return report
+
         with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
             survey_futs = [pool.submit(scan_survey, j) for j in survey_jobs]
             run_futs = [pool.submit(run_planner, j) for j in jobs]
+            for j, fut in zip(survey_jobs, survey_futs, strict=True):
+                fut.add_done_callback(tick(f"surveys {j[0]} {j[1]}"))
+            for j, fut in zip(jobs, run_futs, strict=True):
+                fut.add_done_callback(tick(f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}"))
             surveys = [f.result() for f in survey_futs]
             runs = [f.result() for f in run_futs]
     wall = time.perf_counter() - t0
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps({"args": vars(a), "runs": runs, "surveys": surveys},
-                                           default=float))
+        Path(a.json).write_text(json.dumps({"args": vars(a), "wall_s": wall, "runs": runs,
+                                            "surveys": surveys}, default=float))
     md = a.markdown or a.out is not None
     lines = [f"# Efficiency: {len(seeds)} seeds ({a.seeds}), budget {a.budget / 1000:g} km",
              "", *(stamp(sys.argv) if a.out else []), "",
              f"{len(runs)} planner runs and {sum(s['runs'] for s in surveys)} surveys "
-             f"({sum(s.get('flown', 0) for s in surveys)} flown, the rest from the cache) in "
-             f"{wall:.0f} s on {a.workers} workers; reconstruction {a.reconstruction}, "
+             f"({sum(s.get('flown', 0) for s in surveys)} flown, the rest from the cache) "
+             + (f"read from {a.from_json}" if a.from_json else
+                f"in {wall:.0f} s on {a.workers} workers")
+             + f"; reconstruction {a.reconstruction}, "
              f"adaptive settings {settings or 'the defaults'}. Surveys: every line count from 2 "
              f"up to {max_survey_lines(a.budget)}. Distances: everything flown behind an "
              "estimate, never the flight home."]
@@ -219,9 +243,9 @@ def main(argv: list[str] | None = None) -> int:
         if not a.threshold_only:
             lines += field_tables(field, planners, runs, by_seed, budgets, a.budget, md)
         if a.threshold:
-            text, summary = threshold_tables(field, runs, by_seed, a.budget, md,
-                                             per_seed=not a.no_per_seed)
-            lines += ["", "### Threshold mapping", "", *text]
+            tables, summary = threshold_tables(field, runs, by_seed, a.budget, md,
+                                               per_seed=not a.no_per_seed)
+            lines += ["", "### Threshold mapping", "", *tables]
             headline += summary
     if len(headline) > 1:
         table = Table(["field", "mapper", "runs", "median × survey, stays", "≤ 0.5×, stays",

@@ -113,3 +113,37 @@ def test_every_results_file_names_a_command_that_runs():
             import efficiency
 
             efficiency.parse_args(argv[2:])  # exits on arguments it does not take
+
+
+def test_tables_from_saved_runs_of_several_files(tmp_path, capsys):
+    """One field per saved run (each written as it finished), printed as one report."""
+    import json
+
+    import efficiency
+
+    names = []
+    for field, seed in (("plume", 1), ("paper", 2)):
+        run = {"field": field, "seed": seed, "planner": "adaptive:threshold", "target": 5.0,
+               "stop": "planner_done",
+               "rows": [{**r, "target_missed": 0} for r in _rows([0.9, 0.4])]}
+        survey = {"field": field, "seed": seed, "runs": 9, "flown": 9, "budget": {},
+                  "to_db": {}, "to_iso": {"flight_m": 1000.0, "lines": 9}, "scanned": []}
+        path = tmp_path / f"{field}.json"
+        path.write_text(json.dumps({"args": {}, "runs": [run], "surveys": [survey]}))
+        names.append(str(path))
+    out = tmp_path / "t.md"
+    assert efficiency.main(["--from-json", ",".join(names), "--fields", "plume,paper",
+                            "--seeds", "1:3", "--threshold-only", "--no-per-seed",
+                            "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "## Field: plume" in text and "## Field: paper" in text
+    assert "2 planner runs and 18 surveys" in text
+    assert "Threshold mapping, every field" in text
+
+
+def test_the_survey_cache_key_names_code_that_exists():
+    """A moved module must move in the key too: a path that is gone would fail every run
+    with a cache (and one left out would let a changed survey come from the cache)."""
+    for entry in surveys.SURVEY_SOURCES:
+        assert (ROOT / entry).exists(), entry
+    assert len(surveys.code_fingerprint()) == 64
