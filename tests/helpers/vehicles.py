@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import queue
 import re
@@ -65,6 +66,10 @@ class GcsLink:
         self.received: list[Any] = []  # everything, in order (when keep=True)
         self.keep = False
         self._backlog: list[Any] = []
+        self.heartbeat_s: float | None = None
+        """Send the GCS HEARTBEAT this often (wall seconds) while polling, as a ground station
+        does: a flight longer than the vehicle's GCS failsafe (5 s) needs it."""
+        self._heartbeat_at = -math.inf
 
     @classmethod
     def listen(cls) -> GcsLink:
@@ -102,7 +107,14 @@ class GcsLink:
         self.sock.sendto(data, self.remote)
 
     def poll(self) -> list[Any]:
-        """Receive whatever is there now (non-blocking-ish)."""
+        """Receive whatever is there now (non-blocking-ish); the GCS heartbeat when due."""
+        now = time.monotonic()
+        if self.heartbeat_s is not None and self.remote is not None \
+                and now - self._heartbeat_at >= self.heartbeat_s:
+            self._heartbeat_at = now
+            self.send(mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE,
+                3))
         out: list[Any] = []
         while True:
             try:
