@@ -32,6 +32,16 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         return s.getsockname()[1]
 
 
+def udp_port_bound(port: int, host: str = "127.0.0.1") -> bool:
+    """Someone has bound UDP ``host:port`` (binding it ourselves fails)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind((host, port))
+        except OSError:
+            return True
+    return False
+
+
 def wait_for(cond: Callable[[], Any], timeout: float, what: str = "condition",
              interval: float = 0.02) -> Any:
     deadline = time.monotonic() + timeout
