@@ -217,12 +217,14 @@ class VehicleProcess:
     """Run ``sim-vehicle`` as a subprocess; logs are kept and shown only on failure.
 
     Use as a context manager; ``ready_address`` is parsed from the vehicle's
-    ``ready on KIND:HOST:PORT`` line (so ``tcpin:127.0.0.1:0`` works).
+    ``ready on KIND:HOST:PORT`` line (so ``tcpin:127.0.0.1:0`` works). ``timeout`` bounds
+    the wait for that line: start-up (Python, numpy, numba's cached tracer) is no test's
+    claim, and on a loaded 2-core machine it took over 30 s.
     """
 
     def __init__(self, *args: str, mission: Path | str = DEMO, sysid: int = 1,
                  connect: str = "udpout:127.0.0.1:14550", extra: list[str] | None = None,
-                 timeout: float = 15.0) -> None:
+                 timeout: float = 60.0) -> None:
         self.log = tempfile.NamedTemporaryFile(  # noqa: SIM115 - closed in __exit__
             "w+b", prefix="sim-vehicle-", suffix=".log", delete=False)
         self.cmd = [*sim_vehicle_cmd(), "--sysid", str(sysid), "--mission", str(mission),
