@@ -267,8 +267,10 @@ class VehicleProcess:
             return Path(self.log.name).read_text(errors="replace")
         return ""
 
-    def stop(self, timeout: float = 5.0) -> int | None:
-        """terminate -> wait -> kill; returns the exit status."""
+    def stop(self, timeout: float = 30.0) -> int | None:
+        """terminate -> wait -> kill; returns the exit status. A vehicle that exits on
+        SIGTERM does so at once on an idle machine; ``timeout`` leaves room for a loaded one
+        (at load 17 on 2 cores, 5 s was not enough) before the kill."""
         if self.proc is None:
             return None
         if self.proc.poll() is None:
