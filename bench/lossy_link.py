@@ -15,8 +15,10 @@ START seconds after the first datagram.
 
 Per run it prints: the exit status, iterations, vehicles given up (every vehicle here is
 healthy: any given up is a failure), and samples: what the vehicles took (their own exit
-lines), what reached the station (distinct FIELD + GLOBAL_POSITION_INT pairs in the tlog,
-resends included) and what the run directory kept (``samples.csv``); then ``resent``, the
+lines), what reached the station (distinct FIELD measurements in the tlog, resends
+included: the station places a sample whose own GLOBAL_POSITION_INT was lost between the
+positions around it, so a measurement that arrived is a sample that reached it) and what the
+run directory kept (``samples.csv``); then ``resent``, the
 commands sent again because neither an answer nor the vehicle's telemetry showed them done
 (a resent MISSION_START would fly a mission again), ``left``, the flights a vehicle left on
 its own (its GCS failsafe after 5 s without the station's heartbeat), and the achieved
@@ -171,22 +173,19 @@ def stop(proc: subprocess.Popen[bytes]) -> int:
 
 
 def reached_station(tlog: Path, sysids: list[int]) -> dict[int, int]:
-    """Distinct samples (FIELD + GLOBAL_POSITION_INT of one time_boot_ms) that reached the
-    station, per system id, from its tlog."""
+    """Distinct samples (``FIELD`` measurements, one per ``time_boot_ms``) that reached the
+    station, per system id, from its tlog. Their positions are not required: the station
+    places a sample between the positions around it when its own was lost
+    (:mod:`econdor_gcs.link.pairing`), so counting only complete FIELD + GLOBAL_POSITION_INT
+    pairs would call samples "not reached" that the station rightly kept."""
     from econdor_gcs.link.tlog import read_tlog
 
-    pos: dict[int, set[int]] = {s: set() for s in sysids}
     val: dict[int, set[int]] = {s: set() for s in sysids}
     for m in read_tlog(tlog):
         s = m.get_srcSystem()
-        if s not in pos:
-            continue
-        kind = m.get_type()
-        if kind == "GLOBAL_POSITION_INT":
-            pos[s].add(m.time_boot_ms)
-        elif kind == "NAMED_VALUE_FLOAT" and m.name.rstrip("\x00") == "FIELD":
+        if s in val and m.get_type() == "NAMED_VALUE_FLOAT" and m.name.rstrip("\x00") == "FIELD":
             val[s].add(m.time_boot_ms)
-    return {s: len(pos[s] & val[s]) for s in sysids}
+    return {s: len(val[s]) for s in sysids}
 
 
 def kept(run_dir: Path, sysids: list[int]) -> dict[int, int]:

@@ -141,6 +141,12 @@ class _Machine:
         return "no answer"
 
 
+MAYBE_STALE_RESULTS = frozenset({mavlink.MAV_MISSION_INVALID_SEQUENCE, mavlink.MAV_MISSION_ERROR,
+                                 mavlink.MAV_MISSION_OPERATION_CANCELLED})
+"""MISSION_ACK results that may answer a copy of an item, or an item of an earlier transfer,
+rather than the transfer running: a verdict only when no request follows."""
+
+
 class MissionUploader(_Machine):
     """Upload ``items`` (GCS side of MISSION_COUNT -> MISSION_REQUEST(_INT) -> ... -> MISSION_ACK).
 
@@ -157,9 +163,12 @@ class MissionUploader(_Machine):
     item, not the end of it: ArduPilot requests an item again after one second of *its* time
     (0.1 s of wall time at a 10x speed-up), so a busy station answers both requests, and the
     second copy arrives when ArduPilot already waits for the next item; it says
-    INVALID_SEQUENCE and goes on requesting. Only when no request follows within the timeout
-    is it the vehicle's verdict (a vehicle with no transfer running), and the upload fails
-    with it (``stale_acks`` counts the others).
+    INVALID_SEQUENCE and goes on requesting. The same holds for ERROR and OPERATION_CANCELLED
+    (:data:`MAYBE_STALE_RESULTS`): ArduPilot answers them to an item of a transfer it has
+    ended, so after the station starts an upload again, the answer to the last item of the
+    attempt before can arrive when the new transfer is running. Only when no request follows
+    within the timeout is such an answer the vehicle's verdict (a vehicle with no transfer
+    running), and the upload fails with it (``stale_acks`` counts the others).
     """
 
     what = "mission upload"
@@ -225,7 +234,7 @@ class MissionUploader(_Machine):
                 if not self.items or (len(self.items) - 1) in self.requested:
                     self._succeed(len(self.items))
                 return
-            if msg.type == mavlink.MAV_MISSION_INVALID_SEQUENCE and self._last_seq is not None:
+            if msg.type in MAYBE_STALE_RESULTS:
                 self.stale_acks += 1
                 self._invalid = msg  # the verdict only if no request follows (_retry)
                 return

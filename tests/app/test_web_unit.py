@@ -45,6 +45,7 @@ from econdor_gcs.files.runlog import RunLog, Severity, read_log
 from econdor_gcs.link.router import Sample
 from econdor_gcs.station.telemetry import VehicleRow
 from econdor_lab.inprocess import InProcessExecutor
+from tests.helpers.vehicles import wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = ROOT / "missions" / "demo.yaml"
@@ -71,8 +72,9 @@ def test_pause_holds_the_checkpoint_until_resume() -> None:
     c = RunControl(on_change=lambda s, it: changes.append((s, it)), poll_s=0.02)
     assert c.request("pause") is ControlState.PAUSING
     t, out = _in_thread(lambda: c.checkpoint(2))
-    time.sleep(0.3)
-    assert t.is_alive() and c.state is ControlState.PAUSED  # held between iterations
+    wait_for(lambda: c.state is ControlState.PAUSED, 5, "the checkpoint to pause")
+    t.join(10 * 0.02)  # ten of its polls: it must still be held between iterations
+    assert t.is_alive() and c.state is ControlState.PAUSED
     assert c.request(ControlAction.RESUME) is ControlState.RUNNING
     t.join(2.0)
     assert out == [True]
@@ -84,7 +86,7 @@ def test_stop_while_paused_ends_the_loop() -> None:
     c = RunControl(poll_s=0.02)
     c.request("pause")
     t, out = _in_thread(lambda: c.checkpoint(1))
-    time.sleep(0.2)
+    wait_for(lambda: c.state is ControlState.PAUSED, 5, "the checkpoint to pause")
     c.request("stop")
     t.join(2.0)
     assert out == [False] and c.state is ControlState.STOPPED
@@ -223,11 +225,27 @@ def _status(sysid: int, x: float, phase: Phase = Phase.TRACE) -> VehicleRow:
                          items=3, phase=phase, flown_m=100.0, samples=10, status="flying")
 
 
+class FakeClock:
+    """The feed's clock, advanced by the test; like a real clock, each reading is a little
+    later than the one before (1 us), far below any snapshot interval."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+
+    def __call__(self) -> float:
+        self.now_s += 1e-6
+        return self.now_s
+
+
+CLOCK = FakeClock()
+
+
 def _live_feed(rate_hz: float = 1000.0) -> tuple[LiveFeed, RunControl, list[VehicleRow]]:
     mission = load_mission(DEMO).with_overrides(grid_spacing_m=5.0)
     control = RunControl()
     feed = LiveFeed(mission_name="demo", planner="econdor", grid=mission.grid,
-                    origin=mission.origin, runlog=RunLog(), control=control, rate_hz=rate_hz)
+                    origin=mission.origin, runlog=RunLog(), control=control, rate_hz=rate_hz,
+                    clock=CLOCK)
     control._on_change = feed.on_control  # what web.session.LiveWeb wires
     rows = [_status(1, 10.0), _status(2, 20.0)]
     feed.attach(lambda: list(rows), [1, 2])
@@ -252,7 +270,7 @@ def test_live_feed_sends_each_thing_once_in_order() -> None:
     lat, lon, _ = mission.origin.to_global(5.0, 6.0)
     feed.on_sample(Sample(2, 1000, lat, lon, 30.0, 1.0))
     rows[0] = _status(1, 11.0)
-    time.sleep(0.01)
+    CLOCK.now_s += 0.01  # past the feed's snapshot interval (1 ms)
     msgs = feed.updates(cur)
     assert _types(msgs) == ["plan", "trail", "frame", "records", "vehicles"]
     plan, trail, frame = msgs[0], msgs[1], msgs[2]
@@ -516,10 +534,7 @@ def test_control_reports_arrive_in_the_order_of_the_changes() -> None:
     result: list[bool] = []
     dfc = threading.Thread(target=lambda: result.append(control.checkpoint(2)))
     dfc.start()
-    deadline = time.monotonic() + 5
-    while control.state is not ControlState.PAUSED:
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
+    wait_for(lambda: control.state is ControlState.PAUSED, 5, "the checkpoint to pause")
     control.request(ControlAction.STOP)
     dfc.join(5)
     assert result == [False]

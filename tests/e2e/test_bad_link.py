@@ -33,6 +33,7 @@ import yaml
 
 from econdor import cli
 from econdor_gcs.link.relay import Faults, Relay
+from tests.helpers.missions import flying_iteration
 from tests.helpers.vehicles import DEMO, REPO, VehicleProcess, free_port, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
@@ -107,15 +108,6 @@ class StationThread:
         return self.code
 
 
-def _flying_iteration(out: Path, iteration: int) -> bool:
-    """Samples of ``iteration`` have arrived (its flight is under way)."""
-    path = out / "samples_received.csv"
-    if not path.exists():
-        return False
-    with path.open() as f:
-        return any(line.rstrip().endswith(f",{iteration}") for line in f)
-
-
 @pytest.mark.parametrize("outage_s", [15, 60])
 def test_an_outage_mid_flight_is_survived_without_resume(tmp_path: Path, outage_s: int,
                                                         capsys: pytest.CaptureFixture[str]
@@ -130,7 +122,7 @@ def test_an_outage_mid_flight_is_survived_without_resume(tmp_path: Path, outage_
         station = StationThread(["run", str(mission), "--connect",
                                  f"udpin:127.0.0.1:{station_port}", "--out", str(out),
                                  "--quiet"]).start()
-        wait_for(lambda: _flying_iteration(out, 1) or station.code is not None, 300,
+        wait_for(lambda: flying_iteration(out, 1) or station.code is not None, 300,
                  "the flight of iteration 1")
         assert station.code is None, capsys.readouterr().err
         relay.set_blackout(True)
@@ -223,7 +215,7 @@ def test_a_run_that_fails_mid_flight_keeps_every_sample_it_received(
         station = StationThread(["run", str(mission), "--connect",
                                  f"udpin:127.0.0.1:{station_port}", "--out", str(out),
                                  "--quiet", "--link-timeout", "5"]).start()
-        wait_for(lambda: _flying_iteration(out, 1) or station.code is not None, 300,
+        wait_for(lambda: flying_iteration(out, 1) or station.code is not None, 300,
                  "the flight of iteration 1")
         relay.set_blackout(True)
         code = station.join(300)

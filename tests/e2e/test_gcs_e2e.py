@@ -22,8 +22,8 @@ from econdor_gcs.dfc.loop import IterationRecord
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.tlog import read_tlog
 from econdor_lab.study import run_seed
-from tests.helpers.missions import write_small_mission
-from tests.helpers.vehicles import VehicleProcess, free_port
+from tests.helpers.missions import flying_iteration, write_small_mission
+from tests.helpers.vehicles import VehicleProcess, free_port, wait_for
 
 
 def write_mission(tmp: Path, iterations: int = 2) -> Path:
@@ -343,7 +343,10 @@ def test_vehicle_killed_mid_mission_its_pieces_go_to_the_other(tmp_path: Path) -
                 assert gcs.poll() is None, gcs.communicate()
                 assert time.monotonic() < deadline, "the first flight never ended"
                 time.sleep(0.05)
-            time.sleep(2.0)  # iteration 1 uploaded and under way
+            # iteration 1 under way: its samples arrive
+            wait_for(lambda: flying_iteration(out, 1) or gcs.poll() is not None, 90,
+                     "the flight of iteration 1")
+            assert gcs.poll() is None, gcs.communicate()
             assert doomed.proc is not None
             doomed.proc.kill()  # mid-mission, without a word
             _, err_b = gcs.communicate(timeout=180)

@@ -19,7 +19,6 @@ import json
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -34,6 +33,7 @@ from tests.helpers.vehicles import (
     VehicleProcess,
     free_port,
     mavproxy_exe,
+    udp_port_bound,
     wait_for,
 )
 
@@ -134,7 +134,9 @@ def test_run_with_three_stock_ardupilots_and_mavproxy_watching(tmp_path):
         cwd=tmp_path)
     out = tmp_path / "run"
     try:
-        time.sleep(1.0)  # MAVProxy binds its port
+        wait_for(lambda: udp_port_bound(port) or mavproxy.poll() is not None, 30,
+                 "MAVProxy binding its port")
+        assert mavproxy.poll() is None, "MAVProxy exited"
         run = subprocess.run(
             [sys.executable, "-m", "econdor", "run", str(DEMO), "--autopilot", "ardupilot",
              "--speedup", "200", "--forward", f"udpout:127.0.0.1:{port}", "--out", str(out),

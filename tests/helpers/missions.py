@@ -38,3 +38,12 @@ def write_small_mission(folder: Path, name: str, **kw: object) -> Path:
     path = folder / f"{name}.yaml"
     path.write_text(small_mission(name, **kw), encoding="utf-8")  # type: ignore[arg-type]
     return path
+
+
+def flying_iteration(out: Path, iteration: int) -> bool:
+    """Samples of ``iteration`` have arrived (its flight is under way)."""
+    path = out / "samples_received.csv"
+    if not path.exists():
+        return False
+    with path.open() as f:
+        return any(line.rstrip().endswith(f",{iteration}") for line in f)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import queue
 import re
@@ -29,6 +30,16 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def udp_port_bound(port: int, host: str = "127.0.0.1") -> bool:
+    """Someone has bound UDP ``host:port`` (binding it ourselves fails)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind((host, port))
+        except OSError:
+            return True
+    return False
 
 
 def wait_for(cond: Callable[[], Any], timeout: float, what: str = "condition",
@@ -65,6 +76,10 @@ class GcsLink:
         self.received: list[Any] = []  # everything, in order (when keep=True)
         self.keep = False
         self._backlog: list[Any] = []
+        self.heartbeat_s: float | None = None
+        """Send the GCS HEARTBEAT this often (wall seconds) while polling, as a ground station
+        does: a flight longer than the vehicle's GCS failsafe (5 s) needs it."""
+        self._heartbeat_at = -math.inf
 
     @classmethod
     def listen(cls) -> GcsLink:
@@ -102,7 +117,14 @@ class GcsLink:
         self.sock.sendto(data, self.remote)
 
     def poll(self) -> list[Any]:
-        """Receive whatever is there now (non-blocking-ish)."""
+        """Receive whatever is there now (non-blocking-ish); the GCS heartbeat when due."""
+        now = time.monotonic()
+        if self.heartbeat_s is not None and self.remote is not None \
+                and now - self._heartbeat_at >= self.heartbeat_s:
+            self._heartbeat_at = now
+            self.send(mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE,
+                3))
         out: list[Any] = []
         while True:
             try:
@@ -195,12 +217,14 @@ class VehicleProcess:
     """Run ``sim-vehicle`` as a subprocess; logs are kept and shown only on failure.
 
     Use as a context manager; ``ready_address`` is parsed from the vehicle's
-    ``ready on KIND:HOST:PORT`` line (so ``tcpin:127.0.0.1:0`` works).
+    ``ready on KIND:HOST:PORT`` line (so ``tcpin:127.0.0.1:0`` works). ``timeout`` bounds
+    the wait for that line: start-up (Python, numpy, numba's cached tracer) is no test's
+    claim, and on a loaded 2-core machine it took over 30 s.
     """
 
     def __init__(self, *args: str, mission: Path | str = DEMO, sysid: int = 1,
                  connect: str = "udpout:127.0.0.1:14550", extra: list[str] | None = None,
-                 timeout: float = 15.0) -> None:
+                 timeout: float = 60.0) -> None:
         self.log = tempfile.NamedTemporaryFile(  # noqa: SIM115 - closed in __exit__
             "w+b", prefix="sim-vehicle-", suffix=".log", delete=False)
         self.cmd = [*sim_vehicle_cmd(), "--sysid", str(sysid), "--mission", str(mission),
@@ -243,8 +267,10 @@ class VehicleProcess:
             return Path(self.log.name).read_text(errors="replace")
         return ""
 
-    def stop(self, timeout: float = 5.0) -> int | None:
-        """terminate -> wait -> kill; returns the exit status."""
+    def stop(self, timeout: float = 30.0) -> int | None:
+        """terminate -> wait -> kill; returns the exit status. A vehicle that exits on
+        SIGTERM does so at once on an idle machine; ``timeout`` leaves room for a loaded one
+        (at load 17 on 2 cores, 5 s was not enough) before the kill."""
         if self.proc is None:
             return None
         if self.proc.poll() is None:

@@ -74,7 +74,9 @@ def test_vehicle_messages_reach_the_watcher_byte_for_byte(commands):
                 assert ack[0].get_type() == "COMMAND_ACK"
                 assert fwd.stats["relayed"] == 1 and fwd.stats["dropped"] == 0
             else:
-                await asyncio.sleep(0.3)
+                async with asyncio.timeout(5):  # the watcher's command has been judged
+                    while fwd.stats["from_watcher"] == 0:
+                        await asyncio.sleep(0.01)
                 assert not [m for m in vehicle.got if m.get_type() == "COMMAND_LONG"]
                 assert fwd.stats["dropped"] == fwd.stats["from_watcher"] == 1
                 assert fwd.stats["relayed"] == 0

@@ -12,7 +12,7 @@ import pytest
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
-from econdor_gcs.errors import ProtocolError, VehicleTimeout
+from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.items import MissionItemSpec, build_mission, trace_item, waypoint_item
 from econdor_gcs.link.transfer import (
@@ -231,6 +231,34 @@ def test_uploader_ignores_stale_accept_and_other_mission_types():
     up.receive(mavlink.MAVLink_mission_ack_message(255, 190, 0, 0), 0.1)
     up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, 0, 1), 0.1)  # fence
     assert not up.done and up.poll(0.2) == []
+
+
+@pytest.mark.parametrize("result", [mavlink.MAV_MISSION_ERROR,
+                                    mavlink.MAV_MISSION_OPERATION_CANCELLED,
+                                    mavlink.MAV_MISSION_INVALID_SEQUENCE])
+def test_an_answer_to_the_attempt_before_does_not_end_the_upload_running(result):
+    """An upload started again (ArduPilot cancelled the one before, its 8 s being 40 ms of
+    wall time at 200x): the vehicle's answer to the last item of the attempt before (ERROR:
+    no transfer running) arrives after the new MISSION_COUNT. The vehicle then requests item
+    0 of the new transfer: the upload goes on and completes. The same answer with no request
+    after it is the vehicle's verdict, at the timeout."""
+    items = sample_items()
+    up = MissionUploader(SYSID, 1, items, timeout_s=1.0)
+    assert [m.get_type() for m in up.poll(0.0)] == ["MISSION_COUNT"]
+    up.receive(mavlink.MAVLink_mission_ack_message(255, 190, result, 0), 0.05)
+    assert not up.done
+    for seq in range(len(items)):
+        up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, seq, 0), 0.1)
+    up.receive(mavlink.MAVLink_mission_ack_message(255, 190, mavlink.MAV_MISSION_ACCEPTED, 0),
+               0.2)
+    assert up.done and up.error is None and up.result == len(items) and up.stale_acks == 1
+    alone = MissionUploader(SYSID, 1, items, timeout_s=1.0)
+    alone.poll(0.0)
+    alone.receive(mavlink.MAVLink_mission_ack_message(255, 190, result, 0), 0.05)
+    assert not alone.done
+    alone.poll(1.5)
+    assert alone.done and isinstance(alone.error, MissionRejected)
+    assert alone.error.result == result
 
 
 def test_uploader_rejects_misnumbered_items():

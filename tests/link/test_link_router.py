@@ -403,7 +403,8 @@ def test_takeoff_altitude_is_above_home_as_documented():
         await router.arm(1)
         await router.takeoff(1, 12.0)
         await _until(lambda: vehicle.state.alt_rel_m > 11.99)
-        await asyncio.sleep(0.3)  # 6 s of sim time: it holds there
+        t0 = vehicle.sim_time_s
+        await _until(lambda: vehicle.sim_time_s > t0 + 6.0)  # it holds there
         assert vehicle.state.alt_rel_m == pytest.approx(12.0, abs=1e-3)
 
     run(_with_sim_vehicle(body))

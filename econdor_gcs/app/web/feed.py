@@ -98,7 +98,7 @@ class LiveFeed:
     def __init__(self, *, mission_name: str, planner: str, grid: Grid, origin: Origin,
                  runlog: RunLog, control: RunControl | None = None, truth_known: bool = True,
                  max_iterations: int | None = None, run_dir: str = "",
-                 rate_hz: float = 4.0) -> None:
+                 rate_hz: float = 4.0, clock: Callable[[], float] = time.monotonic) -> None:
         self.mission_name = mission_name
         self.planner = planner
         self.grid = grid
@@ -109,6 +109,7 @@ class LiveFeed:
         self.max_iterations = max_iterations
         self.run_dir = run_dir
         self.rate_hz = rate_hz
+        self._clock = clock  # what the snapshot rate is counted on (a test's own clock)
         self._lock = threading.Lock()
         # written by the DFC thread (references only)
         self._records: list[dict[str, Any]] = []
@@ -217,7 +218,7 @@ class LiveFeed:
 
     def _snapshot(self, final: bool) -> list[VehicleRow]:
         """Vehicle snapshots at most ``rate_hz`` times a second, and one after the run's end."""
-        now = time.monotonic()
+        now = self._clock()
         if now - self._vehicles_at >= 1.0 / self.rate_hz or (final and not self._final_taken):
             with self._lock:
                 status = self._status
