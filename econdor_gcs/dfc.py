@@ -427,7 +427,8 @@ class Dfc:
             grid=self.grid, estimate=estimate, samples=self._samples(),
             positions_m=self._positions(iteration),
             budget_left_m=budget - self.flight_m if budget > 0 else math.inf,
-            flown_m=self.flight_m)
+            flown_m=self.flight_m,
+            noise_std=self.noise_std if math.isfinite(self.noise_std) else 0.0)
 
     def _pattern(self) -> tuple[Batch, list[list[Task]]]:
         """The mission's initiation pattern (the two diagonals or a survey) and its plans."""

@@ -122,6 +122,10 @@ class PlanContext:
     """Flight distance left of ``algorithm.flight_budget_m`` (inf without a budget)."""
     flown_m: float = 0.0
     """Flight distance so far (all vehicles, everything counted)."""
+    noise_std: float = 0.0
+    """The samples' noise as the station's reconstruction estimated it from the samples
+    themselves (field units; :func:`~econdor_gcs.core.spline.fit_field`), never the
+    simulation's: 0 when they read as exact (or before any estimate)."""
 
     @property
     def positions_or_home_m(self) -> list[tuple[float, float]]:
