@@ -247,6 +247,16 @@ def survey_to(survey: dict[str, Any], mae_db: float) -> float:
     return min(ok) if ok else math.inf
 
 
+def falls(medians: list[float]) -> bool:
+    """Whether the medians (NaN where a planner has no estimate yet) fall at every step.
+
+    >>> falls([math.nan, -6.0, -9.0, -9.5]), falls([-6.0, -9.0, -8.0, -10.0])
+    (True, False)
+    """
+    m = [x for x in medians if not math.isnan(x)]
+    return all(b <= a for a, b in zip(m, m[1:], strict=False))
+
+
 def _nanmedian(xs: list[float]) -> float:
     v = [x for x in xs if not math.isnan(x)]
     return median(v) if v else math.nan
@@ -276,7 +286,7 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
                                 for s in seeds)])
             noise = _nanmedian([surveys[s]["scanned"][-1]["noise_std"] for s in seeds])
             table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(seeds)}",
-                       "yes" if all(b <= a for a, b in zip(meds, meds[1:])) else "no",
+                       "yes" if falls(meds) else "no",
                        "1", "—", fmt(iso2, ".2f"), fmt(iso4, ".2f"), fmt(noise, ".3f")])
             continue
         rs = [r for r in runs if r["planner"] == pl and r["seed"] in surveys]
@@ -303,7 +313,7 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
         iso = [_nanmedian([x["iso"][1] if x else math.nan for x in at[k]]) for k in (2.0, 4.0)]
         noise = _nanmedian([r["rows"][-1]["noise_std"] for r in rs])
         table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(rs)}",
-                   "yes" if all(b <= a for a, b in zip(meds, meds[1:])) else "no",
+                   "yes" if falls(meds) else "no",
                    f"{fmt(median(stays_r), '.2f')} ({fmt(median(first_r), '.2f')})",
                    f"{within}/{n}", fmt(iso[0], ".2f"), fmt(iso[1], ".2f"), fmt(noise, ".3f")])
         summary.append({"planner": pl, "mae_db": meds, "no_worse": no_worse, "runs": len(rs),
