@@ -24,6 +24,10 @@ The planners:
   iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
   iteration's error then reads as a rise, which triples delta (eq. 7) and the method
   stalls for good — measured on the paper's field, not hypothetical.
+  With noisy samples (``PlanContext.noise_std``) the levels are those of the smoothed
+  estimate; a level within the noise of a traced one is redundant whatever ``delta_n``
+  is, and a piece is traced only where the noise moves it by less than
+  :data:`TRACE_NOISE_M` (elsewhere the tracer would follow the noise).
 * ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
@@ -225,6 +229,39 @@ def lawnmower_lines_for_budget(region: Region, budget_m: float, turn_m: float = 
     return n
 
 
+TRACE_NOISE_M = 2.0
+"""With noisy samples a contour piece is traced only where one standard deviation of the
+noise moves it by less than this (``|grad mu| >= noise_std / TRACE_NOISE_M`` along most of
+it): where the field is flatter the level reads as noise, and a tracer told to follow it
+follows the noise (:func:`traceable`)."""
+
+
+def noise_shift_m(points_m: FloatArray, estimate: FloatArray, grid: Grid, noise_std: float
+                  ) -> float:
+    """How far one standard deviation of the noise moves an iso-line of ``estimate``
+    through ``points_m`` (m): ``noise_std / |grad mu|``, the median along the points
+    (0 for exact samples).
+
+    >>> g = Grid(Region(0.0, 10.0, 0.0, 10.0), 11, 11)
+    >>> ramp = np.tile(2.0 * g.x, (g.ny, 1))          # 2 per metre eastwards
+    >>> noise_shift_m(np.array([[5.0, 1.0], [5.0, 9.0]]), ramp, g, 1.0)
+    0.5
+    """
+    if noise_std <= 0:
+        return 0.0
+    gy, gx = np.gradient(estimate, grid.dy, grid.dx)
+    col = np.clip(np.rint((points_m[:, 0] - grid.region.xmin) / grid.dx), 0, grid.nx - 1)
+    row = np.clip(np.rint((points_m[:, 1] - grid.region.ymin) / grid.dy), 0, grid.ny - 1)
+    slope = np.hypot(gx, gy)[row.astype(int), col.astype(int)]
+    return float(noise_std / max(float(np.median(slope)), 1e-12))
+
+
+def traceable(points_m: FloatArray, estimate: FloatArray, grid: Grid, noise_std: float) -> bool:
+    """Whether an iso-line through ``points_m`` stands out of the noise enough to trace
+    (:data:`TRACE_NOISE_M`); always with exact samples."""
+    return noise_shift_m(points_m, estimate, grid, noise_std) <= TRACE_NOISE_M
+
+
 class ContourPlanner:
     """E-CONDOR (``sg=True``) or the no-SG baseline (``sg=False``)."""
 
@@ -283,6 +320,12 @@ class ContourPlanner:
         if context.estimate is None or context.grid is None:
             raise ValueError("context: a contour planner needs the estimate and its grid")
         estimate, grid = context.estimate, context.grid
+        noise = context.noise_std
+
+        def pieces_at(levels: FloatArray) -> list[ContourPiece]:
+            return [p for p in contour_pieces(estimate, grid, levels, self.min_piece_length_m)
+                    if traceable(p.points_m, estimate, grid, noise)]
+
         self.batches += 1
         forced = 0
         if self.batches == 1:
@@ -294,7 +337,7 @@ class ContourPlanner:
             levels = self._levels(estimate)
         if not self.sg or self.batches <= 2:
             keep, dropped = levels, np.zeros(0)
-            pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+            pieces = pieces_at(keep)
         else:
             e2 = self.errors[-2] if len(self.errors) >= 2 else None
             e1 = self.errors[-1] if self.errors else None
@@ -302,8 +345,10 @@ class ContourPlanner:
             self.delta = update_delta(self.delta, e2, e1)
             self.m += self.kappa
             levels = self._levels(estimate)
-            keep, dropped = drop_redundant(levels, self.traced, self.delta)
-            pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+            # levels closer than the noise to a traced one are its iso-line again, to
+            # within what the noise moves either by
+            keep, dropped = drop_redundant(levels, self.traced, max(self.delta, noise))
+            pieces = pieces_at(keep)
             if not pieces and len(dropped):
                 # Every new level is redundant: fly the kappa least redundant ones
                 # rather than an empty iteration (see the module docstring).
@@ -311,7 +356,7 @@ class ContourPlanner:
                 chosen = np.zeros(len(dropped), dtype=bool)
                 chosen[np.argsort(-gap, kind="stable")[: self.kappa]] = True
                 keep, dropped = dropped[chosen], dropped[~chosen]
-                pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+                pieces = pieces_at(keep)
                 forced = len(keep)
         jobs = []
         for p in pieces:
