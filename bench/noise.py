@@ -119,7 +119,7 @@ def condition_name(noise: float, variant: str) -> str:
 def run_one(args: tuple[str, int, str, float, str]) -> dict[str, Any]:
     """One planner run of a condition: a row per estimate (:func:`runs.row_of`, with the
     MAE and the noise estimated)."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     field, seed, label, noise, variant = args
@@ -199,7 +199,7 @@ def noisy_survey_key(field: str, sensor: dict[str, Any]) -> str:
 
 def fly_survey(field: str, seed: int, lines: int, sensor: dict[str, Any]) -> dict[str, Any]:
     """One survey of ``lines`` north-south lines with ``sensor``: its one estimate."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     mission = mission_for(field, 0.0, "lawnmower", "auto", survey_lines=lines)
