@@ -47,6 +47,7 @@ import json
 import math
 import multiprocessing
 import os
+import re
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -410,7 +411,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     for f in a.fields.split(","):
         if f not in FIELDS or f not in SPAN:
             p.error(f"--fields: unknown field {f!r} (one of {', '.join(SPAN)})")
-    a.variants = list(SENSORS) if a.sensors == "all" else [v for v in a.sensors.split(",") if v]
+    # a variant's name may hold ", " ("lag 1 s, unknown"): only a bare comma separates
+    a.variants = (list(SENSORS) if a.sensors == "all"
+                  else [v for v in re.split(r",(?! )", a.sensors) if v])
     for v in a.variants:
         if v not in SENSORS:
             p.error(f"--sensors: unknown sensor {v!r} (one of {', '.join(SENSORS)})")

@@ -184,7 +184,7 @@ class AdaptivePlanner:
             umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid,
                                    plan_grid, model=p.model, length_m=p.length_m,
                                    floor=p.floor or None, gradient_gain_m=p.gradient_gain_m,
-                                   hyper=self.hyper)
+                                   hyper=self.hyper, noise_std=context.noise_std)
         return umap, plan_grid
 
     def _plan(self, context: PlanContext, umap: UncertaintyMap, cands: list[Candidate],
