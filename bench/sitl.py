@@ -21,13 +21,11 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
-
-from sitl_helpers import Sitl, sitl_binary, sitls  # noqa: E402
-from test_sitl_run import lua_counts  # noqa: E402
+sys.path.insert(0, str(REPO))
 
 from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_gcs.payload import field_script  # noqa: E402
+from tests.helpers.sitl import Sitl, lua_counts, sitl_binary, sitls  # noqa: E402
 
 
 def one_run(mission_path: Path, n: int, speedup: float, work: Path) -> dict[str, float]:

@@ -34,8 +34,7 @@ from econdor_gcs.config import load_mission  # noqa: E402
 
 def _watch(url: str, stop: threading.Event) -> None:
     """A headless Chromium page on ``url`` until ``stop`` (the --page variant)."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from web_helpers import Browser
+    from tests.helpers.web import Browser
 
     with Browser() as browser:
         page = browser.page(url)

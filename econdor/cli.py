@@ -97,10 +97,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="replace an earlier run in --out")
     run.add_argument("--resume", type=Path, default=None, metavar="RUN_DIR",
                      help="continue an interrupted run after its last finished flight")
-    run.add_argument("--planner", choices=PLANNER_NAMES, default=None)
-    run.add_argument("--vehicles", type=_positive_int, default=None)
-    run.add_argument("--speedup", type=_positive_float, default=None)
-    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--planner", choices=PLANNER_NAMES, default=None,
+                     help="the planner (default: the mission's algorithm.planner)")
+    run.add_argument("--vehicles", type=_positive_int, default=None,
+                     help="how many vehicles (default: the mission's vehicles.count)")
+    run.add_argument("--speedup", type=_positive_float, default=None,
+                     help="simulated time over wall time (default: the mission's "
+                          "vehicles.speedup)")
+    run.add_argument("--seed", type=int, default=None,
+                     help="the field's seed (default: the mission's seed)")
     run.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
                      help="serve vehicles started elsewhere on this link: udpin:HOST:PORT, "
                           "udpout:HOST:PORT, tcp:HOST:PORT (e.g. ArduPilot SITL), "
@@ -128,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
                      help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
                           "(hashed with SHA-256, as MAVProxy does)")
-    run.add_argument("--quiet", action="store_true")
+    run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.add_argument("--web", nargs="?", const=WEB_DEFAULT, default=None, metavar="[HOST:]PORT",
                      help=f"serve a live page of the run (default {WEB_DEFAULT}; another "
                           "host than loopback needs the token printed at start)")
@@ -152,25 +157,27 @@ def build_parser() -> argparse.ArgumentParser:
                     help="stop after S seconds (default: at Ctrl-C / SIGTERM)")
 
     st = sub.add_parser("study", help="in-process study over many seeds")
-    st.add_argument("mission", type=Path)
+    st.add_argument("mission", type=Path, help="mission YAML")
     st.add_argument("--seeds", default="0:4", help="A:B (B excluded) or a comma list")
     st.add_argument("--planner", type=_planner_list, default=["econdor"],
                     metavar="|".join((*PLANNER_NAMES, "all")),
                     help="a planner, a comma-separated list of them, or all")
-    st.add_argument("--out", type=Path, required=True)
+    st.add_argument("--out", type=Path, required=True,
+                    help="directory for study.csv, summary.json and the figures")
     st.add_argument("--workers", type=_positive_int, default=None,
                     help="local worker processes (default: number of cores)")
     st.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
-    st.add_argument("--vehicles", type=_positive_int, default=None)
-    st.add_argument("--no-figures", action="store_true")
-    st.add_argument("--quiet", action="store_true")
+    st.add_argument("--vehicles", type=_positive_int, default=None,
+                    help="how many vehicles (default: the mission's vehicles.count)")
+    st.add_argument("--no-figures", action="store_true", help="write the table only")
+    st.add_argument("--quiet", action="store_true", help="no progress lines")
 
     rep = sub.add_parser("report", help="redraw the figures of a run directory")
-    rep.add_argument("run_dir", type=Path)
+    rep.add_argument("run_dir", type=Path, help="a run directory (econdor run --out)")
 
     vw = sub.add_parser("view", help="the web page of a finished or partial run, with an "
                                      "iteration slider")
-    vw.add_argument("run_dir", type=Path)
+    vw.add_argument("run_dir", type=Path, help="a run directory (econdor run --out)")
     vw.add_argument("--web", default=WEB_DEFAULT, metavar="[HOST:]PORT",
                     help=f"where to serve it (default {WEB_DEFAULT})")
 
@@ -206,13 +213,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     im = sub.add_parser("import", help="read a QGC WPL or .plan mission file back, check it, "
                                        "say what it holds")
-    im.add_argument("path", type=Path)
+    im.add_argument("path", type=Path, help="a QGC WPL (.waypoints, .txt) or .plan file")
     im.add_argument("--json", action="store_true",
                     help="print the items (mission, fence, rally) as JSON")
 
     up = sub.add_parser("upload", help="upload a mission file to a MAVLink autopilot, read it "
                                        "back and verify it; optionally start it")
-    up.add_argument("path", type=Path)
+    up.add_argument("path", type=Path, help="a QGC WPL or .plan mission file")
     up.add_argument("--connect", required=True, action="append", metavar="ENDPOINT",
                     help="the link to the vehicle: udpin:0.0.0.0:14550, udpout:HOST:PORT, "
                          "tcp:HOST:PORT, tcpin:HOST:PORT or DEVICE:BAUD (e.g. "

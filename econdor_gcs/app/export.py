@@ -48,7 +48,7 @@ from econdor_gcs.errors import EcondorError, MissionError
 from econdor_gcs.files.autopilot_files import is_global_frame, is_home_item, write_plan, write_wpl
 from econdor_gcs.files.plans import read_next_batch, read_tasks
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.transfer import MissionItemSpec, plan_mission
+from econdor_gcs.link.items import MissionItemSpec, plan_mission
 
 __all__ = [
     "ExportedMission",

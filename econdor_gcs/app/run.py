@@ -50,13 +50,10 @@ from econdor_gcs.link.router import (
 from econdor_gcs.link.signing import load_signing_key
 from econdor_gcs.link.tlog import TlogWriter
 from econdor_gcs.link.vehicles import EVENTS
-from econdor_gcs.station.executor import (
-    LINK_TIMEOUT_S,
-    LOSS_SILENCE_S,
-    MavlinkExecutor,
-    Station,
-    StatusAssembler,
-)
+from econdor_gcs.station.executor import MavlinkExecutor
+from econdor_gcs.station.flight import StatusAssembler
+from econdor_gcs.station.loop import Station
+from econdor_gcs.station.losses import LINK_TIMEOUT_S, LOSS_SILENCE_S
 
 if TYPE_CHECKING:
     from econdor_gcs.link.autopilots import VehicleKind

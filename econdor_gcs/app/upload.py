@@ -29,10 +29,11 @@ from pathlib import Path
 
 from econdor_gcs.errors import EcondorError, MissionRejected
 from econdor_gcs.files.autopilot_files import MissionFile, is_global_frame, is_home_item, read_mission_file
+from econdor_gcs.files.plausibility import check_plausible
 from econdor_gcs.link.autopilots import ARDUPILOT_POSITION_COMMANDS, AutopilotKind, start_mission
 from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.items import INT_TO_FLOAT_FRAME, MissionItemSpec
 from econdor_gcs.link.router import Router
-from econdor_gcs.link.transfer import INT_TO_FLOAT_FRAME, MissionItemSpec
 
 __all__ = ["Mismatch", "compare_items", "upload_cli", "upload_verified"]
 
@@ -73,7 +74,7 @@ def compare_items(sent: Sequence[MissionItemSpec], got: Sequence[MissionItemSpec
                   autopilot: AutopilotKind = AutopilotKind.GENERIC) -> list[Mismatch]:
     """What came back different from what was sent, beyond the autopilot's known habits.
 
-    >>> from econdor_gcs.link.transfer import waypoint_item
+    >>> from econdor_gcs.link.items import waypoint_item
     >>> a = [waypoint_item(0, 47.0, 8.0, 10.0), waypoint_item(1, 47.1, 8.1, 12.345)]
     >>> b = [waypoint_item(0, 46.0, 7.0, 500.0), waypoint_item(1, 47.1, 8.1, 12.35)]
     >>> compare_items(a, b, AutopilotKind.ARDUPILOT)
@@ -83,7 +84,7 @@ def compare_items(sent: Sequence[MissionItemSpec], got: Sequence[MissionItemSpec
 
     ArduPilot keeps no frame or position for a command without one:
 
-    >>> from econdor_gcs.link.transfer import change_speed_item, rtl_item
+    >>> from econdor_gcs.link.items import change_speed_item, rtl_item
     >>> import dataclasses
     >>> sent = [change_speed_item(0, 8.0), rtl_item(1)]
     >>> back = [dataclasses.replace(it, frame=0) for it in sent]
@@ -176,11 +177,12 @@ async def upload_verified(router: Router, sysid: int, mfile: MissionFile,
 
 def upload_cli(args: argparse.Namespace) -> int:
     """``econdor upload PATH --connect udpin:HOST:PORT [--sysid N] [--start] [--timeout S]``."""
-    from econdor_gcs.station.executor import Station
+    from econdor_gcs.station.loop import Station
 
     mfile = read_mission_file(Path(args.path))
     if not mfile.items:
         raise EcondorError(f"{args.path}: the mission is empty")
+    check_plausible(mfile, str(args.path))  # before a link is opened: nothing reaches the aircraft
     station = Station(args.connect, heartbeat_timeout_s=args.timeout)
     try:
         station.start()

@@ -41,7 +41,7 @@ from typing import Any
 
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.transfer import FLOAT_TO_INT_FRAME, INT_TO_FLOAT_FRAME, MissionItemSpec
+from econdor_gcs.link.items import FLOAT_TO_INT_FRAME, INT_TO_FLOAT_FRAME, MissionItemSpec
 
 __all__ = [
     "MissionFile",

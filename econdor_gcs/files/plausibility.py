@@ -21,7 +21,7 @@ from econdor_gcs.files.autopilot_files import (
     is_home_item,
 )
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.transfer import MissionItemSpec
+from econdor_gcs.link.items import MissionItemSpec
 
 __all__ = ["MAX_RANGE_M", "check_plausible"]
 
@@ -50,7 +50,7 @@ def _cmd_name(command: int) -> str:
 def check_plausible(mfile: MissionFile, name: str) -> None:
     """Refuse (one :class:`EcondorError` line naming the item) a mission no aircraft should
     fly, though every field fits its message: an altitude below home or above
-    :data:`~econdor_gcs.config.MAX_ALT_M` over it (or an AMSL one off the Earth's
+    :data:`~econdor_gcs.config.schema.MAX_ALT_M` over it (or an AMSL one off the Earth's
     surface), a position more than :data:`MAX_RANGE_M` from home, a mission waypoint outside
     the file's own inclusion geofence or inside one of its exclusions.
 
@@ -60,7 +60,7 @@ def check_plausible(mfile: MissionFile, name: str) -> None:
     from shapely.geometry import Point, Polygon
     from shapely.ops import unary_union
 
-    from econdor_gcs.config import MAX_ALT_M, MAX_AMSL_M, MIN_AMSL_M
+    from econdor_gcs.config.schema import MAX_ALT_M, MAX_AMSL_M, MIN_AMSL_M
     from econdor_gcs.core.geodesy import Origin
 
     items = mfile.items

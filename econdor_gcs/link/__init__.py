@@ -7,13 +7,12 @@ placed on each vehicle's position track), ``mission`` (protocol state machines),
 ``autopilots`` (per-family procedures), ``tlog``, ``forward``, ``relay``.
 """
 
+from econdor_gcs.link.items import MissionItemSpec, build_mission
 from econdor_gcs.link.transfer import (
     CommandSender,
     MissionClear,
     MissionDownloader,
-    MissionItemSpec,
     MissionUploader,
-    build_mission,
 )
 
 from .codec import Codec, Parser, mavlink

@@ -12,13 +12,13 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Protocol
 
+from econdor_gcs.link.items import MissionItemSpec
 from econdor_gcs.link.transfer import (
     DEFAULT_RETRIES,
     DEFAULT_TIMEOUT_S,
     CommandSender,
     MissionClear,
     MissionDownloader,
-    MissionItemSpec,
     MissionUploader,
 )
 

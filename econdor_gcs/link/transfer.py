@@ -18,7 +18,7 @@ Every machine has the same small interface, in the style of aioquic's connection
 them (other message types, other mission types, stale answers), so several can listen to one
 vehicle's stream.
 
-The items and plans themselves are in :mod:`.items` (re-exported here). Mission
+The items and plans themselves are in :mod:`.items`. Mission
 conventions (DESIGN.md §4): items are ``MISSION_ITEM_INT`` in
 ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, mission type 0, "item 0 home, takeoff, trace items, then
 return or loiter", exactly one item with ``current = 1`` (item 0).
@@ -31,50 +31,15 @@ from dataclasses import replace
 
 from econdor_gcs.errors import CommandRejected, MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import MAVLinkMessage, mavlink
-from econdor_gcs.link.items import (
-    FLOAT_TO_INT_FRAME,
-    INT_TO_FLOAT_FRAME,
-    MAV_CMD_WAYPOINT_USER_1,
-    MissionItemSpec,
-    MissionPlan,
-    build_mission,
-    change_speed_item,
-    command_name,
-    enum_name,
-    fence_items,
-    home_item,
-    loiter_item,
-    plan_mission,
-    rtl_item,
-    takeoff_item,
-    trace_item,
-    waypoint_item,
-)
+from econdor_gcs.link.items import MissionItemSpec, command_name, enum_name
 
 __all__ = [
     "DEFAULT_RETRIES",
     "DEFAULT_TIMEOUT_S",
-    "FLOAT_TO_INT_FRAME",
-    "INT_TO_FLOAT_FRAME",
-    "MAV_CMD_WAYPOINT_USER_1",
     "CommandSender",
     "MissionClear",
     "MissionDownloader",
-    "MissionItemSpec",
-    "MissionPlan",
     "MissionUploader",
-    "build_mission",
-    "change_speed_item",
-    "command_name",
-    "enum_name",
-    "fence_items",
-    "home_item",
-    "loiter_item",
-    "plan_mission",
-    "rtl_item",
-    "takeoff_item",
-    "trace_item",
-    "waypoint_item",
 ]
 
 DEFAULT_TIMEOUT_S = 1.5

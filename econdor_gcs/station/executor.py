@@ -57,7 +57,7 @@ Conventions and choices (see also DESIGN.md §4):
   converts its local position with up = 0) with pymap3d. Received samples are buffered raw
   per vehicle and converted in batches (one vectorised ``Origin.to_local_many`` call) when a
   report, the pending samples, a position or the live display needs them, or when the
-  buffer reaches :data:`SAMPLE_BATCH`.
+  buffer reaches :data:`~.telemetry.SAMPLE_BATCH`.
 """
 
 from __future__ import annotations
@@ -80,41 +80,18 @@ from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M, fence_items
 from econdor_gcs.link.router import AIRBORNE_ALT_M, Received, Sample, VehicleLost
 from econdor_gcs.link.vehicles import EVENTS
-from econdor_gcs.station.loop import Station as Station
-from econdor_gcs.station.losses import DESCENT_RATE_MPS as DESCENT_RATE_MPS
-from econdor_gcs.station.losses import ITEM_TIME_FACTOR as ITEM_TIME_FACTOR
-from econdor_gcs.station.losses import ITEM_TIME_MARGIN_S as ITEM_TIME_MARGIN_S
-from econdor_gcs.station.losses import LINK_TIMEOUT_S as LINK_TIMEOUT_S
-from econdor_gcs.station.losses import LOSS_SILENCE_S as LOSS_SILENCE_S
-from econdor_gcs.station.losses import VehicleLosses, run_all
+from econdor_gcs.station.loop import Station
+from econdor_gcs.station.losses import LINK_TIMEOUT_S, VehicleLosses, run_all
 from econdor_gcs.station.procedures import Commands
 from econdor_gcs.station.recovery import SampleRecovery
-from econdor_gcs.station.sorties import RESTART_RESULTS as RESTART_RESULTS
-from econdor_gcs.station.sorties import UPLOAD_ATTEMPTS as UPLOAD_ATTEMPTS
 from econdor_gcs.station.sorties import VehicleMissions
-from econdor_gcs.station.sorties import mission_items_json as mission_items_json
-from econdor_gcs.station.telemetry import LATE as LATE
-from econdor_gcs.station.telemetry import SAMPLE_BATCH as SAMPLE_BATCH
-from econdor_gcs.station.telemetry import (
-    StationTelemetry,
-    StatusAssembler,
-    VehicleState,
-    VehicleStatus,
-    build_report,
-)
+from econdor_gcs.station.status import VehicleStatus
+from econdor_gcs.station.telemetry import StationTelemetry, VehicleRow, VehicleState
 
 if TYPE_CHECKING:
     from econdor_gcs.link.autopilots import VehicleKind
 
-# What moved to .telemetry, .losses and .vehicle_missions stays importable from here (the
-# "X as X" imports above re-export it).
-__all__ = [
-    "MavlinkExecutor",
-    "Station",
-    "StatusAssembler",
-    "VehicleStatus",
-    "build_report",
-]
+__all__ = ["MavlinkExecutor"]
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
@@ -124,7 +101,7 @@ MAX_ROUNDS = 8
 given up or taken off their missions by their own failsafe, flown again."""
 
 # --------------------------------------------------------------------------------------------
-# pure helpers (unit-tested in tests/test_gcs_unit.py)
+# pure helpers (unit-tested in tests/station/test_gcs_unit.py)
 
 
 def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
@@ -375,9 +352,9 @@ class MavlinkExecutor:
         await self.commands.return_to_launch(v)
 
     async def _start(self, v: VehicleState) -> None:
-        v.status = "starting"
+        v.status = VehicleStatus.STARTING
         await self.commands.start_mission(v, 1)
-        v.status = "flying"
+        v.status = VehicleStatus.FLYING
 
     async def _until(self, cond: Callable[[], bool], *, tick_s: float = 0.25,
                      on_tick: Callable[[], object] | None = None,
@@ -514,7 +491,7 @@ class MavlinkExecutor:
             self.telemetry.begin(v, [])
             going.append(v)
         for v in going:
-            v.status = "returning"
+            v.status = VehicleStatus.RETURNING
             await self.vehicle_losses.tolerant(v, functools.partial(self._return, v))
             # the way home has the time limit of an item anywhere in the area
             v.item_since = time.monotonic()
@@ -543,7 +520,7 @@ class MavlinkExecutor:
                                           for v in going if v.lost is None),
                           deadline=time.monotonic() + 2.5)
         for v in going:
-            v.status = "landed"
+            v.status = VehicleStatus.LANDED
         self.timings["return_s"] += time.monotonic() - t1
         self.timings["return_sim_s"] += self._elapsed_s(clocks)
         await self.recovery.recover(going)
@@ -556,13 +533,13 @@ class MavlinkExecutor:
         return reports
 
     # -- for the live display ---------------------------------------------------------------
-    def status_rows(self) -> list[VehicleStatus]:
+    def status_rows(self) -> list[VehicleRow]:
         """A snapshot of every vehicle, in vehicle-index order: the one way displays read
         vehicle state (any thread may ask; the rows are made on the thread that owns the
         state, and nothing returned is live)."""
         return self._owned(self._status_rows)
 
-    def _status_rows(self) -> list[VehicleStatus]:
+    def _status_rows(self) -> list[VehicleRow]:
         """:meth:`.telemetry.StationTelemetry.status_rows`, for :meth:`status_rows`."""
         return self.telemetry.status_rows()
 

@@ -25,6 +25,7 @@ from econdor_gcs.config import Mission
 from econdor_gcs.core.tasks import FlightReport, OutcomeStatus, Task, TaskStyle, TraceTask
 from econdor_gcs.errors import LinkError, VehicleTimeout
 from econdor_gcs.link.router import Router
+from econdor_gcs.station.status import VehicleStatus
 from econdor_gcs.station.telemetry import VehicleState
 
 if TYPE_CHECKING:
@@ -114,7 +115,7 @@ class VehicleLosses:
         if v.flight is not None and v.current_seq is not None:
             where = f" at mission item {v.current_seq}/{len(v.items) - 1}"
         v.lost = reason + where
-        v.status = "lost"
+        v.status = VehicleStatus.LOST
         v.missing = None  # what it took since it was last asked is unknown
         log.warning("vehicle %d lost: %s", v.sysid, v.lost)
         self.records.append({"sysid": v.sysid, "reason": v.lost,

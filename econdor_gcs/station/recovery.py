@@ -32,7 +32,7 @@ from econdor_gcs.core.tasks import (
     TraceTask,
 )
 from econdor_gcs.errors import CommandRejected, VehicleTimeout
-from econdor_gcs.link.transfer import enum_name
+from econdor_gcs.link.items import enum_name
 from econdor_gcs.station.losses import run_all
 
 if TYPE_CHECKING:

@@ -23,14 +23,12 @@ from econdor_gcs.core.tasks import Task, TaskStyle, TraceTask
 from econdor_gcs.errors import MissionRejected, ProtocolError, RunError, VehicleTimeout
 from econdor_gcs.files.autopilot_files import write_wpl
 from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.items import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, plan_mission
 from econdor_gcs.link.router import Router
-from econdor_gcs.link.transfer import (
-    MAV_CMD_WAYPOINT_USER_1,
-    MissionItemSpec,
-    plan_mission,
-)
+from econdor_gcs.station.flight import Flight
 from econdor_gcs.station.losses import SILENT_S, VehicleLosses
-from econdor_gcs.station.telemetry import Flight, StationTelemetry, VehicleState
+from econdor_gcs.station.status import VehicleStatus
+from econdor_gcs.station.telemetry import StationTelemetry, VehicleState
 
 __all__ = ["VehicleMissions", "mission_items_json"]
 
@@ -170,11 +168,11 @@ class VehicleMissions:
                 log.warning("%s; the vehicle heartbeats: uploading it again", text)
 
     async def upload(self, v: VehicleState, items: list[MissionItemSpec]) -> None:
-        v.status = "uploading"
+        v.status = VehicleStatus.UPLOADING
         await self._transfer(v, items, mavlink.MAV_MISSION_TYPE_MISSION, "mission upload")
         v.items = items
         v.current_seq = None
-        v.status = "uploaded"
+        v.status = VehicleStatus.UPLOADED
 
     async def upload_fence(self, v: VehicleState, fence: list[MissionItemSpec]) -> None:
         """The area plus :data:`~econdor_gcs.link.items.MISSION_FENCE_MARGIN_M` as the

@@ -10,7 +10,7 @@ Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
     and each flight's samples settled into a :class:`~.core.tasks.FlightReport`.
 :class:`VehicleState`
     One vehicle's bookkeeping across flights.
-:class:`VehicleStatus`
+:class:`VehicleRow`
     One vehicle as the live display sees it at one moment.
 
 :class:`~.flight.Flight`, :func:`~.flight.build_report` and
@@ -43,23 +43,19 @@ from econdor_gcs.core.tasks import (
 from econdor_gcs.errors import ProtocolError
 from econdor_gcs.link.autopilots import AutopilotKind, FlightMode, flight_mode
 from econdor_gcs.link.codec import MAVLinkMessage, mavlink
+from econdor_gcs.link.items import MissionItemSpec, MissionPlan
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Router, Sample
-from econdor_gcs.link.transfer import MissionItemSpec, MissionPlan
-from econdor_gcs.station.flight import Flight as Flight
-from econdor_gcs.station.flight import StatusAssembler as StatusAssembler
-from econdor_gcs.station.flight import build_report as build_report
+from econdor_gcs.station.flight import Flight, StatusAssembler, build_report
+from econdor_gcs.station.status import VehicleStatus
 
 if TYPE_CHECKING:
     from econdor_gcs.link.autopilots import VehicleKind
 
 __all__ = [
-    "Flight",
-    "StatusAssembler",
     "StationTelemetry",
     "VehicleState",
-    "VehicleStatus",
-    "build_report",
+    "VehicleRow",
 ]
 
 T = TypeVar("T")
@@ -78,7 +74,7 @@ RUNNING_STATES = frozenset({mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_
 """``mission_state``s of a mission that was started."""
 
 # --------------------------------------------------------------------------------------------
-# pure helpers (unit-tested in tests/test_gcs_unit.py)
+# pure helpers (unit-tested in tests/station/test_gcs_unit.py)
 
 
 # --------------------------------------------------------------------------------------------
@@ -112,7 +108,7 @@ class VehicleState:
     samples: int = 0                # the whole run
     flight: Flight | None = None
     stray: list[tuple[float, float, float, float, int]] = field(default_factory=list)
-    status: str = "idle"
+    status: VehicleStatus = VehicleStatus.IDLE
     raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
     """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
     raw_since: float = 0.0
@@ -169,7 +165,7 @@ class VehicleState:
 
 
 @dataclass(frozen=True)
-class VehicleStatus:
+class VehicleRow:
     """One vehicle as the ground station sees it at one moment (:meth:`MavlinkExecutor.status_rows`)."""
 
     sysid: int
@@ -191,9 +187,8 @@ class VehicleStatus:
     phase: Phase
     flown_m: float
     samples: int
-    status: str
-    """The executor's word: idle, uploading, arming, flying, holding, returning, landed, lost,
-    ..."""
+    status: VehicleStatus
+    """What the executor says the vehicle is doing."""
     message: str = ""
     """The vehicle's last STATUSTEXT (for people)."""
 
@@ -351,7 +346,7 @@ class StationTelemetry:
                 f.reached.add(msg.seq)
             if f is not None and f.tasks and msg.seq == f.last_seq and f.interrupted is None:
                 f.done = True
-                v.status = "holding"
+                v.status = VehicleStatus.HOLDING
         elif kind == "NAMED_VALUE_INT":
             change = self._decode(phase_change, msg)
             if change is not None:
@@ -361,10 +356,10 @@ class StationTelemetry:
             if rep is not None and f is not None:
                 f.pieces[rep.piece_id] = rep
         elif kind == "EXTENDED_SYS_STATE":
-            if (f is not None and not f.tasks and v.status == "returning"
+            if (f is not None and not f.tasks and v.status == VehicleStatus.RETURNING
                     and msg.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND):
                 f.landed = True
-                v.status = "landed"
+                v.status = VehicleStatus.LANDED
         elif kind == "STATUSTEXT":
             raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
                 msg.text.encode("utf-8", "replace")
@@ -385,7 +380,7 @@ class StationTelemetry:
         PAUSED (or, without a ``mission_state``, HOLD before the last item)."""
         f = v.flight
         if f is None or not f.tasks or f.done or f.interrupted is not None \
-                or v.status != "flying":
+                or v.status != VehicleStatus.FLYING:
             return
         link = self.router.vehicles[v.sysid]
         if msg.get_type() == "MISSION_CURRENT":
@@ -398,7 +393,7 @@ class StationTelemetry:
                 f.in_mission = True
             elif state == mavlink.MISSION_STATE_COMPLETE and msg.seq == f.last_seq:
                 f.done = True
-                v.status = "holding"
+                v.status = VehicleStatus.HOLDING
             elif state == mavlink.MISSION_STATE_PAUSED and f.in_mission:
                 f.interrupted = f"it left its mission at item {msg.seq} (MISSION_CURRENT: " \
                                 "paused)"
@@ -415,11 +410,11 @@ class StationTelemetry:
             elif mode == FlightMode.HOLD and v.mission_state == mavlink.MISSION_STATE_UNKNOWN:
                 if v.current_seq == f.last_seq:
                     f.done = True
-                    v.status = "holding"
+                    v.status = VehicleStatus.HOLDING
                 else:
                     f.interrupted = f"it holds at item {v.current_seq}"
         if f.interrupted is not None:
-            v.status = "interrupted"
+            v.status = VehicleStatus.INTERRUPTED
             log.warning("vehicle %d left its mission before the end on its own: %s",
                         v.sysid, f.interrupted)
 
@@ -523,7 +518,7 @@ class StationTelemetry:
         return SampleLog.concat(logs)
 
     # -- snapshots for the displays and the summary -------------------------------------------
-    def status_rows(self) -> list[VehicleStatus]:
+    def status_rows(self) -> list[VehicleRow]:
         """The rows of :meth:`~.gcs.MavlinkExecutor.status_rows` (made here, on the
         station's loop thread)."""
         rows = []
@@ -533,7 +528,7 @@ class StationTelemetry:
             x_m = y_m = None
             if link is not None and link.lat_deg is not None and link.lon_deg is not None:
                 x_m, y_m, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
-            rows.append(VehicleStatus(
+            rows.append(VehicleRow(
                 sysid=v.sysid,
                 index=v.index,
                 x_m=x_m,

@@ -1,4 +1,4 @@
-"""Record the regression reference of tests/test_regression.py from the current code.
+"""Record the regression reference of tests/dfc/test_regression.py from the current code.
 
     python tests/data/record_regression.py            # writes tests/data/regression.npz
 
@@ -18,9 +18,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-from regression_cases import CASES, PINNED_ITERATIONS, run_case  # noqa: E402
+from tests.helpers.regression_cases import CASES, PINNED_ITERATIONS, run_case  # noqa: E402
 
 
 def main() -> None:

@@ -37,7 +37,7 @@ from econdor_gcs.dfc.loop import DfcEvent, IterationDone, IterationPlanned, RunD
 from econdor_gcs.errors import ControlError
 from econdor_gcs.files.rundir import PlannedPiece, RunLog, planned_pieces
 from econdor_gcs.link.router import Sample
-from econdor_gcs.station.executor import VehicleStatus
+from econdor_gcs.station.telemetry import VehicleRow
 
 
 @dataclass
@@ -76,7 +76,7 @@ class Feed(Protocol):
         ...
 
 
-StatusSource = Callable[[], Sequence[VehicleStatus]]
+StatusSource = Callable[[], Sequence[VehicleRow]]
 
 
 class LiveFeed:
@@ -125,7 +125,7 @@ class LiveFeed:
         # the server's thread only
         self._status: StatusSource | None = None
         self._sysids: list[int] = []
-        self._vehicles: list[VehicleStatus] = []
+        self._vehicles: list[VehicleRow] = []
         self._vehicles_at = -math.inf
         self._final_taken = False
         self._frames: dict[int, Message] = {}
@@ -214,7 +214,7 @@ class LiveFeed:
         state = self.run_control.request(action)
         return messages.control(state.value, self.run_control.iteration)
 
-    def _snapshot(self, final: bool) -> list[VehicleStatus]:
+    def _snapshot(self, final: bool) -> list[VehicleRow]:
         """Vehicle snapshots at most ``rate_hz`` times a second, and one after the run's end."""
         now = time.monotonic()
         if now - self._vehicles_at >= 1.0 / self.rate_hz or (final and not self._final_taken):
@@ -289,7 +289,7 @@ class _Trail:
     index: dict[int, int] = field(default_factory=dict)
 
     def convert(self, raw: Sequence[tuple[int, float, float]], origin: Origin,
-                vehicles: Sequence[VehicleStatus]
+                vehicles: Sequence[VehicleRow]
                 ) -> tuple[FloatArray, FloatArray, np.ndarray, np.ndarray]:
         if not raw:
             z = np.zeros(0)

@@ -20,7 +20,7 @@ from skimage import measure
 from econdor_gcs.core.geometry import FloatArray
 from econdor_gcs.core.tasks import Phase, SampleLog
 from econdor_gcs.files.rundir import LogLine, PlannedPiece
-from econdor_gcs.station.executor import VehicleStatus
+from econdor_gcs.station.telemetry import VehicleRow
 
 Message = dict[str, Any]
 
@@ -146,14 +146,14 @@ def records(recs: Sequence[dict[str, Any]]) -> Message:
     return {"type": "records", "records": [record(r) for r in recs]}
 
 
-def vehicle(v: VehicleStatus, pieces_by_vehicle: dict[int, list[int]]) -> dict[str, Any]:
+def vehicle(v: VehicleRow, pieces_by_vehicle: dict[int, list[int]]) -> dict[str, Any]:
     d = {k: _finite(val) for k, val in asdict(v).items()}
     d["phase"] = Phase(v.phase).name.lower()
     d["pieces"] = pieces_by_vehicle.get(v.index, [])
     return d
 
 
-def vehicles(rows: Sequence[VehicleStatus], pieces_by_vehicle: dict[int, list[int]]) -> Message:
+def vehicles(rows: Sequence[VehicleRow], pieces_by_vehicle: dict[int, list[int]]) -> Message:
     return {"type": "vehicles", "vehicles": [vehicle(v, pieces_by_vehicle) for v in rows]}
 
 

@@ -1,0 +1,116 @@
+"""``econdor upload``: verify-after-upload and --start against both personalities."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+
+import pytest
+
+from econdor.cli import main
+from econdor_gcs.app.export import export_cli
+from econdor_gcs.app.upload import compare_items
+from econdor_gcs.files.autopilot_files import read_mission_file
+from econdor_gcs.link.autopilots import AutopilotKind
+from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.items import waypoint_item
+from tests.helpers.vehicles import DEMO, free_port, inproc_vehicle, wait_for
+
+ORIGIN_ITEMS = [waypoint_item(0, 47.397742, 8.545594, 0.0),
+                waypoint_item(1, 47.3978, 8.5457, 30.123)]
+
+
+def test_compare_allows_ardupilot_habits_and_nothing_else():
+    sent = ORIGIN_ITEMS
+    ap_back = [dataclasses.replace(sent[0], frame=0, x=473000000, z=512.3),
+               dataclasses.replace(sent[1], frame=3, z=30.12, autocontinue=1, current=0)]
+    assert compare_items(sent, ap_back, AutopilotKind.ARDUPILOT) == []
+    diffs = compare_items(sent, ap_back, AutopilotKind.PX4)
+    assert {(d.seq, d.field) for d in diffs} == {(0, "frame"), (0, "x"), (0, "z"), (1, "z")}
+    # a different position, command or param is a difference for everyone
+    moved = [sent[0], dataclasses.replace(sent[1], y=sent[1].y + 1, param1=2.0)]
+    found = compare_items(sent, moved, AutopilotKind.ARDUPILOT)
+    assert [str(d) for d in found] == ["item 1 param1: sent 0.0, got back 2.0",
+                                       f"item 1 y: sent {sent[1].y}, got back {sent[1].y + 1}"]
+    assert compare_items(sent, sent[:1])[0].field == "count"
+    # float32 on the wire and NaN params are the same value
+    nan = [dataclasses.replace(sent[1], param4=math.nan, z=0.1)]
+    back = [dataclasses.replace(sent[1], param4=math.nan, z=0.10000000149011612)]
+    assert compare_items(nan, back, AutopilotKind.PX4) == []
+
+
+def exported(tmp: Path, fmt: str = "wpl", style: str = "waypoints") -> Path:
+    out = tmp / f"m.{'waypoints' if fmt == 'wpl' else 'plan'}"
+    export_cli(argparse.Namespace(
+        source=DEMO, out=out, format=fmt, style=style, alt_m=15.0, speed_mps=10.0,
+        tolerance_m=1.0, vehicles=1, spacing_m=None, fence_margin_m=10.0, iteration=None,
+        vehicle=None))
+    return out
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_upload_start_round_trips_and_flies_on_both_personalities(tmp_path, capsys, autopilot):
+    path = exported(tmp_path, "plan")
+    mfile = read_mission_file(path)
+    port = free_port()
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", speedup=200.0, autopilot=autopilot,
+                        companion=False, prearm_s=1.0) as v:
+        code = main(["upload", str(path), "--connect", f"udpin:127.0.0.1:{port}", "--start",
+                     "--timeout", "10"])
+        out = capsys.readouterr()
+        assert code == 0, out.err
+        assert f"vehicle 1 ({autopilot}): uploaded and verified {len(mfile.items)} mission " \
+               f"items, 4 fence items, 1 rally item" in out.out
+        assert "1 rally items" not in out.out
+        assert ("item 0 replaced by its home" in out.out) == (autopilot == "ardupilot")
+        assert "mission started" in out.out
+        # the vehicle stored the fence and rally point of the plan
+        assert len(v.server.stores[mavlink.MAV_MISSION_TYPE_FENCE]) == 4
+        assert len(v.server.stores[mavlink.MAV_MISSION_TYPE_RALLY]) == 1
+        # and flies the mission to its end: the last item is RTL, it lands and disarms
+        last = len(mfile.items) - 1
+        wait_for(lambda: v.armed or v.state.in_air, 5, "takeoff")
+        wait_for(lambda: v.server.current_seq == last and not v.armed, 30, "the end of it")
+        assert v.state.mission_complete
+        assert math.hypot(v.body.x_m, v.body.y_m) < 2.0 and not v.state.in_air
+
+
+def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
+    trace = exported(tmp_path, "wpl", style="waypoints")
+    port = free_port()
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
+                        companion=False) as v:
+        # an autopilot that stores something else than it was sent
+        real = v.server.reported
+        v.server.reported = lambda it: dataclasses.replace(real(it), z=it.z + 1.0) \
+            if it.seq == 3 else real(it)
+        assert main(["upload", str(trace), "--connect", f"udpin:127.0.0.1:{port}",
+                     "--timeout", "10"]) == 1
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0
+        assert "vehicle 1: the mission read back differs from the file: item 3 z: sent 15.0, " \
+               "got back 16.0" in err
+    # a stock autopilot refuses contour items: the error says what to do
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
+                        companion=False):
+        contour = tmp_path / "c.waypoints"
+        contour.write_text(
+            "QGC WPL 110\n0\t1\t3\t16\t0\t0\t0\t0\t47.397742\t8.545594\t0\t1\n"
+            "1\t0\t3\t22\t0\t0\t0\t0\t47.397742\t8.545594\t20\t1\n"
+            "2\t0\t3\t31000\t42\t10\t0\t3\t47.3979\t8.5459\t20\t1\n")
+        assert main(["upload", str(contour), "--connect", f"udpin:127.0.0.1:{port}",
+                     "--timeout", "10"]) == 1
+        err = capsys.readouterr().err.strip()
+        assert err == ("econdor: error: vehicle 1 rejected mission item 2: "
+                       "MAV_MISSION_UNSUPPORTED (a stock autopilot flies contours as "
+                       "waypoints: export with --style waypoints)")
+        # a mission without a home item would lose its first item on ArduPilot
+        headless = tmp_path / "h.waypoints"
+        headless.write_text("QGC WPL 110\n"
+                            "0\t1\t3\t22\t0\t0\t0\t0\t47.397742\t8.545594\t20\t1\n")
+        assert main(["upload", str(headless), "--connect", f"udpin:127.0.0.1:{port}",
+                     "--timeout", "10"]) == 1
+        assert "replaces item 0 with its home, and item 0 of this mission is command 22" in \
+            capsys.readouterr().err
