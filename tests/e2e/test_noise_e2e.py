@@ -24,9 +24,7 @@ import yaml
 from econdor import cli
 from econdor_gcs.config import load_mission
 
-pytestmark = pytest.mark.e2e
-
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MISSION = ROOT / "missions" / "plume-noisy.yaml"
 BUDGET_M = 3000.0
 
