@@ -32,7 +32,8 @@ For each field and condition the report gives, medians over the seeds:
     python bench/noise.py --fields plume --noise 1 --planners adaptive --seeds 900:903
     python bench/noise.py --seeds 900:910 --cache runs/noise-surveys --json runs/noise.jsonl \\
         --markdown --out docs/results/noise.md
-    python bench/noise.py --from-json runs/noise.jsonl --markdown      # the tables again
+    python bench/noise.py --from-json runs/noise.jsonl --fresh 920:940 --markdown \
+        --out docs/results/noise.md          # the tables again, fresh seeds apart
 
 ``--json`` is appended to as runs finish; runs already there are not flown again. A
 planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
@@ -356,8 +357,10 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
     return table.lines(md)
 
 
-def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool
-           ) -> list[str]:
+def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool,
+           fresh: frozenset[int] = frozenset()) -> list[str]:
+    """The tables per field and condition, the tuning seeds apart from the ``fresh`` ones
+    (never looked at while the design was tuned)."""
     out: list[str] = []
     fields = list(dict.fromkeys(s["field"] for s in surveys))
     conditions = list(dict.fromkeys((s["noise"], s["variant"]) for s in surveys))
@@ -368,20 +371,22 @@ def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool
     for field in fields:
         out += ["", f"## Field: {field}"]
         for noise, variant in conditions:
-            sv = {s["seed"]: s for s in surveys if s["field"] == field and s["noise"] == noise
-                  and s["variant"] == variant}
-            rs = [r for r in runs if r["field"] == field and r["noise"] == noise
-                  and r["variant"] == variant]
-            if not sv:
-                continue
-            seeds = sorted(sv)
-            sensor = condition_sensor(field, noise, variant)
-            out += ["", f"### {condition_name(noise, variant)} (sensor {sensor}; seeds "
-                    f"{seeds[0]}–{seeds[-1]}, {len(seeds)})", ""]
-            text, _ = map_table(rs, sv, planners, md)
-            out += text
-            if mappers:
-                out += ["", *threshold_table(rs, sv, mappers, md)]
+            for group in ("tuned", "fresh"):
+                sv = {s["seed"]: s for s in surveys if s["field"] == field
+                      and s["noise"] == noise and s["variant"] == variant
+                      and (s["seed"] in fresh) == (group == "fresh")}
+                rs = [r for r in runs if r["field"] == field and r["noise"] == noise
+                      and r["variant"] == variant and r["seed"] in sv]
+                if not sv:
+                    continue
+                seeds = sorted(sv)
+                sensor = condition_sensor(field, noise, variant)
+                out += ["", f"### {condition_name(noise, variant)} (sensor {sensor}; "
+                        f"{group} seeds {fmt_seeds(seeds)}, {len(seeds)})", ""]
+                text, _ = map_table(rs, sv, planners, md)
+                out += text
+                if mappers:
+                    out += ["", *threshold_table(rs, sv, mappers, md)]
     return out
 
 
@@ -405,6 +410,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--json", default=None,
                    help="append every run and survey scan here; what is there is not flown again")
     p.add_argument("--from-json", default=None, help="the tables of saved runs")
+    p.add_argument("--fresh", default="",
+                   help="seeds reported apart as fresh (not looked at while tuning), e.g. 920:940")
     p.add_argument("--markdown", action="store_true")
     p.add_argument("--out", default=None, help="also write the report here, stamped")
     a = p.parse_args(argv)
@@ -495,7 +502,8 @@ def main(argv: list[str] | None = None) -> int:
              "level (the survey: of its best 2 / 4 km estimate by mean iso-line error). "
              "Threshold mode: distance to an iso-line error ≤ 0.5 m at the middle level over "
              "the shortest survey's that maps it so.",
-             *report(runs, surveys, md)]
+             *report(runs, surveys, md,
+                     frozenset(parse_seeds(a.fresh)) if a.fresh else frozenset())]
     text = "\n".join(lines) + "\n"
     print(text, end="")
     if a.out:

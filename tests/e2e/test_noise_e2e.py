@@ -3,7 +3,7 @@ than the sensor's own noise, and ``econdor study`` of it reports the table.
 
 The MAVLink run flies the mission as written (adaptive planner, 6 km, the sensor with
 noise 1, lag 0.5 s corrected by the station, 1 m of GNSS error over 10 s) with two
-vehicles and a fast clock: half the iterations, so half the reconstructions, of one
+vehicles: half the iterations, so half the reconstructions, of one
 vehicle. Most of its error is the GNSS error's (on plumes 3-6 m wide a metre of position
 is several units of value), which only flying the plumes again averages out: at 3 km the
 map is about as good as the noise, at 6 km clearly better. The study (in process) flies
@@ -44,8 +44,7 @@ def test_plume_noisy_over_mavlink_maps_better_than_the_noise(
     noise_std = load_mission(MISSION).vehicles.sensor.noise_std
     budget_m = load_mission(MISSION).algorithm.flight_budget_m
     out = tmp_path / "run"
-    code = cli.main(["run", str(MISSION), "--out", str(out), "--vehicles", "2",
-                     "--speedup", "200", "--quiet"])
+    code = cli.main(["run", str(MISSION), "--out", str(out), "--vehicles", "2", "--quiet"])
     _, err = capsys.readouterr()
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
@@ -55,8 +54,8 @@ def test_plume_noisy_over_mavlink_maps_better_than_the_noise(
     final_mae = float(rows[-1]["mae"])
     noise_mae = noise_std * math.sqrt(2.0 / math.pi)
     assert final_mae < noise_mae, (final_mae, noise_mae)
-    # the map gets better with flight, not worse: the last estimate beats the first
-    assert final_mae < float(rows[0]["mae"])
+    # no vehicle given up on the way (a loss would leave the map to the other one)
+    assert not any(r.get("lost") for r in summary.get("sample_recovery", {}).values())
     assert float(rows[-1]["flight_distance_m"]) <= budget_m + 400.0
 
 
