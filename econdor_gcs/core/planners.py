@@ -25,9 +25,10 @@ The planners:
   iteration's error then reads as a rise, which triples delta (eq. 7) and the method
   stalls for good — measured on the paper's field, not hypothetical.
   With noisy samples (``PlanContext.noise_std``) the levels are those of the smoothed
-  estimate; a level within the noise of a traced one is redundant whatever ``delta_n``
-  is, and a piece is traced only where the noise moves it by less than
-  :data:`TRACE_NOISE_M` (elsewhere the tracer would follow the noise).
+  estimate and a level within the noise of a traced one is redundant whatever
+  ``delta_n`` is. Every piece is still traced, however flat the field under it: skipping
+  those the noise could move by metres measured worse on plumes (the tracer's own
+  averaging along a piece does better than not flying it).
 * ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
@@ -229,39 +230,6 @@ def lawnmower_lines_for_budget(region: Region, budget_m: float, turn_m: float = 
     return n
 
 
-TRACE_NOISE_M = 2.0
-"""With noisy samples a contour piece is traced only where one standard deviation of the
-noise moves it by less than this (``|grad mu| >= noise_std / TRACE_NOISE_M`` along most of
-it): where the field is flatter the level reads as noise, and a tracer told to follow it
-follows the noise (:func:`traceable`)."""
-
-
-def noise_shift_m(points_m: FloatArray, estimate: FloatArray, grid: Grid, noise_std: float
-                  ) -> float:
-    """How far one standard deviation of the noise moves an iso-line of ``estimate``
-    through ``points_m`` (m): ``noise_std / |grad mu|``, the median along the points
-    (0 for exact samples).
-
-    >>> g = Grid(Region(0.0, 10.0, 0.0, 10.0), 11, 11)
-    >>> ramp = np.tile(2.0 * g.x, (g.ny, 1))          # 2 per metre eastwards
-    >>> noise_shift_m(np.array([[5.0, 1.0], [5.0, 9.0]]), ramp, g, 1.0)
-    0.5
-    """
-    if noise_std <= 0:
-        return 0.0
-    gy, gx = np.gradient(estimate, grid.dy, grid.dx)
-    col = np.clip(np.rint((points_m[:, 0] - grid.region.xmin) / grid.dx), 0, grid.nx - 1)
-    row = np.clip(np.rint((points_m[:, 1] - grid.region.ymin) / grid.dy), 0, grid.ny - 1)
-    slope = np.hypot(gx, gy)[row.astype(int), col.astype(int)]
-    return float(noise_std / max(float(np.median(slope)), 1e-12))
-
-
-def traceable(points_m: FloatArray, estimate: FloatArray, grid: Grid, noise_std: float) -> bool:
-    """Whether an iso-line through ``points_m`` stands out of the noise enough to trace
-    (:data:`TRACE_NOISE_M`); always with exact samples."""
-    return noise_shift_m(points_m, estimate, grid, noise_std) <= TRACE_NOISE_M
-
-
 class ContourPlanner:
     """E-CONDOR (``sg=True``) or the no-SG baseline (``sg=False``)."""
 
@@ -323,8 +291,7 @@ class ContourPlanner:
         noise = context.noise_std
 
         def pieces_at(levels: FloatArray) -> list[ContourPiece]:
-            return [p for p in contour_pieces(estimate, grid, levels, self.min_piece_length_m)
-                    if traceable(p.points_m, estimate, grid, noise)]
+            return contour_pieces(estimate, grid, levels, self.min_piece_length_m)
 
         self.batches += 1
         forced = 0

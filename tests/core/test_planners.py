@@ -180,21 +180,19 @@ def test_authors_lloyd_variant_moves_the_outer_levels_inward():
         ContourPlanner(lloyd_variant="matlab")
 
 
-def test_contour_planner_traces_only_what_stands_out_of_the_noise():
-    """On a field flat in the west and steep in the east, with noise the flat levels
-    (where the noise would move the iso-line by metres) are not traced; without noise
-    every level is."""
-    xx, _ = GRID.mesh
-    field = np.where(xx < 50.0, 0.2 * xx, 10.0 + 2.0 * (xx - 50.0))
-    exact = ContourPlanner(m0=6, sg=True, lloyd_bins=None).next_batch(ctx(field))
-    noisy_ctx = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID,
-                            estimate=field, noise_std=0.5)
-    noisy = ContourPlanner(m0=6, sg=True, lloyd_bins=None).next_batch(noisy_ctx)
-    assert len(noisy.jobs) < len(exact.jobs)
-    # west, a slope of 0.2 lets the noise move an iso-line by 2.5 m; east, one of 2 by
-    # 0.25 m: only the eastern levels are left
-    def traced(b):
-        return sorted(t.level for j in b.jobs for t in j.tasks if isinstance(t, TraceTask))
+def test_a_level_within_the_noise_of_a_traced_one_is_redundant():
+    """The SG redundancy test uses max(delta_n, noise_std): with noise, an iso-line
+    within the noise of one already traced is that one again."""
+    def third_batch(noise_std):
+        p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
+        c = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID,
+                        estimate=ramp(), noise_std=noise_std)
+        p.next_batch(c)
+        p.observe(4.0)
+        p.next_batch(c)
+        p.observe(1.6)
+        return p.next_batch(c)
 
-    assert traced(exact)[0] < 10.0 < traced(noisy)[0]
-    assert traced(noisy) == traced(exact)[1:]
+    exact, noisy = third_batch(0.0), third_batch(12.0)
+    assert exact.delta == noisy.delta < 12.0
+    assert len(noisy.dropped) > len(exact.dropped)
