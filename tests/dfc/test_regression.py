@@ -66,7 +66,7 @@ pytestmark = pytest.mark.slow
 def reference():
     from pathlib import Path
 
-    with np.load(Path(__file__).with_name("data") / "regression.npz") as data:
+    with np.load(Path(__file__).parents[1] / "data" / "regression.npz") as data:
         return {k: data[k] for k in data.files}
 
 
