@@ -33,18 +33,21 @@ from .inprocess import InProcessExecutor, run_inprocess
 
 _BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels",
-                 "isoline_target_m", "isoline_target_missed")
+                 "isoline_target_m", "isoline_target_missed", "noise_std")
 STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS, *EXTRA_COLUMNS)
 
 
 def study_row(seed: int, planner: str, r: IterationRecord) -> dict[str, Any]:
-    """One study.csv row: the metrics.csv columns plus seed, planner and extras."""
+    """One study.csv row: the metrics.csv columns plus seed, planner and extras (among
+    them ``noise_std``: the sensor noise that iteration's reconstruction estimated from
+    the samples)."""
     iso = r.isoline_error_m
     return {"seed": seed, "planner": planner, **r.csv_row(), "mae_rel": r.mae_rel,
             "isoline_p25_m": iso.get("p25", math.nan), "isoline_p50_m": iso.get("p50", math.nan),
             "isoline_p75_m": iso.get("p75", math.nan), "forced_levels": r.forced,
             "isoline_target_m": iso.get("target", math.nan),
-            "isoline_target_missed": iso.get("target_missed", math.nan)}
+            "isoline_target_missed": iso.get("target_missed", math.nan),
+            "noise_std": r.noise_std}
 
 
 def parse_seeds(text: str) -> list[int]:

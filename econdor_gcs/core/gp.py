@@ -346,7 +346,9 @@ class Kriging:
         noise the samples are averaged per ``cell_m`` square instead of thinned (a mean
         of ``n`` has ``1/n`` of the noise variance, and the nugget of its row is divided
         by ``n``), and :func:`fit_matern` fits the length and amplitude with the noise
-        fixed. Ignored when ``hyper`` is given: its nugget says what noise it assumes.
+        fixed. With ``hyper`` given its nugget says what noise it assumes: ``None`` (or 0)
+        thins the samples, any ``noise_std > 0`` averages them per cell with the nugget
+        divided by each count as above.
 
     Attributes
     ----------
@@ -439,7 +441,7 @@ class Kriging:
         return self
 
     def _noise(self, x: FloatArray, y: FloatArray, v: FloatArray) -> NoiseEstimate | None:
-        if self.hyper is not None:
+        if self.hyper is not None and not (self.noise_std or 0.0) > 0:
             return None
         if self.noise_std is None:
             return estimate_noise(x, y, v)

@@ -24,6 +24,11 @@ The planners:
   iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
   iteration's error then reads as a rise, which triples delta (eq. 7) and the method
   stalls for good — measured on the paper's field, not hypothetical.
+  With noisy samples (``PlanContext.noise_std``) the levels are those of the smoothed
+  estimate and a level within the noise of a traced one is redundant whatever
+  ``delta_n`` is. Every piece is still traced, however flat the field under it: skipping
+  those the noise could move by metres measured worse on plumes (the tracer's own
+  averaging along a piece does better than not flying it).
 * ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
@@ -122,6 +127,10 @@ class PlanContext:
     """Flight distance left of ``algorithm.flight_budget_m`` (inf without a budget)."""
     flown_m: float = 0.0
     """Flight distance so far (all vehicles, everything counted)."""
+    noise_std: float = 0.0
+    """The samples' noise as the station's reconstruction estimated it from the samples
+    themselves (field units; :func:`~econdor_gcs.core.spline.fit_field`), never the
+    simulation's: 0 when they read as exact (or before any estimate)."""
 
     @property
     def positions_or_home_m(self) -> list[tuple[float, float]]:
@@ -279,6 +288,11 @@ class ContourPlanner:
         if context.estimate is None or context.grid is None:
             raise ValueError("context: a contour planner needs the estimate and its grid")
         estimate, grid = context.estimate, context.grid
+        noise = context.noise_std
+
+        def pieces_at(levels: FloatArray) -> list[ContourPiece]:
+            return contour_pieces(estimate, grid, levels, self.min_piece_length_m)
+
         self.batches += 1
         forced = 0
         if self.batches == 1:
@@ -290,7 +304,7 @@ class ContourPlanner:
             levels = self._levels(estimate)
         if not self.sg or self.batches <= 2:
             keep, dropped = levels, np.zeros(0)
-            pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+            pieces = pieces_at(keep)
         else:
             e2 = self.errors[-2] if len(self.errors) >= 2 else None
             e1 = self.errors[-1] if self.errors else None
@@ -298,8 +312,10 @@ class ContourPlanner:
             self.delta = update_delta(self.delta, e2, e1)
             self.m += self.kappa
             levels = self._levels(estimate)
-            keep, dropped = drop_redundant(levels, self.traced, self.delta)
-            pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+            # levels closer than the noise to a traced one are its iso-line again, to
+            # within what the noise moves either by
+            keep, dropped = drop_redundant(levels, self.traced, max(self.delta, noise))
+            pieces = pieces_at(keep)
             if not pieces and len(dropped):
                 # Every new level is redundant: fly the kappa least redundant ones
                 # rather than an empty iteration (see the module docstring).
@@ -307,7 +323,7 @@ class ContourPlanner:
                 chosen = np.zeros(len(dropped), dtype=bool)
                 chosen[np.argsort(-gap, kind="stable")[: self.kappa]] = True
                 keep, dropped = dropped[chosen], dropped[~chosen]
-                pieces = contour_pieces(estimate, grid, keep, self.min_piece_length_m)
+                pieces = pieces_at(keep)
                 forced = len(keep)
         jobs = []
         for p in pieces:

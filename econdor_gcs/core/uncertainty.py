@@ -129,6 +129,34 @@ class UncertaintyMap:
     hyper: MaternHyper | None = None
     grid: Grid | None = None
     """The planning grid the cells were flattened from (row-major, ``[row=y, col=x]``)."""
+    noisy: bool = False
+    """The samples are noisy and the variance is the GP's with the noise as its nugget:
+    what paths observe adds up (:meth:`combine`)."""
+
+    def combine(self, variance: FloatArray, line_var: FloatArray) -> FloatArray:
+        """The unit variance of cells at ``variance`` after a path that alone would leave
+        them at ``line_var``.
+
+        Exact samples: the smaller of the two (a place sampled once is known; a second
+        path over it adds nothing). Noisy ones: their information adds,
+        ``1 / v = 1 / variance + 1 / line_var - 1`` (the prior's, 1, counted once): a
+        second pass over a place averages its noise down as a GP with that nugget says,
+        so places where noise hides the field stay worth flying again, by as much as
+        they are.
+
+        >>> u = UncertaintyMap(np.zeros(1), np.zeros(1), np.ones(1), np.ones(1),
+        ...                    np.zeros(1), "gp", 5.0)
+        >>> float(u.combine(np.array([0.2]), np.array([0.2]))[0])
+        0.2
+        >>> u.noisy = True
+        >>> round(float(u.combine(np.array([0.2]), np.array([0.2]))[0]), 4)
+        0.1111
+        """
+        if not self.noisy:
+            return np.minimum(variance, line_var)
+        v = np.maximum(variance, 1e-12)
+        w = np.maximum(line_var, 1e-12)
+        return np.asarray(1.0 / np.maximum(1.0 / v + 1.0 / w - 1.0, 1.0), dtype=float)
 
     def sigma(self, variance: FloatArray | None = None) -> FloatArray:
         v = self.variance if variance is None else variance
@@ -158,6 +186,7 @@ def uncertainty_map(
     gradient_gain_m: float = 5.0,
     gradient_window_m: float = 7.0,
     hyper: MaternHyper | None = None,
+    noise_std: float = 0.0,
 ) -> UncertaintyMap:
     """The uncertainty of ``estimate`` (on ``grid``) given the samples, on ``plan_grid``.
 
@@ -180,6 +209,11 @@ def uncertainty_map(
         ``l_g`` and the width ``w`` of the maximum filter of the gradient (module docstring).
     hyper : MaternHyper or None
         Hyperparameters for ``gp`` (fitted elsewhere, e.g. once per iteration).
+    noise_std : float
+        The samples' noise as the station estimated it (0: exact). With ``gp`` the
+        samples are then averaged per cell, each mean's noise the hyperparameters' nugget
+        over its count, and paths add information (:meth:`UncertaintyMap.combine`); the
+        ``proxy`` ignores it.
     """
     if model not in ("gp", "proxy"):
         raise ValueError(f"model: must be 'gp' or 'proxy', got {model!r}")
@@ -196,7 +230,8 @@ def uncertainty_map(
     if model == "gp":
         if hyper is None:
             raise ValueError("model 'gp' needs fitted hyperparameters")
-        variance = Kriging(hyper=hyper, cell_m=1.5).fit(x_m, y_m, values).unit_variance(cx, cy)
+        variance = Kriging(hyper=hyper, cell_m=1.5, noise_std=noise_std or None).fit(
+            x_m, y_m, values).unit_variance(cx, cy)
         s0 = hyper.amplitude if floor is None else floor
         length = hyper.length_m
     else:
@@ -206,7 +241,8 @@ def uncertainty_map(
         length = length_m
     amplitude = s0 + gradient_gain_m * np.maximum(steep_c, 0.0)
     return UncertaintyMap(cx, cy, np.asarray(variance, dtype=float), amplitude, mean, model,
-                          length, hyper if model == "gp" else None, plan_grid)
+                          length, hyper if model == "gp" else None, plan_grid,
+                          noisy=model == "gp" and noise_std > 0)
 
 
 class Footprints:

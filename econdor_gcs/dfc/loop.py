@@ -12,7 +12,9 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
 * ``flight_budget_m`` (> 0) spent;
 * after ``min_iterations``: ``gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2})`` within
   ``1 +- stop_lambda`` (``stop_lambda`` > 0; the learning error has levelled off) and the
-  span of the estimate changed by less than 1 % in the last iteration;
+  span of the estimate changed by less than 1 % in the last iteration; with noisy
+  samples each learning error is taken net of what the noise alone moves the estimate
+  by, and the span may move by that too (:mod:`econdor_gcs.core.stopping`);
 * ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
   redundant or without a contour piece): the run has stalled. An idle iteration still
   counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
@@ -58,6 +60,7 @@ from econdor_gcs.core.planners import (
     survey_turn_m,
 )
 from econdor_gcs.core.spline import fit_field
+from econdor_gcs.core.stopping import gamma_converged, noise_floor
 from econdor_gcs.core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
 from econdor_gcs.errors import MissionError, RunError
 
@@ -104,6 +107,11 @@ class IterationRecord:
     noise_std: float = math.nan
     """The samples' noise as this iteration's reconstruction estimated it (field units; 0:
     taken as exact and interpolated; the previous iteration's when nothing new was flown)."""
+    noise_floor: float = 0.0
+    """The learning error the samples' noise alone would make in this iteration (0 for
+    exact samples; :func:`~econdor_gcs.core.stopping.noise_floor`)."""
+    span_noise: float = 0.0
+    """What the noise may move the estimate's span by in this iteration."""
 
     CSV_COLUMNS = (
         "iteration", "levels_planned", "levels_traced", "kappa", "delta", "learning_error",
@@ -114,6 +122,10 @@ class IterationRecord:
         d = asdict(self)
         return {k: d[k] for k in self.CSV_COLUMNS}
 
+
+SPAN_NOISE_Z = 2.0
+"""Each extreme of the estimate may move by this many standard deviations of the noise's
+change in an iteration before the span counts as changed (the learning-error rule)."""
 
 FINISH = -1
 """The iteration number of the flight home (:meth:`Executor.finish`) in flight records."""
@@ -332,6 +344,8 @@ class Dfc:
         self.return_m = 0.0
         self.noise_std = math.nan
         """The samples' noise as the last reconstruction estimated it (field units)."""
+        self._samples_before = 0
+        """Samples behind the last estimate recorded (the noise floor's 'before')."""
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -427,7 +441,8 @@ class Dfc:
             grid=self.grid, estimate=estimate, samples=self._samples(),
             positions_m=self._positions(iteration),
             budget_left_m=budget - self.flight_m if budget > 0 else math.inf,
-            flown_m=self.flight_m)
+            flown_m=self.flight_m,
+            noise_std=self.noise_std if math.isfinite(self.noise_std) else 0.0)
 
     def _pattern(self) -> tuple[Batch, list[list[Task]]]:
         """The mission's initiation pattern (the two diagonals or a survey) and its plans."""
@@ -473,6 +488,12 @@ class Dfc:
                 outcomes[o.status] = outcomes.get(o.status, 0) + 1
         traced = {o.task.level for r in reports for o in r.outcomes
                   if isinstance(o.task, TraceTask) and o.traced_m > 0}
+        floor, sd_max = (0.0, 0.0)
+        if previous is not None and reports:
+            s = self._samples()
+            floor, sd_max = noise_floor(s.x_m, s.y_m, self._samples_before, self.grid,
+                                        self.noise_std if math.isfinite(self.noise_std) else 0.0)
+        self._samples_before = sum(len(s) for s in self.logs)
         rec = IterationRecord(
             iteration=it,
             levels_planned=batch.levels_planned if batch else 0,
@@ -496,6 +517,8 @@ class Dfc:
             isoline_error_m=iso,
             forced=batch.forced if batch else 0,
             noise_std=self.noise_std,
+            noise_floor=floor,
+            span_noise=SPAN_NOISE_Z * 2.0 * sd_max,
         )
         self.records.append(rec)
         self.progress(IterationDone(rec, estimate))
@@ -577,15 +600,12 @@ class Dfc:
         return result
 
     def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
-        lam = self.mission.algorithm.stop_lambda
-        errs = [r.learning_error for r in self.records if not math.isnan(r.learning_error)]
-        if lam <= 0 or len(errs) < 3:
-            return False
-        e0, e1, e2 = errs[-1], errs[-2], errs[-3]
-        denom = e0 + e1 + e2
-        gamma = 3 * e0 / denom if denom > 0 else 1.0
-        span_ok = span_now > 0 and abs(span_now - span_prev) / span_now < 0.01
-        return abs(gamma - 1.0) <= lam and span_ok
+        """The learning-error rule, each error net of the noise floor
+        (:mod:`econdor_gcs.core.stopping`)."""
+        rows = [r for r in self.records if not math.isnan(r.learning_error)]
+        return gamma_converged([r.learning_error for r in rows], [r.noise_floor for r in rows],
+                               self.mission.algorithm.stop_lambda, span_prev, span_now,
+                               self.records[-1].span_noise)
 
     def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
         """Iso-line error (m) at 25, 50 and 75 % of the true span; with target levels also

@@ -168,6 +168,12 @@ def read_next_batch(path: str | Path) -> tuple[int, list[Job]]:
     return it, [_job_from_json(j, f"{path}: jobs[{i}]") for i, j in enumerate(jobs)]
 
 
+def _last_noise_std(result: RunResult) -> float:
+    """The noise the run's last reconstruction estimated (0 when none, or not recorded)."""
+    noise = result.records[-1].noise_std if result.records else 0.0
+    return noise if math.isfinite(noise) else 0.0
+
+
 def save_next_batch(run_dir: Path, planner: Planner, mission: Mission,
                     result: RunResult) -> Path:
     """``next_batch.json``: what ``planner`` would fly next from the run's final estimate.
@@ -179,7 +185,8 @@ def save_next_batch(run_dir: Path, planner: Planner, mission: Mission,
     context = PlanContext(iteration=iteration, region=mission.region,
                           n_vehicles=result.vehicles, grid=result.grid,
                           estimate=result.estimate, samples=result.samples,
-                          positions_m=[(0.0, 0.0)] * result.vehicles)
+                          positions_m=[(0.0, 0.0)] * result.vehicles,
+                          noise_std=_last_noise_std(result))
     batch = planner.next_batch(context)
     try:
         return write_next_batch(run_dir / "next_batch.json", batch, iteration)

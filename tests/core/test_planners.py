@@ -178,3 +178,21 @@ def test_authors_lloyd_variant_moves_the_outer_levels_inward():
     assert authors.delta == pytest.approx(25.0, abs=1.0)  # delta_0 = smallest gap
     with pytest.raises(ValueError, match="lloyd_variant"):
         ContourPlanner(lloyd_variant="matlab")
+
+
+def test_a_level_within_the_noise_of_a_traced_one_is_redundant():
+    """The SG redundancy test uses max(delta_n, noise_std): with noise, an iso-line
+    within the noise of one already traced is that one again."""
+    def third_batch(noise_std):
+        p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
+        c = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID,
+                        estimate=ramp(), noise_std=noise_std)
+        p.next_batch(c)
+        p.observe(4.0)
+        p.next_batch(c)
+        p.observe(1.6)
+        return p.next_batch(c)
+
+    exact, noisy = third_batch(0.0), third_batch(12.0)
+    assert exact.delta == noisy.delta < 12.0
+    assert len(noisy.dropped) > len(exact.dropped)

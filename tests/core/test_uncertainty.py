@@ -99,3 +99,27 @@ def test_resample_polyline_spaces_points_along_every_segment():
     steps = np.hypot(*np.diff(p, axis=0).T)
     assert np.all(steps <= 1.0 + 1e-9) and steps.sum() == pytest.approx(7.0)
     assert p[0].tolist() == [0.0, 0.0] and p[-1].tolist() == [4.0, 3.0]
+
+
+def test_noisy_gp_map_keeps_a_flown_place_worth_flying_again():
+    """With the noise as the GP's nugget, a second pass over a line adds what averaging
+    the noise down is worth; with exact samples it adds nothing."""
+    x, y, v = diagonal_samples(lambda x, y: np.sin(x / 9.0) + np.cos(y / 7.0))
+    rng = np.random.default_rng(3)
+    noisy = v + rng.normal(0.0, 0.3, v.size)
+    hyper = MaternHyper(0.0, 1.0, 6.0, 0.09, 2.5)  # nugget: (0.3 / 1.0) ** 2
+    umap = uncertainty_map(x, y, noisy, np.zeros(GRID.shape), GRID, PLAN, model="gp",
+                           hyper=hyper, noise_std=0.3)
+    assert umap.noisy
+    on_diag = np.abs(umap.x_m - umap.y_m) < 1e-9
+    # the noise leaves a floor on the flown line that exact samples would not
+    assert umap.variance[on_diag].min() > 0.002
+    line = umap.line_variance(np.zeros(1))
+    before = umap.variance[on_diag]
+    after = umap.combine(before, np.full(before.shape, line[0]))
+    assert np.all(after < before)
+    exact = uncertainty_map(x, y, v, np.zeros(GRID.shape), GRID, PLAN, model="gp",
+                            hyper=hyper)
+    assert not exact.noisy
+    np.testing.assert_array_equal(exact.combine(before, np.full(before.shape, line[0])),
+                                  np.minimum(before, line[0]))

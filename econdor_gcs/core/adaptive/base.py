@@ -14,13 +14,14 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.interpolate import RectBivariateSpline
 from threadpoolctl import threadpool_limits
 
 from ..candidates import Candidate, CandidateKind, leg_candidates, line_candidates
 from ..geometry import FloatArray, Grid, Region, path_length
 from ..gp import MaternHyper, fit_matern
 from ..planners import Batch, Job, PlanContext, lawnmower_lines_for_budget, survey_jobs
-from ..tasks import FlightReport, Task, TraceTask, Waypoint
+from ..tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
 from ..uncertainty import Footprints, UncertaintyMap, resample_polyline, uncertainty_map
 from .greedy import Pick, greedy_plan
 from .params import AdaptiveParams, FirstOrder, Model, Start
@@ -29,6 +30,27 @@ WHOLE_TRACE_FACTOR = 2.0
 """A whole-component trace stops after this multiple of the estimated component's length."""
 WHOLE_TRACE_MIN_M = 60.0
 """... and never before this length (the estimate's component can be far too short)."""
+
+def estimated_samples(context: PlanContext) -> SampleLog:
+    """The samples with the estimate's values at their positions when they are noisy
+    (``context.noise_std > 0``), else the samples as they are.
+
+    What the samples *read* along a track -- where two consecutive ones straddle a level,
+    where they peak, which of them read a level -- is what the planner looks at to find
+    an iso-line; with noise each of those is also found wherever the noise happens to
+    cross or peak. The estimate has the noise smoothed out with every sample around
+    (:func:`~econdor_gcs.core.spline.fit_field`), so it is read instead; exact samples
+    are the estimate's own values there already.
+    """
+    s = context.samples
+    if context.noise_std <= 0 or context.estimate is None or context.grid is None or not len(s):
+        return s
+    g = context.grid
+    spline = RectBivariateSpline(g.y, g.x, context.estimate, kx=3, ky=3)
+    x = np.clip(s.x_m, g.region.xmin, g.region.xmax)
+    y = np.clip(s.y_m, g.region.ymin, g.region.ymax)
+    return dataclasses.replace(s, value=np.asarray(spline.ev(y, x), dtype=float))
+
 
 CellValue = Callable[[FloatArray, FloatArray, NDArray[np.intp]], FloatArray]
 """``cell_value(v, d, cells)``: the value of planning cells ``cells`` at unit variances
@@ -150,14 +172,19 @@ class AdaptivePlanner:
         # spinning on a busy machine slow the GP's dense solves down many times.
         with threadpool_limits(limits=1, user_api="blas"):
             if p.model == Model.GP:
+                # the nugget is the station's noise estimate: a GP that took noisy samples
+                # for exact ones would see structure at the noise's scale everywhere (a
+                # short length, a large variance between any two samples) and never judge
+                # a place resolved
                 self.hyper = fit_matern(s.x_m, s.y_m, s.value,
-                                        seed=self.seed + context.iteration)
+                                        seed=self.seed + context.iteration,
+                                        noise_std=context.noise_std)
                 if not p.fit_length:
                     self.hyper = dataclasses.replace(self.hyper, length_m=p.length_m)
             umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid,
                                    plan_grid, model=p.model, length_m=p.length_m,
                                    floor=p.floor or None, gradient_gain_m=p.gradient_gain_m,
-                                   hyper=self.hyper)
+                                   hyper=self.hyper, noise_std=context.noise_std)
         return umap, plan_grid
 
     def _plan(self, context: PlanContext, umap: UncertaintyMap, cands: list[Candidate],

@@ -162,7 +162,7 @@ def greedy_plan(
     def gains() -> FloatArray:
         cells = fp.cells
         before = v[cells]
-        after = np.minimum(before, fp.line_var)
+        after = fp.umap.combine(before, fp.line_var)
         near = d[cells]
         diff = (cell_value(before, near, cells)
                 - cell_value(after, np.minimum(near, fp.dist_m), cells))
@@ -211,11 +211,11 @@ def greedy_plan(
         fleet.positions[k] = begin if c.closed else path[-1]
         # what this pick (and the transit to it) will observe
         sl = slice(fp.start[best], fp.start[best + 1])
-        v[fp.cells[sl]] = np.minimum(v[fp.cells[sl]], fp.line_var[sl])
+        v[fp.cells[sl]] = fp.umap.combine(v[fp.cells[sl]], fp.line_var[sl])
         d[fp.cells[sl]] = np.minimum(d[fp.cells[sl]], fp.dist_m[sl])
         if t_m > 1.0:
             cells, dist = fp.cells_near(np.array([pos, begin]))
-            v[cells] = np.minimum(v[cells], fp.umap.line_variance(dist))
+            v[cells] = fp.umap.combine(v[cells], fp.umap.line_variance(dist))
             d[cells] = np.minimum(d[cells], dist)
         g = gains()
     return fleet.picks, v

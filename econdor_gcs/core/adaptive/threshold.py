@@ -53,7 +53,7 @@ from ..planners import Batch, Job, PlanContext
 from ..routes import SteppedRoute, best_lines, gap_lines, misclassification, ray_lines, start_line
 from ..tasks import FlightReport, OutcomeStatus, TraceTask, Waypoint
 from ..uncertainty import Footprints, UncertaintyMap, straddle
-from .base import AdaptivePlanner, start_route
+from .base import AdaptivePlanner, estimated_samples, start_route
 from .greedy import greedy_plan
 from .params import AdaptiveParams, Explore, FirstOrder, LineWeight, OpenEntry
 
@@ -76,6 +76,24 @@ SPENT_NEAR_M = 5.0
 OPEN_END_M = 6.0
 """``open_entry: auto``: an end of a component at the edge is entered when a sampled
 crossing lies this close to it (and nothing was traced or searched this close)."""
+
+
+PROBE_NOISE_Z = 1.0
+"""With noisy samples an extremum is probed only if it stands out by this many times the
+noise of one sample: the estimate read along the track (:func:`~.base.estimated_samples`)
+keeps a fraction of the noise, whose wiggles would each be an extremum to probe."""
+
+
+def probe_prominence(fraction: float, noise_std: float, span: float) -> float:
+    """The prominence an extremum needs, as a fraction of the sampled value range
+    ``span``: ``fraction``, or :data:`PROBE_NOISE_Z` times the noise if that is more.
+
+    >>> probe_prominence(1e-4, 0.0, 90.0), round(probe_prominence(1e-4, 0.9, 90.0), 6)
+    (0.0001, 0.01)
+    """
+    if noise_std <= 0 or span <= 0:
+        return fraction
+    return max(fraction, PROBE_NOISE_Z * noise_std / span)
 
 
 def sweep_spacing_m(params: AdaptiveParams) -> float:
@@ -175,7 +193,7 @@ class ThresholdPlanner(AdaptivePlanner):
     def next_batch(self, context: PlanContext) -> Batch:
         p = self.params
         umap, _ = self.uncertainty(context)
-        s = context.samples
+        s = estimated_samples(context)  # what the samples read, with any noise smoothed out
         region = context.region
         levels = np.asarray(p.target_levels, dtype=float)
         gap = np.min(np.abs(umap.mean[:, None] - levels[None, :]), axis=1)
@@ -217,7 +235,8 @@ class ThresholdPlanner(AdaptivePlanner):
                                    end_m=OPEN_END_M if p.open_entry == OpenEntry.AUTO else 0.0)
         cands = self._unspent(cands)
         if p.probes:
-            cands += extremum_probes(s, levels, region, p.probe_m, p.probe_prominence,
+            cands += extremum_probes(s, levels, region, p.probe_m,
+                                     probe_prominence(p.probe_prominence, context.noise_std, span),
                                      2.0 * p.resolve_m,
                                      () if p.probe_climb else self._probed,
                                      reach=p.probe_reach)

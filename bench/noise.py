@@ -1,0 +1,528 @@
+"""Planners with a real sensor: noise, lag and position error, against the best survey
+flown with the same sensor.
+
+Every run is in process on the benchmark missions of ``bench/efficiency.py`` (100 x 100 m,
+one vehicle at 8 m/s, 10 Hz), with the sensor of the condition (``vehicles.sensor``:
+:mod:`sim_vehicle.sensor`); the station is told the lag where it is "known" and nothing
+else (it estimates the noise itself). Every planner and every survey of a condition flies
+the same fields with the same sensor, the same reconstruction and the same accounting
+(:mod:`runs`: everything flown behind an estimate, never the flight home).
+
+Planners: ``adaptive`` (the whole field), ``econdor``, ``threshold`` (the adaptive
+planner given the middle of the true range as its one target level; it stops when no
+place is left where the iso-line could be, within a 10 km safety budget) and the best
+survey (:mod:`surveys`: every line count from 2 up, with the condition's sensor, cached).
+
+Conditions: ``--noise`` levels (plume field units; another field gets the same fraction
+of its span: ``SPAN``) with a sensor that only has noise, and the ``--sensors`` variants
+(lag known or not, GNSS error) at each of ``--sensor-noise``.
+
+For each field and condition the report gives, medians over the seeds:
+
+* the MAE (dB) at 1, 2, 3 and 4 km (the last estimate within each), the seeds whose 4 km
+  estimate is no worse than their 2 km one, and whether the medians fall at every step;
+* the distance to the best survey's 4 km MAE (per seed: the best MAE of every survey that
+  fits 4 km) as a multiple of the survey's own distance to it, stays reached (first
+  reached); a run that never gets there is a loss at infinity;
+* the iso-line error (m) at the middle level at 2 and 4 km;
+* threshold mode: the distance to an iso-line error <= 0.5 m at its level, as a multiple
+  of the shortest survey's that gets there (stays, first), its final iso-line error and
+  how it stopped.
+
+    python bench/noise.py --fields plume --noise 1 --planners adaptive --seeds 900:903
+    python bench/noise.py --seeds 900:910 --cache runs/noise-surveys --json runs/noise.jsonl \\
+        --markdown --out docs/results/noise.md
+    python bench/noise.py --from-json runs/noise.jsonl --fresh 920:940 --markdown \
+        --out docs/results/noise.md          # the tables again, fresh seeds apart
+
+``--json`` is appended to as runs finish; runs already there are not flown again. A
+planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
+(variants measured against the default in the same run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import re
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from report import Table, at_budget, stamp  # noqa: E402
+from runs import (  # noqa: E402
+    FIELDS,
+    max_survey_lines,
+    mid_level,
+    mission_for,
+    mission_raw,
+    row_of,
+    split_planners,
+    split_variant,
+)
+from summaries import first_reached, fmt, median, ratio, share_within, stays_reached  # noqa: E402
+from surveys import NOT_RUN_BY_A_SURVEY, SURVEY_SOURCES, SurveyScan, best_within  # noqa: E402
+
+from econdor_lab.study import parse_seeds  # noqa: E402
+
+SPAN = {"plume": 90.0, "paper": 93.0, "authors": 50.0, "front": 100.0}
+"""Each field's value range, about: a noise level is given in the plume's units (span 90)
+and another field gets the same fraction of its own span (paper, eqs. 8-9: 1 -> 1.033)."""
+SENSORS: dict[str, dict[str, Any]] = {
+    "lag 0.5 s": {"lag_s": 0.5},
+    "lag 0.5 s, unknown": {"lag_s": 0.5, "lag_correction": "none"},
+    "lag 1 s": {"lag_s": 1.0},
+    "lag 1 s, unknown": {"lag_s": 1.0, "lag_correction": "none"},
+    "GNSS 1 m": {"position_std_m": 1.0, "position_tau_s": 10.0},
+    "plume-noisy": {"lag_s": 0.5, "position_std_m": 1.0, "position_tau_s": 10.0},
+}
+"""The sensor variants (``--sensors``), on top of the noise of ``--sensor-noise``; lag is
+known to the station (and corrected) unless said."""
+BUDGET_M = 4_000.0
+THRESHOLD_BUDGET_M = 10_000.0
+CURVE_KM = (1.0, 2.0, 3.0, 4.0)
+ISO_TARGET_M = 0.5
+GOAL_MAP = 0.6
+"""The adaptive planner's goal: the best survey's 4 km MAE in at most this share of the
+survey's distance to it (noise 1, plumes)."""
+GOAL_THRESHOLD = 0.5
+"""Threshold mode's goal: an iso-line error <= 0.5 m in at most this share of the best
+survey's distance to it."""
+NOT_RUN_BY_A_NOISY_SURVEY = (*NOT_RUN_BY_A_SURVEY, "econdor_gcs/core/levels.py",
+                             "econdor_gcs/core/sg.py")
+"""E-CONDOR's own modules are imported by a survey, never called either."""
+
+
+def condition_sensor(field: str, noise: float, variant: str) -> dict[str, Any]:
+    """The ``vehicles.sensor`` of a condition: the noise scaled to ``field``'s span, and
+    the variant's lag and position error."""
+    sensor: dict[str, Any] = {"noise_std": round(noise * SPAN[field] / SPAN["plume"], 4)}
+    sensor.update(SENSORS[variant] if variant else {})
+    return sensor
+
+
+def condition_name(noise: float, variant: str) -> str:
+    return f"noise {noise:g}" + (f", {variant}" if variant else "")
+
+
+# -- runs ------------------------------------------------------------------------------------
+
+
+def run_one(args: tuple[str, int, str, float, str]) -> dict[str, Any]:
+    """One planner run of a condition: a row per estimate (:func:`runs.row_of`, with the
+    MAE and the noise estimated)."""
+    from econdor_gcs.dfc.loop import Dfc
+    from econdor_lab.inprocess import InProcessExecutor
+
+    field, seed, label, noise, variant = args
+    threshold = label.endswith(":threshold")
+    planner, settings = split_variant(label.removesuffix(":threshold"))
+    budget = THRESHOLD_BUDGET_M if threshold else BUDGET_M
+    target = (mid_level(mission_for(field, budget, planner, "auto"), seed),) if threshold else ()
+    mission = mission_for(field, budget, planner, "auto", target, adaptive=settings)
+    mission = mission.with_vehicles(sensor=condition_sensor(field, noise, variant))
+    truth = mission.build_field(seed)
+    t0 = time.perf_counter()
+    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner=planner,
+              truth=truth, seed=seed).run()
+    rows = []
+    for rec in res.records:
+        row = row_of(rec)
+        row.update(mae=rec.mae, noise_std=rec.noise_std)
+        rows.append(row)
+    return {"kind": "run", "field": field, "seed": seed, "planner": label, "noise": noise,
+            "variant": variant, "rows": rows, "stop": res.stop_reason,
+            "target": target[0] if target else math.nan, "wall_s": time.perf_counter() - t0}
+
+
+class NoisySurveyScan(SurveyScan):
+    """:class:`surveys.SurveyScan` with the condition's sensor, cached under a key that
+    holds it."""
+
+    def __init__(self, field: str, seed: int, sensor: dict[str, Any], cache_dir: Path | None
+                 ) -> None:
+        super().__init__(field, seed, "auto", None)
+        self.sensor = sensor
+        self.dir = cache_dir / noisy_survey_key(field, sensor) if cache_dir else None
+
+    def get(self, lines: int) -> dict[str, Any]:
+        if lines in self.runs:
+            return self.runs[lines]
+        path = self.dir / f"{self.field}-{self.seed}-{lines}.json" if self.dir else None
+        if path is not None and path.exists():
+            row = json.loads(path.read_text())
+        else:
+            row = fly_survey(self.field, self.seed, lines, self.sensor)
+            self.flown += 1
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_suffix(".tmp")
+                tmp.write_text(json.dumps(row))
+                tmp.replace(path)
+        self.runs[lines] = row
+        return row
+
+
+def code_fingerprint() -> str:
+    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``, this module too)."""
+    h = hashlib.sha256()
+    for entry in (*SURVEY_SOURCES, "bench/noise.py"):
+        p = ROOT / entry
+        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
+            rel = f.relative_to(ROOT).as_posix()
+            if not rel.startswith(NOT_RUN_BY_A_NOISY_SURVEY):
+                h.update(rel.encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+_FINGERPRINT: list[str] = []
+
+
+def noisy_survey_key(field: str, sensor: dict[str, Any]) -> str:
+    if not _FINGERPRINT:
+        _FINGERPRINT.append(code_fingerprint())
+    mission = mission_raw(field, 0.0, "lawnmower", "auto", survey_lines=2)
+    mission["lawnmower"] = {}
+    text = json.dumps({"mission": mission, "sensor": sensor, "code": _FINGERPRINT[0]},
+                      sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def fly_survey(field: str, seed: int, lines: int, sensor: dict[str, Any]) -> dict[str, Any]:
+    """One survey of ``lines`` north-south lines with ``sensor``: its one estimate."""
+    from econdor_gcs.dfc.loop import Dfc
+    from econdor_lab.inprocess import InProcessExecutor
+
+    mission = mission_for(field, 0.0, "lawnmower", "auto", survey_lines=lines)
+    mission = mission.with_vehicles(sensor=sensor)
+    truth = mission.build_field(seed)
+    t0 = time.perf_counter()
+    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner="lawnmower",
+              truth=truth, seed=seed).run()
+    if res.stop_reason != "planner_done" or len(res.records) != 1:
+        raise RuntimeError(f"survey {field} seed {seed}, {lines} lines: ended "
+                           f"{res.stop_reason!r} after {len(res.records)} rows")
+    row = row_of(res.records[0])
+    row.update(lines=lines, mae=res.records[0].mae, noise_std=res.records[0].noise_std,
+               wall_s=time.perf_counter() - t0)
+    return row
+
+
+def scan_one(args: tuple[str, int, float, str, str | None]) -> dict[str, Any]:
+    """Every survey of one field, seed and condition within the 4 km budget."""
+    field, seed, noise, variant, cache = args
+    scan = NoisySurveyScan(field, seed, condition_sensor(field, noise, variant),
+                           Path(cache) if cache else None)
+    t0 = time.perf_counter()
+    rows = scan.all_within(BUDGET_M)
+    # threshold mode's reference may need more than 4 km of survey: every count up to the
+    # one that gets there
+    to_iso = scan.shortest_reaching(lambda r: r["iso"][1] <= ISO_TARGET_M, THRESHOLD_BUDGET_M)
+    return {"kind": "survey", "field": field, "seed": seed, "noise": noise, "variant": variant,
+            "scanned": sorted(scan.runs.values(), key=lambda r: r["lines"]),
+            "to_iso": ({"flight_m": to_iso["flight_m"], "lines": to_iso["lines"]} if to_iso
+                       else {"flight_m": math.inf, "lines": 0}),
+            "flown": scan.flown, "wall_s": time.perf_counter() - t0, "within": len(rows)}
+
+
+# -- tables ----------------------------------------------------------------------------------
+
+
+def best_mae_within(survey: dict[str, Any], budget_m: float) -> dict[str, Any] | None:
+    return best_within(survey["scanned"], budget_m, "mae_db")
+
+
+def survey_to(survey: dict[str, Any], mae_db: float) -> float:
+    """The shortest survey whose MAE is at most ``mae_db`` (of those scanned)."""
+    ok = [r["flight_m"] for r in survey["scanned"] if r["mae_db"] <= mae_db + 1e-9]
+    return min(ok) if ok else math.inf
+
+
+def falls(medians: list[float]) -> bool:
+    """Whether the medians (NaN where a planner has no estimate yet) fall at every step.
+
+    >>> falls([math.nan, -6.0, -9.0, -9.5]), falls([-6.0, -9.0, -8.0, -10.0])
+    (True, False)
+    """
+    m = [x for x in medians if not math.isnan(x)]
+    return all(b <= a for a, b in zip(m, m[1:], strict=False))
+
+
+def _nanmedian(xs: list[float]) -> float:
+    v = [x for x in xs if not math.isnan(x)]
+    return median(v) if v else math.nan
+
+
+def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
+              planners: list[str], md: bool) -> tuple[list[str], list[dict[str, Any]]]:
+    """Mapping the whole field under one condition (module docstring)."""
+    seeds = sorted(surveys)
+    head = ["planner", *[f"MAE dB @{k:g} km" for k in CURVE_KM], "4 km ≤ 2 km", "falls",
+            "× survey to its 4 km MAE, stays (first)", f"≤ {GOAL_MAP}×, stays",
+            "iso m @2 km", "iso m @4 km", "noise found"]
+    table = Table(head)
+    summary = []
+    for pl in [*planners, "best survey"]:
+        if pl == "best survey":
+            got = {k: [best_mae_within(surveys[s], k * 1000) for s in seeds] for k in CURVE_KM}
+            meds = [_nanmedian([r["mae_db"] if r else math.nan for r in got[k]])
+                    for k in CURVE_KM]
+            no_worse = sum(1 for a, b in zip(got[2.0], got[4.0], strict=True)
+                           if a and b and b["mae_db"] <= a["mae_db"])
+            iso2 = _nanmedian([r["iso"][1] if r else math.nan for r in
+                               (best_within(surveys[s]["scanned"], 2000, "iso_mean")
+                                for s in seeds)])
+            iso4 = _nanmedian([r["iso"][1] if r else math.nan for r in
+                               (best_within(surveys[s]["scanned"], 4000, "iso_mean")
+                                for s in seeds)])
+            noise = _nanmedian([surveys[s]["scanned"][-1]["noise_std"] for s in seeds])
+            table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(seeds)}",
+                       "yes" if falls(meds) else "no",
+                       "1", "—", fmt(iso2, ".2f"), fmt(iso4, ".2f"), fmt(noise, ".3f")])
+            continue
+        rs = [r for r in runs if r["planner"] == pl and r["seed"] in surveys]
+        if not rs:
+            continue
+        at = {k: [at_budget(r["rows"], k * 1000) for r in rs] for k in CURVE_KM}
+        meds = [_nanmedian([x["mae_db"] if x else math.nan for x in at[k]]) for k in CURVE_KM]
+        no_worse = sum(1 for a, b in zip(at[2.0], at[4.0], strict=True)
+                       if a and b and b["mae_db"] <= a["mae_db"])
+        stays_r, first_r = [], []
+        for r in rs:
+            best = best_mae_within(surveys[r["seed"]], BUDGET_M)
+            if best is None:
+                continue
+            target = best["mae_db"]
+            sv = survey_to(surveys[r["seed"]], target)
+
+            def ok(row: dict[str, Any], t: float = target) -> bool:
+                return bool(row["mae_db"] <= t + 1e-9)
+
+            stays_r.append(ratio(stays_reached(r["rows"], ok, BUDGET_M), sv))
+            first_r.append(ratio(first_reached(r["rows"], ok, BUDGET_M), sv))
+        within, n = share_within(stays_r, GOAL_MAP)
+        iso = [_nanmedian([x["iso"][1] if x else math.nan for x in at[k]]) for k in (2.0, 4.0)]
+        noise = _nanmedian([r["rows"][-1]["noise_std"] for r in rs])
+        table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(rs)}",
+                   "yes" if falls(meds) else "no",
+                   f"{fmt(median(stays_r), '.2f')} ({fmt(median(first_r), '.2f')})",
+                   f"{within}/{n}", fmt(iso[0], ".2f"), fmt(iso[1], ".2f"), fmt(noise, ".3f")])
+        summary.append({"planner": pl, "mae_db": meds, "no_worse": no_worse, "runs": len(rs),
+                        "ratio_stays": median(stays_r), "ratio_first": median(first_r)})
+    return table.lines(md), summary
+
+
+def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
+                    mappers: list[str], md: bool) -> list[str]:
+    """Threshold mode under one condition against the shortest survey to 0.5 m."""
+    table = Table(["mapper", "runs", "× survey, stays (first)", f"≤ {GOAL_THRESHOLD}×, stays",
+                   "km, stays", "survey km", "final iso m", "pieces missed", "stops"])
+
+    def ok(row: dict[str, Any]) -> bool:
+        return bool(row["iso_target"] <= ISO_TARGET_M)
+
+    for m in mappers:
+        rs = [r for r in runs if r["planner"] == m and r["seed"] in surveys]
+        if not rs:
+            continue
+        stays_r, first_r, km, skm, final, missed = [], [], [], [], [], []
+        stops: dict[str, int] = {}
+        for r in rs:
+            sv = surveys[r["seed"]]["to_iso"]["flight_m"]
+            stays = stays_reached(r["rows"], ok, THRESHOLD_BUDGET_M)
+            stays_r.append(ratio(stays, sv))
+            first_r.append(ratio(first_reached(r["rows"], ok, THRESHOLD_BUDGET_M), sv))
+            km.append(stays / 1000)
+            skm.append(sv / 1000)
+            final.append(r["rows"][-1]["iso_target"])
+            missed.append(r["rows"][-1]["target_missed"])
+            stops[r["stop"]] = stops.get(r["stop"], 0) + 1
+        within, n = share_within(stays_r, GOAL_THRESHOLD)
+        table.add([m.removesuffix(":threshold"), str(len(rs)),
+                   f"{fmt(median(stays_r), '.3f')} ({fmt(median(first_r), '.3f')})",
+                   f"{within}/{n}", fmt(median(km), ".2f"), fmt(median(skm), ".2f"),
+                   fmt(_nanmedian(final), ".2f"), fmt(sum(missed), ".0f"),
+                   ", ".join(f"{k} {v}" for k, v in sorted(stops.items()))])
+    return table.lines(md)
+
+
+def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool,
+           fresh: frozenset[int] = frozenset()) -> list[str]:
+    """The tables per field and condition, the tuning seeds apart from the ``fresh`` ones
+    (never looked at while the design was tuned)."""
+    out: list[str] = []
+    fields = list(dict.fromkeys(s["field"] for s in surveys))
+    conditions = list(dict.fromkeys((s["noise"], s["variant"]) for s in surveys))
+    planners = list(dict.fromkeys(r["planner"] for r in runs
+                                  if not r["planner"].endswith(":threshold")))
+    mappers = list(dict.fromkeys(r["planner"] for r in runs
+                                 if r["planner"].endswith(":threshold")))
+    for field in fields:
+        out += ["", f"## Field: {field}"]
+        for noise, variant in conditions:
+            for group in ("tuned", "fresh"):
+                sv = {s["seed"]: s for s in surveys if s["field"] == field
+                      and s["noise"] == noise and s["variant"] == variant
+                      and (s["seed"] in fresh) == (group == "fresh")}
+                rs = [r for r in runs if r["field"] == field and r["noise"] == noise
+                      and r["variant"] == variant and r["seed"] in sv]
+                if not sv:
+                    continue
+                seeds = sorted(sv)
+                sensor = condition_sensor(field, noise, variant)
+                out += ["", f"### {condition_name(noise, variant)} (sensor {sensor}; "
+                        f"{group} seeds {fmt_seeds(seeds)}, {len(seeds)})", ""]
+                text, _ = map_table(rs, sv, planners, md)
+                out += text
+                if mappers:
+                    out += ["", *threshold_table(rs, sv, mappers, md)]
+    return out
+
+
+# -- main ------------------------------------------------------------------------------------
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    p.add_argument("--seeds", default="900:910")
+    p.add_argument("--fields", default="plume,paper")
+    p.add_argument("--planners", default="adaptive,econdor,threshold",
+                   help="adaptive, econdor, no-sg, threshold (the adaptive planner given the "
+                        "middle level), variants written adaptive[key=value]")
+    p.add_argument("--noise", default="0,1,3", help="noise levels, in the plume's units")
+    p.add_argument("--sensors", default="",
+                   help=f"sensor variants at --sensor-noise (of {', '.join(SENSORS)}; "
+                        "'all' for every one)")
+    p.add_argument("--sensor-noise", default="1")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--cache", default=None, help="directory memoising survey runs")
+    p.add_argument("--json", default=None,
+                   help="append every run and survey scan here; what is there is not flown again")
+    p.add_argument("--from-json", default=None, help="the tables of saved runs")
+    p.add_argument("--fresh", default="",
+                   help="seeds reported apart as fresh (not looked at while tuning), e.g. 920:940")
+    p.add_argument("--markdown", action="store_true")
+    p.add_argument("--out", default=None, help="also write the report here, stamped")
+    a = p.parse_args(argv)
+    for f in a.fields.split(","):
+        if f not in FIELDS or f not in SPAN:
+            p.error(f"--fields: unknown field {f!r} (one of {', '.join(SPAN)})")
+    # a variant's name may hold ", " ("lag 1 s, unknown"): only a bare comma separates
+    a.variants = (list(SENSORS) if a.sensors == "all"
+                  else [v for v in re.split(r",(?! )", a.sensors) if v])
+    for v in a.variants:
+        if v not in SENSORS:
+            p.error(f"--sensors: unknown sensor {v!r} (one of {', '.join(SENSORS)})")
+    try:
+        for pl in split_planners(a.planners):
+            split_variant(pl)
+    except ValueError as exc:
+        p.error(f"--planners: {exc}")
+    return a
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = parse_args(argv)
+    md = a.markdown or a.out is not None
+    saved: list[dict[str, Any]] = []
+    src = a.from_json or a.json
+    if src and Path(src).exists():
+        saved = [json.loads(line) for line in Path(src).read_text().splitlines() if line]
+    t0 = time.perf_counter()
+    if not a.from_json:
+        seeds = parse_seeds(a.seeds)
+        fields = a.fields.split(",")
+        conditions = [(float(n), "") for n in a.noise.split(",") if n] + [
+            (float(n), v) for n in a.sensor_noise.split(",") if n for v in a.variants]
+        labels = []
+        for pl in split_planners(a.planners):
+            labels.append("adaptive:threshold" if pl == "threshold" else
+                          pl.replace("threshold", "adaptive", 1) + ":threshold"
+                          if pl.startswith("threshold[") else pl)
+        have = {(r["kind"], r["field"], r["seed"], r.get("planner", ""), r["noise"],
+                 r["variant"]) for r in saved}
+        jobs: list[tuple[str, tuple[Any, ...]]] = []
+        for f in fields:
+            for noise, variant in conditions:
+                for s in seeds:
+                    if ("survey", f, s, "", noise, variant) not in have:
+                        jobs.append(("survey", (f, s, noise, variant, a.cache)))
+                    jobs += [("run", (f, s, pl, noise, variant)) for pl in labels
+                             if ("run", f, s, pl, noise, variant) not in have]
+        print(f"{len(saved)} saved, {len(jobs)} to fly", file=sys.stderr, flush=True)
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
+            futs = [pool.submit(scan_one if kind == "survey" else run_one, job)
+                    for kind, job in jobs]
+            for fut in as_completed(futs):
+                r = fut.result()
+                saved.append(r)
+                if r["kind"] == "run":
+                    last = r["rows"][-1]
+                    print(f"{r['field']} {condition_name(r['noise'], r['variant'])} seed "
+                          f"{r['seed']} {r['planner']}: {last['mae_db']:.1f} dB at "
+                          f"{last['flight_m']:.0f} m, iso {last['iso_target']:.2f}, "
+                          f"{r['stop']}, {r['wall_s']:.0f} s", file=sys.stderr, flush=True)
+                if a.json:
+                    Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+                    with Path(a.json).open("a", encoding="utf-8") as fh:
+                        fh.write(json.dumps(r, default=float) + "\n")
+        seeds_set, fields_set = set(seeds), set(fields)
+        conds = set(conditions)
+        saved = [r for r in saved if r["seed"] in seeds_set and r["field"] in fields_set
+                 and (r["noise"], r["variant"]) in conds
+                 and (r["kind"] == "survey" or r["planner"] in labels)]
+    runs = [r for r in saved if r["kind"] == "run"]
+    surveys = [r for r in saved if r["kind"] == "survey"]
+    wall = time.perf_counter() - t0
+    seeds_all = sorted({r["seed"] for r in saved})
+    lines = ["# Planners with a noisy, lagging, mispositioned sensor (issue 32)", "",
+             *(stamp(sys.argv) if a.out else []), "",
+             f"{len(runs)} planner runs and {len(surveys)} survey scans (every line count "
+             f"from 2 to {max_survey_lines(BUDGET_M)}, and on to the first that maps the "
+             f"middle iso-line to {ISO_TARGET_M} m), seeds {fmt_seeds(seeds_all)}; "
+             f"{wall:.0f} s. Distances: everything flown behind an estimate, never the flight "
+             "home. MAE in dB (20 log10 of the mean absolute error on the 101 x 101 grid). "
+             "'× survey to its 4 km MAE': the distance to the best 4 km survey's MAE over "
+             "the survey's own distance to it (stays reached; first reached in brackets; a "
+             "run that never gets there is ∞). 'iso m': the iso-line error at the middle "
+             "level (the survey: of its best 2 / 4 km estimate by mean iso-line error). "
+             "Threshold mode: distance to an iso-line error ≤ 0.5 m at the middle level over "
+             "the shortest survey's that maps it so.",
+             *report(runs, surveys, md,
+                     frozenset(parse_seeds(a.fresh)) if a.fresh else frozenset())]
+    text = "\n".join(lines) + "\n"
+    print(text, end="")
+    if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.out).write_text(text, encoding="utf-8")
+    return 0
+
+
+def fmt_seeds(seeds: list[int]) -> str:
+    """``[900, 901, 902, 920]`` -> ``"900–902, 920"``."""
+    out, i = [], 0
+    while i < len(seeds):
+        j = i
+        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
+            j += 1
+        out.append(f"{seeds[i]}–{seeds[j]}" if j > i else str(seeds[i]))
+        i = j + 1
+    return ", ".join(out)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
