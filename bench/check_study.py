@@ -60,7 +60,7 @@ def mission(field: str, **sections: dict) -> dict:
 
 def mid_level(field: str, seed: int) -> float:
     sys.path.insert(0, str(ROOT))
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
 
     m = parse_mission(mission(field))
     xx, yy = np.meshgrid(np.arange(0.0, 100.5, 1.0), np.arange(0.0, 100.5, 1.0))

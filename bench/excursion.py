@@ -40,7 +40,7 @@ PHASES = ("transit", "search", "trace", "survey")
 def _mission(setting: str) -> Any:
     import yaml
 
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
 
     name = "demo" if setting == "demo" else "paper"
     raw = yaml.safe_load((REPO / "missions" / f"{name}.yaml").read_text(encoding="utf-8"))
@@ -63,7 +63,7 @@ def one_run(setting: str, seed: int) -> dict[str, Any]:
     """One whole in-process run: the excursion of its samples, per phase."""
     import numpy as np
 
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     mission = _mission(setting)

@@ -26,7 +26,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_lab.study import parse_seeds, run_seed  # noqa: E402
 
 VARIANTS = ("textbook", "authors")

@@ -23,9 +23,9 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from econdor_gcs.app.run import run_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_gcs.errors import EcondorError  # noqa: E402
-from econdor_gcs.mission import load_mission  # noqa: E402
-from econdor_gcs.run import run_mission  # noqa: E402
 
 
 def quick_mission(mission_path: Path, folder: Path, iterations: int = 2) -> Path:

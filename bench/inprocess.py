@@ -49,7 +49,7 @@ KEYS = ("wall_s", "vehicle_s", "reconstruction_s", "planning_s", "metrics_s", "s
 def _mission(setting: str) -> Any:
     import yaml
 
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
 
     raw = yaml.safe_load((REPO / "missions" / "paper.yaml").read_text(encoding="utf-8"))
     if setting == "plume":
@@ -86,7 +86,7 @@ class _TimedExecutor:
 
 def one_run(setting: str, seed: int) -> dict[str, Any]:
     """One whole in-process run with its wall-time split."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     mission = _mission(setting)
@@ -135,7 +135,7 @@ def one_run(setting: str, seed: int) -> dict[str, Any]:
 def measure(settings: list[str], seeds: list[int]) -> dict[str, Any]:
     t0 = time.perf_counter()
     warm = _mission("paper").with_overrides(max_iterations=1, min_iterations=1)
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     field = warm.build_field(0)

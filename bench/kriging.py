@@ -39,11 +39,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from econdor_gcs.config import parse_mission  # noqa: E402
 from econdor_gcs.core import metrics  # noqa: E402
 from econdor_gcs.core.gp import _profile_nll, fit_matern, kriging_reconstruct, thin_samples  # noqa: E402
 from econdor_gcs.core.spline import reconstruct  # noqa: E402
-from econdor_gcs.dfc import Dfc  # noqa: E402
-from econdor_gcs.mission import parse_mission  # noqa: E402
+from econdor_gcs.dfc.loop import Dfc  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
 from econdor_lab.study import parse_seeds  # noqa: E402
 

@@ -246,8 +246,8 @@ def survey_samples(field: str, noise_std: float, budget_m: float, seed: int
     they were taken) and the true field on the mission grid."""
     import yaml
 
-    from econdor_gcs.dfc import Dfc
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     raw = yaml.safe_load((REPO / "missions" / "plume.yaml").read_text(encoding="utf-8"))

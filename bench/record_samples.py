@@ -42,8 +42,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from econdor_gcs import dfc as dfc_module  # noqa: E402
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
+from econdor_gcs.dfc import loop as dfc_module  # noqa: E402
 
 
 def _commit() -> str:
@@ -88,8 +88,8 @@ def main(argv: list[str] | None = None) -> int:
             samples = result.samples
             final_mae_db = result.records[-1].mae_db
         else:
-            from econdor_gcs.run import run_mission
-            from econdor_gcs.rundir import read_samples
+            from econdor_gcs.app.run import run_mission
+            from econdor_gcs.files.rundir import read_samples
 
             with tempfile.TemporaryDirectory(prefix="econdor-record-") as tmp:
                 summary = run_mission(mission, Path(tmp) / "run", planner=args.planner,

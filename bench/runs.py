@@ -21,8 +21,8 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the packages before bench/ (bench/sim_vehicle.py is a script)
 
-from econdor_gcs.dfc import Dfc, isoline_levels  # noqa: E402
-from econdor_gcs.mission import Mission, parse_mission  # noqa: E402
+from econdor_gcs.config import Mission, parse_mission  # noqa: E402
+from econdor_gcs.dfc.loop import Dfc, isoline_levels  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
 
 FIELDS: dict[str, dict[str, Any]] = {

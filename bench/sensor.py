@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from efficiency import mid_level, mission_for  # noqa: E402
 
-from econdor_gcs.dfc import Dfc  # noqa: E402
+from econdor_gcs.dfc.loop import Dfc  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
 from econdor_lab.study import parse_seeds  # noqa: E402
 
@@ -112,7 +112,12 @@ def med(xs: list[float]) -> float:
 def tables(runs: list[dict[str, Any]]) -> None:
     fields = sorted({r["field"] for r in runs})
     planners = list(dict.fromkeys(r["planner"] for r in runs))
-    variants = list(dict.fromkeys(r["variant"] for r in runs))
+    # the perfect sensor first (the base of the comparisons), then as the experiments list them
+    known = [*LAG, *POSITION]
+    variants = sorted(dict.fromkeys(r["variant"] for r in runs),
+                      key=lambda v: (next((0 for r in runs if r["variant"] == v
+                                           and not r["sensor"]), 1),
+                                     known.index(v) if v in known else len(known)))
     for field in fields:
         for planner in planners:
             rs = [r for r in runs if r["field"] == field and r["planner"] == planner]

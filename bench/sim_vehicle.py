@@ -38,7 +38,7 @@ from pymavlink.dialects.v20 import common as mavlink
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
 
 MISSION = REPO / "missions" / "demo.yaml"
 ID_GPI = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT

@@ -26,7 +26,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from sitl_helpers import Sitl, sitl_binary, sitls  # noqa: E402
 from test_sitl_run import lua_counts  # noqa: E402
 
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_gcs.payload import field_script  # noqa: E402
 
 

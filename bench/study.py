@@ -27,7 +27,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from econdor_gcs.mission import load_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_lab.study import parse_seeds, run_study  # noqa: E402
 
 

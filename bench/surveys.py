@@ -36,7 +36,7 @@ from typing import Any
 
 from runs import ROOT, max_survey_lines, mission_raw, run_survey
 
-SURVEY_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc.py", "econdor_gcs/mission.py",
+SURVEY_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc/loop.py", "econdor_gcs/config.py",
                   "econdor_gcs/errors.py", "econdor_lab/inprocess.py", "sim_vehicle",
                   "bench/runs.py", "bench/surveys.py")
 """The code a survey runs (its cache key)."""

@@ -36,8 +36,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from econdor_gcs.config import Mission, load_mission, parse_mission  # noqa: E402
 from econdor_gcs.core.tasks import TaskStyle  # noqa: E402
-from econdor_gcs.mission import Mission, load_mission, parse_mission  # noqa: E402
 from econdor_lab.study import parse_seeds, run_seed  # noqa: E402
 
 MISSIONS = ("demo", "paper")

@@ -28,8 +28,8 @@ sys.path.insert(0, str(REPO))
 
 from fleet import quick_mission  # noqa: E402  (bench/fleet.py, beside this file)
 
-from econdor_gcs.mission import load_mission  # noqa: E402
-from econdor_gcs.run import run_mission  # noqa: E402
+from econdor_gcs.app.run import run_mission  # noqa: E402
+from econdor_gcs.config import load_mission  # noqa: E402
 
 
 def _watch(url: str, stop: threading.Event) -> None:

@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.planners import PLANNER_NAMES
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.mission import load_mission
 
 WEB_DEFAULT = "127.0.0.1:8765"
 
@@ -107,7 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
                           "tcpin:HOST:PORT or a serial device DEVICE:BAUD; repeat it for "
                           "several links")
     run.add_argument("--timeout", type=_positive_float, default=None,
-                     help="seconds to wait for vehicles to appear / answer (default 20)")
+                     help="seconds to wait for vehicles to appear, send a position and pass "
+                          "their pre-arm checks (default 60)")
+    run.add_argument("--link-timeout", type=_positive_float, default=None, metavar="S",
+                     help="seconds a vehicle may be silent before it is given up (default "
+                          "120); a shorter drop-out of its link is waited out and its flight "
+                          "picked up where it left")
     run.add_argument("--autopilot", default=None, metavar="KINDS",
                      help="the simulated vehicles this run starts: px4, ardupilot, "
                           "px4+companion or ardupilot+companion, or a comma list given to "
@@ -140,6 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
         rl.add_argument(f"--{name}", type=_probability, default=0.0, metavar="P",
                         help=f"probability to {what} each datagram, each way (0.1 or 10%%)")
     rl.add_argument("--seed", type=int, default=None, help="seed of the fault draws")
+    rl.add_argument("--outage", action="append", default=[], metavar="START:SECONDS",
+                    help="lose every datagram both ways for SECONDS, START seconds after the "
+                         "first one (a radio drop-out; repeat for more)")
     rl.add_argument("--duration", type=_positive_float, default=None, metavar="S",
                     help="stop after S seconds (default: at Ctrl-C / SIGTERM)")
 
@@ -261,7 +269,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from econdor_gcs.figures import plot_run
+    from econdor_gcs.files.figures import plot_run
 
     if not (args.run_dir / "metrics.csv").exists():
         raise EcondorError(f"{args.run_dir}: not a run directory (no metrics.csv)")
@@ -276,7 +284,7 @@ def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -
         if args.mission is None:
             parser.error("run: a MISSION.yaml is needed (or --resume RUN_DIR)")
         if args.timeout is None:
-            args.timeout = 20.0
+            args.timeout = 60.0
         return
     clash = [f"--{name}" for name in ("out", "planner", "vehicles", "speedup", "seed")
              if getattr(args, name) is not None] + (["--force"] if args.force else [])
@@ -288,7 +296,7 @@ def _check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from econdor_gcs.run import run_mission_cli
+    from econdor_gcs.app.run import run_mission_cli
 
     if not args.connect:
         # the vehicles we start load the compiled tracer from numba's cache; on a cold
@@ -297,24 +305,56 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return run_mission_cli(args)
 
 
+WARM_UP_QUIET_S = 2.0
+"""Loading the compiled tracer from numba's cache takes less; longer is a compilation."""
+WARM_UP_PROGRESS_S = 10.0
+
+
 def _warm_up_tracer(quiet: bool) -> None:
-    """Load the compiled tracer, compiling it on a cold cache (say so when that took long)."""
+    """Load the compiled tracer, compiling it on a cold cache; a compilation (about 20 s
+    of one core, once per installation) is announced when it starts and its progress
+    printed, so a new user does not stare at a silent terminal."""
+    import threading
+
     from sim_vehicle.tracer import warm_up
 
-    took_s = warm_up()
-    if took_s > 3.0 and not quiet:
-        print(f"econdor: compiled the onboard tracer in {took_s:.0f} s (once: it is cached "
-              "for the next runs)", file=sys.stderr, flush=True)
+    done = threading.Event()
+    failure: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            warm_up()
+        except BaseException as exc:  # noqa: BLE001 - raised again in the main thread
+            failure.append(exc)
+        finally:
+            done.set()
+
+    t0 = time.monotonic()
+    threading.Thread(target=work, name="econdor-warm-up", daemon=True).start()
+    if not done.wait(WARM_UP_QUIET_S) and not quiet:
+        print("econdor: compiling the onboard tracer (once: numba caches it for the next "
+              "runs; about 20 s) ...", file=sys.stderr, flush=True)
+        while not done.wait(WARM_UP_PROGRESS_S):
+            print(f"econdor: ... still compiling ({time.monotonic() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+        print(f"econdor: compiled in {time.monotonic() - t0:.0f} s", file=sys.stderr,
+              flush=True)
+    done.wait()
+    if failure:
+        raise failure[0]
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from econdor_gcs.web.replay import ReplayFeed
-    from econdor_gcs.web.server import WebServer, parse_web_address
+    from econdor_gcs.app.web.replay import ReplayFeed
+    from econdor_gcs.app.web.server import WebServer, parse_web_address
 
     host, port = parse_web_address(args.web)
     server = WebServer(ReplayFeed(args.run_dir), host, port)
     url = server.start()
     print(f"web: {url} (Ctrl-C stops)", flush=True)
+    if server.exposed:
+        print(f"econdor: warning: the run's page is reachable from the network on {args.web} "
+              "(to whoever has the token in the address above)", file=sys.stderr, flush=True)
     try:
         while True:
             time.sleep(3600)
@@ -325,7 +365,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from econdor_gcs.export import export_cli
+    from econdor_gcs.app.export import export_cli
 
     return export_cli(args)
 
@@ -334,9 +374,11 @@ def _cmd_import(args: argparse.Namespace) -> int:
     import dataclasses
     import json
 
-    from econdor_gcs.mission_files import describe, read_mission_file
+    from econdor_gcs.files.autopilot_files import describe, read_mission_file
+    from econdor_gcs.files.plausibility import check_plausible
 
     mfile = read_mission_file(args.path, int_frames=False)
+    check_plausible(mfile, str(args.path))
     if args.json:
         doc = {name: [dataclasses.asdict(it) for it in getattr(mfile, name)]
                for name in ("items", "fence", "rally")}
@@ -349,7 +391,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 
 def _cmd_upload(args: argparse.Namespace) -> int:
-    from econdor_gcs.upload import upload_cli
+    from econdor_gcs.app.upload import upload_cli
 
     return upload_cli(args)
 
@@ -357,11 +399,11 @@ def _cmd_upload(args: argparse.Namespace) -> int:
 def _cmd_relay(args: argparse.Namespace) -> int:
     import asyncio
 
-    from econdor_gcs.link.relay import Faults, Relay, parse_relay_endpoint, serve
+    from econdor_gcs.link.relay import Faults, Relay, parse_outage, parse_relay_endpoint, serve
 
     listen, to = parse_relay_endpoint(args.listen), parse_relay_endpoint(args.to)
     relay = Relay(listen, to, Faults(args.drop, args.duplicate, args.reorder, args.corrupt),
-                  seed=args.seed)
+                  seed=args.seed, outages=[parse_outage(o) for o in args.outage])
 
     def ready(r: Relay) -> None:
         host, port = r.listen_address

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from econdor_gcs.config import Mission
 from econdor_gcs.core.fields import Field
 from econdor_gcs.core.tasks import (
     FlightReport,
@@ -28,12 +29,10 @@ from econdor_gcs.core.tasks import (
     Waypoint,
 )
 from econdor_gcs.core.waypoints import task_waypoints
-from econdor_gcs.dfc import Dfc, Progress, RunResult
+from econdor_gcs.dfc.loop import Dfc, Progress, RunResult
 from econdor_gcs.errors import RunError
-from econdor_gcs.gcs import FENCE_MARGIN_M
-from econdor_gcs.link.mission import fence_items
-from econdor_gcs.mission import Mission
-from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
+from econdor_gcs.files.rundir import RunDir, RunDirMode, read_checkpoint, read_run_config
+from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M, fence_items
 from sim_vehicle.body import Sample, SimBody
 from sim_vehicle.executor import run_plan, run_task
 from sim_vehicle.fence import Fence
@@ -64,7 +63,7 @@ class InProcessExecutor:
     Vehicles start at the area's origin corner (their home), transit at cruise speed, come
     to rest where their plan ended and keep that position between iterations, and fly home
     at the end, as the MAVLink vehicles do. They fly inside the fence ``econdor run``
-    uploads (the area plus ``FENCE_MARGIN_M``), read from the very items it sends. They
+    uploads (the area plus ``MISSION_FENCE_MARGIN_M``), read from the very items it sends. They
     carry the mission's sensor (``vehicles.sensor``: noise, lag, GNSS error, each vehicle
     its own seeded draws) and report, as the MAVLink vehicles do, the positions they
     believe they are at.
@@ -84,7 +83,7 @@ class InProcessExecutor:
         # like the MAVLink vehicle: transits at the cruise speed (its SPEED_MPS), not max speed
         self.params = TracerParams(speed_mps=v.speed_mps, transit_speed_mps=v.speed_mps)
         self.fence = Fence.from_items(
-            fence_items(mission.origin, mission.region, FENCE_MARGIN_M), mission.origin)
+            fence_items(mission.origin, mission.region, MISSION_FENCE_MARGIN_M), mission.origin)
         self.bodies = [
             SimBody(field, mission.region, *self.home, limits=limits,
                     sample_rate_hz=v.sample_rate_hz, sensor=sensor_model(mission),

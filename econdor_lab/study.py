@@ -20,12 +20,12 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+from econdor_gcs.config import Mission
 from econdor_gcs.core.planners import PLANNER_NAMES as PLANNERS
 from econdor_gcs.core.tasks import TaskStyle
-from econdor_gcs.dfc import Dfc, IterationRecord
+from econdor_gcs.dfc.loop import Dfc, IterationRecord
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.mission import Mission
-from econdor_gcs.rundir import RunDirMode, write_json
+from econdor_gcs.files.rundir import RunDirMode, write_json
 from sim_vehicle.tracer import warm_up
 
 from .inprocess import InProcessExecutor, run_inprocess
@@ -190,7 +190,7 @@ def run_study(
     }
     write_json(out / "summary.json", summary)
     if figures:
-        from econdor_gcs.figures import plot_study
+        from econdor_gcs.files.figures import plot_study
 
         maps = {r["summary"]["planner"]: r["run_dir"] for r in results
                 if r["summary"]["seed"] == seeds[0] and r["run_dir"]}

@@ -52,7 +52,14 @@ from .body import Sample
 from .fence import Fence
 from .mission_server import FENCE, MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
 from .navigator import Activity, ModeFlow, Navigator
-from .state import PARAM_NAMES, SENSOR_PARAMS, FlightMode, VehicleSettings, VehicleState
+from .state import (
+    GCS_FAILSAFE_ACTIONS,
+    PARAM_NAMES,
+    SENSOR_PARAMS,
+    FlightMode,
+    VehicleSettings,
+    VehicleState,
+)
 from .telemetry import Outbox, Telemetry
 from .tracer import TracerParams
 
@@ -70,7 +77,7 @@ ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED
 FAILED = mavlink.MAV_RESULT_FAILED
 UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
-_ZERO_OK = ("NOISE_STD", "LAG_S", "POS_STD_M")
+_ZERO_OK = ("NOISE_STD", "LAG_S", "POS_STD_M", "GCS_FS_ACT")
 """Parameters that may be 0 (a perfect sensor); every other one must be > 0."""
 
 
@@ -143,6 +150,11 @@ class Autopilot:
         self.activity: Activity | None = None
         self.counters: dict[str, int] = {"rx_unhandled": 0, "ticks": 0, "commands": 0,
                                          "commands_repeated": 0}
+        self.gcs_heard_wall: float | None = None
+        """Wall time of the last GCS HEARTBEAT (None: no GCS yet, no failsafe: ArduPilot's
+        rule)."""
+        self.gcs_failsafe = False
+        """The GCS failsafe acted and the GCS has not been heard since."""
         self._last_command: tuple[tuple[Any, ...], int] | None = None
         """The last COMMAND_LONG run (sender, command, params) and its result: a resend of it
         (``confirmation`` > 0) is answered, not run again."""
@@ -227,9 +239,36 @@ class Autopilot:
             self.outbox.put(m)
 
     def one_hz(self, now: float) -> None:
-        """The 1 Hz (wall) telemetry."""
+        """The 1 Hz (wall) telemetry, and the GCS failsafe's watch."""
         self.now = now
+        self.check_gcs_failsafe(now)
         self.telemetry.one_hz()
+
+    def check_gcs_failsafe(self, now: float) -> None:
+        """ArduCopter's GCS failsafe (FS_GCS_ENABLE, FS_GCS_TIMEOUT; PX4: NAV_DLL_ACT,
+        COM_DL_LOSS_T): flying, with no GCS HEARTBEAT for ``GCS_FS_S`` wall seconds, the
+        vehicle leaves what it does for RTL (or holds where it is). Only once a GCS was
+        heard, never on the ground, not again while already returning or landing. The
+        timeout is wall time: it is the link's, whatever the simulation's speed-up.
+
+        When the GCS is heard again the vehicle does not go back to its mission by itself
+        (neither autopilot does): the ground station decides."""
+        st = self.state
+        action = st.params["GCS_FS_ACT"]
+        if (action <= 0 or self.gcs_heard_wall is None or self.gcs_failsafe
+                or not (st.armed and st.in_air)
+                or st.mode in (FlightMode.RTL, FlightMode.LAND)
+                or now - self.gcs_heard_wall < st.params["GCS_FS_S"]):
+            return
+        self.gcs_failsafe = True
+        rtl = action >= GCS_FAILSAFE_ACTIONS["rtl"]
+        self.outbox.statustext(f"Failsafe: GCS heartbeat lost for "
+                               f"{now - self.gcs_heard_wall:.0f} s: "
+                               f"{'RTL' if rtl else 'holding'}", mavlink.MAV_SEVERITY_CRITICAL)
+        if rtl:
+            self._fly_activity(self.navigator.rtl())
+        else:
+            self.set_hold()
 
     def receive(self, msg: Any, now: float) -> bool:
         """Handle one message addressed to this vehicle; False if it is not understood."""
@@ -262,6 +301,7 @@ class Autopilot:
                 continue
             if ev.kind in ("uploaded", "cleared"):
                 st.mission_complete = False
+                st.mission_started = False
                 # a command after a new mission is new, even if it repeats the last one (the
                 # MISSION_START of the next flight, resent because the first was lost)
                 self._last_command = None
@@ -289,7 +329,12 @@ class Autopilot:
     # -- messages ------------------------------------------------------------------------------
 
     def _on_heartbeat(self, msg: Any) -> None:
-        pass
+        if msg.type != mavlink.MAV_TYPE_GCS:
+            return
+        self.gcs_heard_wall = self.now
+        if self.gcs_failsafe:
+            self.gcs_failsafe = False
+            self.outbox.statustext("GCS heartbeat back", mavlink.MAV_SEVERITY_WARNING)
 
     def _on_ping(self, msg: Any) -> None:
         if msg.target_system == 0:
@@ -526,6 +571,8 @@ class Autopilot:
             return
         value = float(msg.param_value)
         ok = math.isfinite(value) and (value >= 0 if name in _ZERO_OK else value > 0)
+        if name == "GCS_FS_ACT":
+            ok = ok and value in GCS_FAILSAFE_ACTIONS.values()
         if name == "SPEED_MPS":
             ok = ok and value <= st.settings.max_speed_mps
         if name == "SAMPLE_HZ":

@@ -2,6 +2,7 @@
 
     sim-vehicle --sysid N --mission MISSION.yaml --connect udpout:127.0.0.1:14550
                 [--autopilot px4|ardupilot] [--companion] [--prearm-s S]
+                [--gcs-failsafe rtl|hold|off] [--gcs-failsafe-s S]
                 [--speedup X] [--home LAT,LON,ALT] [--seed S] [--count N --sysid-base B]
 
 ``--autopilot`` picks the personality (PX4 or ArduCopter habits, see
@@ -105,6 +106,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--prearm-s", type=_non_negative, default=None,
                    help="wall seconds after boot during which arming fails (default: 2 for "
                         "ardupilot, 0 for px4)")
+    p.add_argument("--gcs-failsafe", choices=("rtl", "hold", "off"), default="rtl",
+                   help="flying with no GCS heartbeat for --gcs-failsafe-s seconds: return to "
+                        "launch (default), hold where it is, or go on (ArduPilot's "
+                        "FS_GCS_ENABLE, PX4's NAV_DLL_ACT)")
+    p.add_argument("--gcs-failsafe-s", type=_positive, default=5.0, metavar="S",
+                   help="wall seconds without a GCS heartbeat before the failsafe acts "
+                        "(default 5, ArduPilot's FS_GCS_TIMEOUT)")
     p.add_argument("--signing-key", default=None, metavar="FILE",
                    help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
                         "(SHA-256, as MAVProxy does); unsigned messages are then ignored")
@@ -114,8 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_one(args: argparse.Namespace) -> int:
-    from econdor_gcs.mission import load_mission
-    from econdor_gcs.signing import load_signing_key
+    from econdor_gcs.config import load_mission
+    from econdor_gcs.link.signing import load_signing_key
 
     from .mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
     from .tracer import warm_up
@@ -126,7 +134,9 @@ def _run_one(args: argparse.Namespace) -> int:
     if args.seed is not None and args.seed < 0:
         raise EcondorError(f"--seed must be >= 0, got {args.seed}")
     signing = load_signing_key(args.signing_key) if args.signing_key is not None else None
-    overrides: dict[str, Any] = {"companion": args.companion, "prearm_s": args.prearm_s}
+    overrides: dict[str, Any] = {"companion": args.companion, "prearm_s": args.prearm_s,
+                                 "gcs_failsafe": args.gcs_failsafe,
+                                 "gcs_failsafe_s": args.gcs_failsafe_s}
     if args.tel_rate is not None:
         overrides["tel_rate_hz"] = args.tel_rate
     warm_up()  # load (or compile) the tracer before the vehicle shows itself
@@ -161,7 +171,7 @@ def _run_one(args: argparse.Namespace) -> int:
 
 
 def _run_many(args: argparse.Namespace) -> int:
-    from econdor_gcs.mission import load_mission
+    from econdor_gcs.config import load_mission
 
     from .transport import parse_endpoint
 
@@ -199,6 +209,8 @@ def _run_many(args: argparse.Namespace) -> int:
             cmd.append("--companion")
         if args.prearm_s is not None:
             cmd += ["--prearm-s", repr(args.prearm_s)]
+        cmd += ["--gcs-failsafe", args.gcs_failsafe, "--gcs-failsafe-s",
+                repr(args.gcs_failsafe_s)]
         for c in args.reject_command:
             cmd += ["--reject-command", str(c)]
         if args.signing_key is not None:

@@ -43,7 +43,13 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
-from econdor_gcs.signing import SigningKey, refusal_counts, refused, share_signing
+from econdor_gcs.link.signing import (
+    SigningKey,
+    SigningStore,
+    refusal_counts,
+    refused,
+    share_signing,
+)
 
 from .ardupilot import ArduCopterAutopilot
 from .autopilot import Autopilot
@@ -137,11 +143,18 @@ class MavlinkVehicle:
         self._signing_state: Any = None
         """One pymavlink signing state for every peer's parser: the streams' timestamps are
         shared, so a packet replayed from another address is refused too."""
+        self.signing_store: SigningStore | None = None
+        """The vehicle's signing timestamps on disk: a command captured before a restart and
+        replayed after it is refused (the MAVLink guide asks them kept)."""
         if signing is not None:
             signing.apply(self.mav)
             checker = mavlink.MAVLink(None)
             signing.apply(checker, sign_outgoing=False)
             self._signing_state = checker.signing
+            self.signing_store = SigningStore(signing, s.sysid)
+            self.signing_store.load(self.mav.signing, self._signing_state)
+            if self.signing_store.error:
+                log.warning("sysid %d: %s", s.sysid, self.signing_store.error)
         self.io_counters: dict[str, int] = {
             "rx_packets": 0, "rx_bad": 0, "rx_other_target": 0, "rx_flood": 0, "tx_packets": 0,
             "rx_unsigned": 0, "rx_bad_signature": 0,
@@ -170,7 +183,7 @@ class MavlinkVehicle:
                      autopilot: type[Autopilot] = Px4Autopilot,
                      signing: SigningKey | None = None,
                      **overrides: Any) -> MavlinkVehicle:
-        """Build a vehicle from a loaded :class:`econdor_gcs.mission.Mission`."""
+        """Build a vehicle from a loaded :class:`econdor_gcs.config.Mission`."""
         v = mission.vehicles
         settings = VehicleSettings(
             sysid=sysid, speed_mps=v.speed_mps, max_speed_mps=v.max_speed_mps,
@@ -289,6 +302,8 @@ class MavlinkVehicle:
                 now = time.monotonic()
                 if now >= next_hb:
                     ap.one_hz(now)
+                    if self.signing_store is not None:
+                        self.signing_store.save_due(self.mav.signing, self._signing_state)
                     next_hb += 1.0
                     if next_hb < now:
                         next_hb = now + 1.0
@@ -318,6 +333,8 @@ class MavlinkVehicle:
             self.close()
 
     def close(self) -> None:
+        if self.signing_store is not None:
+            self.signing_store.save(self.mav.signing, self._signing_state)
         with contextlib.suppress(OSError):
             self.transport.close()
         for s in (self._wake_r, self._wake_w):

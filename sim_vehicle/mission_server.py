@@ -365,14 +365,20 @@ class MissionServer:
         self.events.append(MissionEvent("set_current", MISSION, self.current_seq))
         return [self.mission_current_msg(active=False)]
 
-    def mission_current_msg(self, active: bool, complete: bool = False) -> Any:
+    def mission_current_msg(self, active: bool, complete: bool = False,
+                            paused: bool = False) -> Any:
+        """MISSION_CURRENT with its ``mission_state``: ACTIVE while flown, COMPLETE after its
+        end, PAUSED when it was left before its end (a mode change, a failsafe), else
+        NOT_STARTED (PX4's and ArduPilot's meanings)."""
         n = len(self.mission)
         if n == 0:
             state = mavlink.MISSION_STATE_NO_MISSION
         elif complete or self.current_seq >= n:
             state = mavlink.MISSION_STATE_COMPLETE
+        elif active:
+            state = mavlink.MISSION_STATE_ACTIVE
         else:
-            state = mavlink.MISSION_STATE_ACTIVE if active else mavlink.MISSION_STATE_NOT_STARTED
+            state = mavlink.MISSION_STATE_PAUSED if paused else mavlink.MISSION_STATE_NOT_STARTED
         return mavlink.MAVLink_mission_current_message(min(self.current_seq, 0xFFFF), n, state,
                                                        1 if active else 0)
 

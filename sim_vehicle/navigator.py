@@ -195,6 +195,7 @@ class Navigator:
         items = self.server.mission
         st.mission_active = True
         st.mission_complete = False
+        st.mission_started = True
         self.mission_last = last
         seq = first
         while seq <= last and seq < len(items):

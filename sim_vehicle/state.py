@@ -28,8 +28,13 @@ from .kinematics import VehicleLimits
 from .sensor import SensorModel
 
 PARAM_NAMES = ("SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD",
-               "ALT_M", "SPEEDUP", "LAG_S", "POS_STD_M", "POS_TAU_S")
-"""The vehicle's parameters (REAL32), in PARAM_VALUE index order."""
+               "ALT_M", "SPEEDUP", "LAG_S", "POS_STD_M", "POS_TAU_S", "GCS_FS_ACT", "GCS_FS_S")
+"""The vehicle's parameters (REAL32), in PARAM_VALUE index order. ``GCS_FS_ACT`` /
+``GCS_FS_S``: the GCS failsafe (:data:`GCS_FAILSAFE_ACTIONS`; ArduPilot's FS_GCS_ENABLE /
+FS_GCS_TIMEOUT, PX4's NAV_DLL_ACT / COM_DL_LOSS_T)."""
+GCS_FAILSAFE_ACTIONS = {"off": 0.0, "hold": 1.0, "rtl": 2.0}
+"""``GCS_FS_ACT`` values: what the vehicle does on its own when the ground station's
+HEARTBEAT has been missing for ``GCS_FS_S`` wall seconds while it flies."""
 
 SENSOR_PARAMS = {"NOISE_STD": "noise_std", "LAG_S": "lag_s", "POS_STD_M": "position_std_m",
                  "POS_TAU_S": "position_tau_s"}
@@ -60,6 +65,10 @@ class VehicleSettings:
     """A companion computer runs the tracer: contour items are accepted (else refused)."""
     prearm_s: float | None = None
     """Wall seconds after boot during which arming is refused (None: the personality's)."""
+    gcs_failsafe: str = "rtl"
+    """What to do when the GCS heartbeat is lost in flight (:data:`GCS_FAILSAFE_ACTIONS`)."""
+    gcs_failsafe_s: float = 5.0
+    """After how many wall seconds without it (ArduPilot's FS_GCS_TIMEOUT default)."""
 
 
 class FlightMode(StrEnum):
@@ -106,6 +115,7 @@ class VehicleState:
             "SEARCH_RAD_M": s.search_radius_m, "TEL_RATE_HZ": s.tel_rate_hz,
             "NOISE_STD": s.noise_std, "ALT_M": s.altitude_m, "SPEEDUP": s.speedup,
             "LAG_S": s.lag_s, "POS_STD_M": s.position_std_m, "POS_TAU_S": s.position_tau_s,
+            "GCS_FS_ACT": GCS_FAILSAFE_ACTIONS[s.gcs_failsafe], "GCS_FS_S": s.gcs_failsafe_s,
         }
         self._rng = np.random.default_rng(s.seed * 1000 + s.sysid)
         self._pos_rng = self._rng.spawn(1)[0]
@@ -124,6 +134,9 @@ class VehicleState:
         self.mode = FlightMode.HOLD
         self.mission_active = False
         self.mission_complete = False
+        self.mission_started = False
+        """The stored mission was started (and has not been replaced since): left before its
+        end, it is paused (MISSION_CURRENT's ``mission_state``)."""
         self.speed_mps = s.speed_mps
         self.sampling = False
         """The current tick is a sample to report (set by the navigator's activities)."""

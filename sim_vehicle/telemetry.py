@@ -408,7 +408,9 @@ class Telemetry:
                                                 0.0, 0.0)
 
     def mission_current(self) -> Any:
-        return self.server.mission_current_msg(self.state.mission_active)
+        st = self.state
+        return self.server.mission_current_msg(st.mission_active, st.mission_complete,
+                                               st.mission_started)
 
     def counters_text(self) -> Any:
         return mavlink.MAVLink_statustext_message(
@@ -486,8 +488,7 @@ class Telemetry:
             if self.streaming(mid):
                 self.outbox.put(make())
         if self.server.mission and self.streaming(mavlink.MAVLINK_MSG_ID_MISSION_CURRENT):
-            self.outbox.put(self.server.mission_current_msg(self.state.mission_active,
-                                                            self.state.mission_complete))
+            self.outbox.put(self.mission_current())
         if not self.state.fence.empty and self.streaming(mavlink.MAVLINK_MSG_ID_FENCE_STATUS):
             self.outbox.put(self.fence_status())
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 
@@ -13,3 +15,12 @@ def compiled_tracer() -> None:
     from sim_vehicle.tracer import warm_up
 
     warm_up()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def signing_state_dir(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Signing timestamps (econdor_gcs.link.signing.SigningStore) go to a folder of the test
+    session, not the user's ~/.local/state; the vehicles tests start inherit it."""
+    from econdor_gcs.link.signing import STATE_DIR_ENV
+
+    os.environ[STATE_DIR_ENV] = str(tmp_path_factory.mktemp("econdor-state"))

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import yaml
 
-from econdor_gcs.dfc import Dfc, RunResult
-from econdor_gcs.mission import Mission, load_mission, parse_mission
+from econdor_gcs.config import Mission, load_mission, parse_mission
+from econdor_gcs.dfc.loop import Dfc, RunResult
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from econdor_gcs import dfc
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.adaptive import (
     AdaptiveParams,
     AdaptivePlanner,
@@ -41,7 +41,7 @@ from econdor_gcs.core.uncertainty import (
     expected_error,
     resample_polyline,
 )
-from econdor_gcs.mission import load_mission
+from econdor_gcs.dfc import loop as dfc
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]

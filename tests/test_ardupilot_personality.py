@@ -11,7 +11,7 @@ from vehicle_helpers import item_int
 
 from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND
 from econdor_gcs.errors import MissionRejected
-from econdor_gcs.link.mission import MissionUploader, change_speed_item, rtl_item
+from econdor_gcs.link.transfer import MissionUploader, change_speed_item, rtl_item
 from sim_vehicle.ardupilot import NO_SPACE_AFTER_BOOT_S, ArduCopterAutopilot
 from sim_vehicle.state import VehicleSettings
 
@@ -87,7 +87,7 @@ def test_station_goes_on_after_an_invalid_sequence_for_a_stale_copy():
     """The re-upload seen on SITL: our uploader took INVALID_SEQUENCE as the end."""
     ap = make(ArduCopterAutopilot)
     items = [it for it in copter_mission()]
-    from econdor_gcs.link.mission import MissionItemSpec
+    from econdor_gcs.link.transfer import MissionItemSpec
 
     specs = [MissionItemSpec.from_message(rx(it)) for it in items]
     up = MissionUploader(1, 1, specs, timeout_s=1.0)

@@ -12,10 +12,10 @@ import pytest
 import yaml
 from vehicle_helpers import REPO
 
+from econdor_gcs.config import parse_mission
 from econdor_gcs.core.contours import contour_pieces
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.tasks import Phase, TraceTask
-from econdor_gcs.mission import parse_mission
 from econdor_lab.inprocess import InProcessExecutor
 
 EXCURSION_LIMIT_M = 1e-3

@@ -8,7 +8,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import DEMO, item_int
 
-from econdor_gcs.mission import load_mission
+from econdor_gcs.config import load_mission
 from sim_vehicle.ardupilot import (
     COPTER_AUTO,
     COPTER_GUIDED,
@@ -358,3 +358,63 @@ def test_samples_are_archived_and_resent_on_request():
     assert phase and phase[0].time_boot_ms <= t0  # the phase in force at the range start
     assert ask(SAMPLE_RESEND_COMMAND, 0, 2**31 - 1)[0].result == (
         mavlink.MAV_RESULT_DENIED if len(sent) > 400 else mavlink.MAV_RESULT_ACCEPTED)
+
+
+def _gcs_heartbeat(ap, now):
+    ap.receive(rx(mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)), now)
+
+
+def _mission_state(ap) -> int:
+    return ap.telemetry.mission_current().mission_state
+
+
+@pytest.mark.parametrize(("cls", "action", "mode"), [
+    (Px4Autopilot, "rtl", FlightMode.RTL), (ArduCopterAutopilot, "rtl", FlightMode.RTL),
+    (Px4Autopilot, "hold", FlightMode.HOLD), (ArduCopterAutopilot, "hold", FlightMode.HOLD)])
+def test_gcs_failsafe_leaves_the_mission_after_5_s_without_the_gcs_heartbeat(cls, action,
+                                                                            mode):
+    """ArduPilot's FS_GCS_ENABLE / FS_GCS_TIMEOUT (PX4's NAV_DLL_ACT): in the air, 5 wall s
+    after the last GCS HEARTBEAT, the vehicle leaves its mission (RTL, or holds); its
+    MISSION_CURRENT then says PAUSED. The GCS heard again does not send it back."""
+    ap = make(cls, prearm_s=0.0, gcs_failsafe=action)
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(0, 0), current=1),
+                item_int(1, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10),
+                item_int(2, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(80, 80), 10)],
+           request="MISSION_REQUEST_INT" if cls is Px4Autopilot else "MISSION_REQUEST")
+    _gcs_heartbeat(ap, 0.0)
+    if cls is ArduCopterAutopilot:
+        ap.set_mode(COPTER_GUIDED)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    first = 0 if cls is ArduCopterAutopilot else 1  # ArduCopter: MISSION_START(0, 0) only
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, first)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: math.hypot(ap.state.body.x_m, ap.state.body.y_m) > 10.0)
+    assert _mission_state(ap) == mavlink.MISSION_STATE_ACTIVE
+    ap.one_hz(4.9)
+    assert ap.state.mode == FlightMode.MISSION and not ap.gcs_failsafe  # not yet
+    ap.one_hz(5.1)
+    ap.tick()  # the new activity's first step
+    assert ap.gcs_failsafe and not ap.state.mission_active
+    assert ap.state.mode == mode
+    assert _mission_state(ap) == mavlink.MISSION_STATE_PAUSED
+    texts = [m.text for m in ap.outbox.drain(0.0) if m.get_type() == "STATUSTEXT"]
+    assert any(t.startswith("Failsafe: GCS heartbeat lost") for t in texts)
+    _gcs_heartbeat(ap, 7.0)
+    assert not ap.gcs_failsafe and ap.state.mode == mode  # no way back on its own
+    if action == "rtl":
+        run_until(ap, lambda ms: not ap.state.armed)
+        assert ap.state.alt_rel_m == 0.0 and _mission_state(ap) == mavlink.MISSION_STATE_PAUSED
+
+
+@pytest.mark.parametrize(("kw", "heard"), [({}, False), ({"gcs_failsafe": "off"}, True)])
+def test_gcs_failsafe_needs_a_gcs_heard_once_and_can_be_off(kw, heard):
+    ap = make(**kw)
+    if heard:
+        _gcs_heartbeat(ap, 0.0)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    command(ap, mavlink.MAV_CMD_NAV_TAKEOFF)
+    run_until(ap, lambda ms: ap.state.alt_rel_m > 5.0)
+    mode = ap.state.mode
+    ap.one_hz(60.0)
+    ap.tick()
+    assert not ap.gcs_failsafe and ap.state.mode == mode

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from econdor_gcs import dfc
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.planners import PLANNER_NAMES, Batch, PlanContext, survey_jobs
 from econdor_gcs.core.tasks import FlightReport
+from econdor_gcs.dfc import loop as dfc
 from econdor_gcs.errors import MissionError
-from econdor_gcs.mission import load_mission
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]

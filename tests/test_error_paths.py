@@ -10,14 +10,14 @@ from types import SimpleNamespace
 
 import pytest
 
+from econdor_gcs.app.run_failures import write_partial as _write_partial
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import Waypoint
 from econdor_gcs.errors import RunError
-from econdor_gcs.gcs import Station
-from econdor_gcs.link.mission import build_mission
-from econdor_gcs.run import _write_partial
-from econdor_gcs.rundir import RunDir
-from econdor_gcs.vehicle_missions import VehicleMissions
+from econdor_gcs.files.rundir import RunDir
+from econdor_gcs.link.transfer import build_mission
+from econdor_gcs.station.executor import Station
+from econdor_gcs.station.sorties import VehicleMissions
 from sim_vehicle.transport import UdpTransport, parse_endpoint
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
@@ -25,9 +25,13 @@ ORIGIN = Origin(47.397742, 8.545594, 488.0)
 
 class _BrokenExecutor:
     iteration = 2
+    losses: list[dict] = []
 
     def pending_samples(self):
         raise ValueError("half a sample")
+
+    def sample_accounting(self) -> dict:
+        return {}
 
 
 def test_partial_summary_reports_samples_it_could_not_write(

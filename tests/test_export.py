@@ -11,12 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from econdor_gcs.app.export import export_cli, geojson_for_run, write_geojson
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.export import export_cli, geojson_for_run, write_geojson
-from econdor_gcs.link.mission import MissionItemSpec, build_mission
-from econdor_gcs.mission_files import (
+from econdor_gcs.files.autopilot_files import (
     items_to_plan,
     items_to_wpl,
     read_plan,
@@ -24,6 +23,7 @@ from econdor_gcs.mission_files import (
     write_plan,
     write_wpl,
 )
+from econdor_gcs.link.transfer import MissionItemSpec, build_mission
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 INT_REL, FLOAT_REL = 6, 3

@@ -63,6 +63,7 @@ def test_demo_through_a_lossy_signed_link_keeps_every_sample(tmp_path: Path, cap
     samples the vehicle says it took."""
     key = tmp_path / "key"
     key.write_text("lossy but signed\n")
+    key.chmod(0o600)
     out = tmp_path / "run"
     station_port = free_port()
     with RelayProcess(station_port, "--drop", "10%", "--seed", "7") as relay, \
@@ -131,7 +132,7 @@ def test_station_killed_mid_run_resumes_to_the_same_result(tmp_path: Path, capsy
     import signal
     import time
 
-    from econdor_gcs.mission import load_mission
+    from econdor_gcs.config import load_mission
     from econdor_lab.study import run_seed
 
     mission = tmp_path / "killed.yaml"

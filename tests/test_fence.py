@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.fields import GaussianSumField
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
-from econdor_gcs.gcs import FENCE_MARGIN_M
-from econdor_gcs.link.mission import fence_items
-from econdor_gcs.mission import load_mission
+from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M
+from econdor_gcs.link.transfer import fence_items
 from econdor_lab.inprocess import InProcessExecutor
 from sim_vehicle.body import SimBody
 from sim_vehicle.fence import (
@@ -201,7 +201,7 @@ def test_the_vehicle_refuses_a_malformed_fence_and_keeps_the_old_one():
 def test_the_lab_flies_inside_the_fence_the_station_uploads():
     mission = load_mission("missions/demo.yaml")
     ex = InProcessExecutor(mission, mission.build_field(1))
-    station = Fence.from_items(fence_items(mission.origin, mission.region, FENCE_MARGIN_M),
+    station = Fence.from_items(fence_items(mission.origin, mission.region, MISSION_FENCE_MARGIN_M),
                                mission.origin)
     np.testing.assert_array_equal(ex.fence.arrays[0], station.arrays[0])
     assert all(b.fence is ex.fence for b in ex.bodies)

@@ -13,8 +13,8 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.image import imread
 
-from econdor_gcs import figures
-from econdor_gcs.figures import RUN_FIGURES, STUDY_FIGURES, plot_run, plot_study
+from econdor_gcs.files import figures
+from econdor_gcs.files.figures import RUN_FIGURES, STUDY_FIGURES, plot_run, plot_study
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 METRIC_COLUMNS = (
@@ -55,7 +55,7 @@ def _metric_rows(n: int, rng: np.random.Generator, lawnmower: bool = False,
 
 
 def _make_run(path: Path, with_truth: bool = True) -> Path:
-    """A run directory in the formats of econdor_gcs.rundir."""
+    """A run directory in the formats of econdor_gcs.files.rundir."""
     rng = np.random.default_rng(1)
     path.mkdir(parents=True)
     with (path / "metrics.csv").open("w", newline="", encoding="utf-8") as f:
@@ -132,7 +132,7 @@ def _assert_png(path: Path, fig: Figure | None = None) -> None:
 
 @pytest.fixture
 def drawn(monkeypatch: pytest.MonkeyPatch) -> dict[str, Figure]:
-    """Every figure ``econdor_gcs.figures`` saves, by file name (their data are checked)."""
+    """Every figure ``econdor_gcs.files.figures`` saves, by file name (their data are checked)."""
     figs: dict[str, Figure] = {}
     real = figures._save
 

@@ -16,12 +16,12 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from econdor_gcs.config import Mission, load_mission, parse_mission
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import EcondorError, MissionError
-from econdor_gcs.link.mission import MissionItemSpec, build_mission
-from econdor_gcs.mission import Mission, load_mission, parse_mission
-from econdor_gcs.mission_files import items_to_plan, items_to_wpl, read_plan, read_wpl
+from econdor_gcs.files.autopilot_files import items_to_plan, items_to_wpl, read_plan, read_wpl
+from econdor_gcs.link.transfer import MissionItemSpec, build_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = yaml.safe_load((ROOT / "missions" / "demo.yaml").read_text())

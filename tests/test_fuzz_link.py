@@ -12,10 +12,10 @@ from types import SimpleNamespace
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from econdor_gcs.gcs import MavlinkExecutor
+from econdor_gcs.config import parse_mission
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.router import Router
-from econdor_gcs.mission import parse_mission
+from econdor_gcs.station.executor import MavlinkExecutor
 
 FUZZ = settings(max_examples=200, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -116,7 +116,7 @@ def test_a_signing_station_refuses_every_unsigned_or_damaged_frame(
         frame: tuple[bytes, bool]) -> None:
     """With a key, nothing unsigned gets through, whatever its state; each refusal is
     counted as unsigned, as a bad signature or as damage."""
-    from econdor_gcs.signing import SigningKey
+    from econdor_gcs.link.signing import SigningKey
 
     parser = Parser(SigningKey.from_text("fuzz"))
     data, _ = frame

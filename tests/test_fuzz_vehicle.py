@@ -16,13 +16,13 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import DEMO
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.tasks import (
     SAMPLE_COUNT_COMMAND,
     SAMPLE_RESEND_COMMAND,
     TRACE_RESEND_COMMAND,
 )
 from econdor_gcs.link.codec import Codec
-from econdor_gcs.mission import load_mission
 from sim_vehicle.autopilot import Autopilot
 from sim_vehicle.mavlink_vehicle import MavlinkVehicle
 

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from econdor_gcs.config import parse_mission
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import (
     OutcomeStatus,
@@ -22,19 +23,18 @@ from econdor_gcs.core.tasks import (
     Waypoint,
 )
 from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
-from econdor_gcs.gcs import (
+from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
+from econdor_gcs.link.router import Received, Sample, VehicleLink, VehicleLost
+from econdor_gcs.link.transfer import build_mission, plan_mission
+from econdor_gcs.station.executor import (
     UPLOAD_ATTEMPTS,
     MavlinkExecutor,
     StatusAssembler,
     build_report,
     mission_items_json,
 )
-from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.mission import build_mission, plan_mission
-from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
-from econdor_gcs.link.router import Received, Sample, VehicleLink, VehicleLost
-from econdor_gcs.mission import parse_mission
-from econdor_gcs.telemetry import Flight
+from econdor_gcs.station.telemetry import Flight
 
 ORIGIN = Origin(47.397742, 8.545594, 488.0)
 
@@ -152,7 +152,7 @@ def test_sample_batches_match_origin_to_local() -> None:
 
 
 def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
-    from econdor_gcs.gcs import SAMPLE_BATCH
+    from econdor_gcs.station.executor import SAMPLE_BATCH
 
     ex, on_sample = _batch_executor()
     n = SAMPLE_BATCH + 10
@@ -220,7 +220,11 @@ def test_mission_json_round_trip() -> None:
 
 class FakeRouter:
     def __init__(self) -> None:
-        self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1)) for s in (1, 2)}
+        import time
+
+        # vehicles heard just now (a silent one's item time limits are not watched)
+        self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1),
+                                        last_heartbeat=time.monotonic()) for s in (1, 2)}
         self.handlers: dict[str, Any] = {}
 
     def subscribe(self, kinds: Any, h: Any) -> None:
@@ -403,7 +407,7 @@ def test_the_station_thread_alone_touches_vehicle_state() -> None:
     whichever thread asks (the render used to convert samples on its own thread)."""
     import threading
 
-    from econdor_gcs.gcs import Station
+    from econdor_gcs.station.executor import Station
 
     station = Station("udpin:127.0.0.1:0")
     station.start()

@@ -148,8 +148,8 @@ def test_mission_reconstruction_kriging_is_what_the_dfc_estimates_with():
     setting), reconstructed by the DFC with kriging and with the spline."""
     from pathlib import Path
 
-    from econdor_gcs.dfc import Dfc, IterationDone
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
+    from econdor_gcs.dfc.loop import Dfc, IterationDone
     from econdor_lab.inprocess import InProcessExecutor
 
     raw = {"name": "krig", "field": {"model": "authors"}, "vehicles": {"count": 1},

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from test_sensor import fly
 
+from econdor_gcs.config import parse_mission
 from econdor_gcs.core.lag import LagCorrection, correct_lag, noise_std, track_derivative
 from econdor_gcs.core.tasks import SampleLog
-from econdor_gcs.mission import parse_mission
 from econdor_lab.inprocess import run_inprocess
 from sim_vehicle.sensor import SensorModel
 

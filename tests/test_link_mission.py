@@ -14,7 +14,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask, Waypoint
 from econdor_gcs.errors import ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
-from econdor_gcs.link.mission import (
+from econdor_gcs.link.transfer import (
     CommandSender,
     MissionClear,
     MissionDownloader,

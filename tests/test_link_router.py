@@ -11,7 +11,6 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import TraceTask
 from econdor_gcs.errors import LinkError, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
-from econdor_gcs.link.mission import CommandSender, MissionItemSpec, build_mission
 from econdor_gcs.link.pairing import DropReason, Placement
 from econdor_gcs.link.router import (
     MissionItemReached,
@@ -26,6 +25,7 @@ from econdor_gcs.link.router import (
     parse_endpoint,
 )
 from econdor_gcs.link.tlog import TlogWriter, read_tlog
+from econdor_gcs.link.transfer import CommandSender, MissionItemSpec, build_mission
 from econdor_gcs.link.transports import EndpointKind
 from econdor_gcs.link.vehicles import EVENTS
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.fields import (
     RasterField,
     authors_field,
@@ -16,7 +17,6 @@ from econdor_gcs.core.fields import (
 )
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.errors import FieldError, MissionError
-from econdor_gcs.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 REGION = Region(0, 100, 0, 100)
@@ -51,7 +51,7 @@ def _write(tmp_path, text):
         ("field: {model: paper}\nvehicles: {count: two}\n", r"vehicles\.count: expected an integer"),
         ("field: {model: paper}\nvehicles: {speed_mps: 20, max_speed_mps: 10}\n",
          r"vehicles\.speed_mps: must be <= vehicles\.max_speed_mps"),
-        ("field: {model: paper}\narea: {width_m: 0}\n", r"area\.width_m: must be > 0"),
+        ("field: {model: paper}\narea: {width_m: 0}\n", r"area\.width_m: must be >= 10 \(metres\), got 0"),
         ("field: {model: raster}\n", r"field\.path: missing required key"),
         ("field: {model: paper}\nalgorithm: {planner: greedy}\n", r"algorithm\.planner: must be one of"),
         ("field: [1, 2\n", r"malformed YAML at line"),

@@ -227,8 +227,8 @@ def test_fit_matern_with_known_noise_finds_the_length_scale():
 # -- the DFC ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("noise", [0.0, 1.0])
 def test_the_dfc_records_the_noise_it_estimated(noise):
-    from econdor_gcs.dfc import Dfc
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     raw = {"name": "noisy", "field": {"model": "plume", "sources": 3, "sigma_min_m": 3.0,

@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
-from econdor_gcs import recovery
 from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND
-from econdor_gcs.recovery import RECOVERY_STALLED_ROUNDS, SampleRecovery
-from econdor_gcs.telemetry import VehicleState
+from econdor_gcs.station import recovery
+from econdor_gcs.station.recovery import RECOVERY_STALLED_ROUNDS, SampleRecovery
+from econdor_gcs.station.telemetry import VehicleState
 
 TAKEN_MS = list(range(1000, 10_001, 100))  # 10 Hz
 MISSING_MS = 5000
@@ -56,8 +56,8 @@ class NoLosses:
     def check_lost(self) -> None:
         pass
 
-    async def tolerant(self, v: VehicleState, coro: Any) -> None:
-        await coro
+    async def tolerant(self, v: VehicleState, step: Any) -> None:
+        await step()
 
 
 async def until(cond: Any, *, tick_s: float = 0.25, on_tick: Any = None,

@@ -50,7 +50,7 @@ import numpy as np
 import pytest
 from regression_cases import CASES, PINNED_ITERATIONS, run_case
 
-from econdor_gcs.dfc import RunResult
+from econdor_gcs.dfc.loop import RunResult
 
 ITERATION0_ABS = 1e-9
 ITERATION1_PREFIX = 50

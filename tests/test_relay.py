@@ -207,3 +207,43 @@ def test_cli_relays_and_reports_its_counts() -> None:
     m2 = re.search(r"in (\d+) out (\d+) dropped (\d+)", last)
     assert m2 and int(m2[1]) == 100 and int(m2[2]) == got and int(m2[3]) == 100 - got
     assert 25 < got < 75
+
+
+def test_an_outage_loses_everything_both_ways_then_the_link_is_back() -> None:
+    """A blackout set from another thread, and a scripted one: every datagram both ways is
+    lost (counted), and what follows goes through again."""
+
+    async def main() -> None:
+        gcs, vehicle = await endpoint(), await endpoint()
+        relay = await Relay(LOOPBACK, gcs.address, outages=[(3600.0, 1.0)]).start()
+        vehicle.send(b"before", relay.listen_address)
+        await settle(lambda: len(gcs.got) == 1)
+        relay.set_blackout(True)
+        await settle(lambda: relay.blackout)
+        vehicle.send(b"during", relay.listen_address)
+        gcs.send(b"down during", gcs.got[0][1])
+        await settle(lambda: relay.upstream_stats.blacked_out == 1
+                     and relay.downstream_stats.blacked_out == 1)
+        relay.set_blackout(False)
+        await settle(lambda: not relay.blackout)
+        vehicle.send(b"after", relay.listen_address)
+        await settle(lambda: len(gcs.got) == 2)
+        assert [d for d, _ in gcs.got] == [b"before", b"after"] and vehicle.got == []
+        # a scripted outage, START seconds after the first datagram
+        relay.outages[:] = [(0.0, 3600.0)]
+        vehicle.send(b"scripted", relay.listen_address)
+        await settle(lambda: relay.upstream_stats.blacked_out == 2)
+        assert len(gcs.got) == 2
+        relay.close()
+        close(gcs, vehicle)
+
+    run(main())
+
+
+def test_relay_outage_argument() -> None:
+    from econdor_gcs.link.relay import parse_outage
+
+    assert parse_outage("40:15") == (40.0, 15.0)
+    for bad in ("40", "a:b", "-1:5", "5:0", "inf:5"):
+        with pytest.raises(LinkError, match="bad outage"):
+            parse_outage(bad)

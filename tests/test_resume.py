@@ -21,10 +21,10 @@ from pathlib import Path
 import pytest
 
 from econdor import cli
-from econdor_gcs.dfc import IterationDone
+from econdor_gcs.config import load_mission
+from econdor_gcs.dfc.loop import IterationDone
 from econdor_gcs.errors import RunError
-from econdor_gcs.mission import load_mission
-from econdor_gcs.rundir import RunDir, RunDirMode, read_checkpoint
+from econdor_gcs.files.rundir import RunDir, RunDirMode, read_checkpoint
 from econdor_lab.inprocess import run_inprocess
 
 MISSION = """\
@@ -104,7 +104,7 @@ def test_resume_after_an_interrupt_ends_with_the_uninterrupted_result(
 
 _KILLABLE = """\
 import sys
-from econdor_gcs.mission import load_mission
+from econdor_gcs.config import load_mission
 from econdor_lab.inprocess import run_inprocess
 run_inprocess(load_mission(sys.argv[1]), sys.argv[2])
 """
@@ -156,17 +156,41 @@ def test_a_non_empty_run_directory_is_refused(tmp_path: Path) -> None:
 
 def test_force_replaces_a_run_directory_but_nothing_else(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    out.mkdir()
+    (out / "figures").mkdir(parents=True)
     (out / "summary.json").write_text("{}")
-    (out / "old.txt").write_text("old")
+    (out / "figures" / "maps.png").write_bytes(b"png")
     RunDir(out, RunDirMode.FORCE).close()
-    assert not (out / "old.txt").exists() and (out / "samples.csv").exists()
+    assert (out / "samples.csv").exists() and (out / "summary.json").exists() is False
+    assert not (out / "figures" / "maps.png").exists()
     other = tmp_path / "home"
     other.mkdir()
     (other / "thesis.tex").write_text("years of work")
     with pytest.raises(RunError, match="not a run directory; refusing to replace it"):
         RunDir(other, RunDirMode.FORCE)
     assert (other / "thesis.tex").exists()
+
+
+@pytest.mark.parametrize("added", ["notes.txt", "analysis/plot.py", "figures/mine.svg",
+                                   "missions/site.plan"])
+def test_force_never_deletes_a_file_the_run_did_not_write(tmp_path: Path, mission_path: Path,
+                                                          added: str,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    """A user's notes or analysis in an earlier run directory: ``--force`` refuses in one
+    line naming the file, and deletes nothing (not even the run's own files)."""
+    out = tmp_path / "run"
+    (out / "figures").mkdir(parents=True)
+    (out / "summary.json").write_text("{}")
+    (out / "samples.csv").write_text("t_s\n")
+    mine = out / added
+    mine.parent.mkdir(parents=True, exist_ok=True)
+    mine.write_text("my work")
+    code = cli.main(["run", str(mission_path), "--out", str(out), "--quiet", "--force"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.strip().count("\n") == 0, err
+    assert f"{mine}: not written by a run" in err and "move it out of" in err
+    assert mine.read_text() == "my work"
+    assert (out / "summary.json").read_text() == "{}" and (out / "samples.csv").exists()
 
 
 def test_resume_sets_the_samples_of_an_unfinished_flight_aside(tmp_path: Path) -> None:

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from econdor_gcs.config import load_mission, parse_mission
 from econdor_gcs.core.geometry import Region
 from econdor_gcs.core.tasks import Phase, SampleLog, Waypoint
 from econdor_gcs.errors import MissionError
-from econdor_gcs.mission import load_mission, parse_mission
 from econdor_lab.inprocess import InProcessExecutor, sensor_model
 from sim_vehicle.body import SimBody
 from sim_vehicle.executor import run_plan
@@ -239,7 +239,8 @@ def test_mission_sensor_keys_and_the_noise_alias():
      r"^vehicles\.noise_std: given twice, also as vehicles\.sensor\.noise_std \(keep one\)$"),
     ({"sensor": {"lag": 1.0}}, r"^vehicles\.sensor\.lag: unknown key \(allowed: lag_correction, "
                                r"lag_s, noise_std, position_std_m, position_tau_s\)$"),
-    ({"sensor": {"lag_s": -1.0}}, r"^vehicles\.sensor\.lag_s: must be >= 0, got -1\.0$"),
+    ({"sensor": {"lag_s": -1.0}},
+     r"^vehicles\.sensor\.lag_s: must be >= 0 \(a sensor.s response time\), got -1\.0$"),
     ({"sensor": {"position_tau_s": 0}}, r"^vehicles\.sensor\.position_tau_s: must be > 0"),
     ({"sensor": {"lag_correction": "wiener"}}, r"^vehicles\.sensor\.lag_correction: must be "
                                                r"one of deconvolve, none"),

@@ -13,8 +13,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 from vehicle_helpers import GcsLink, item_int, wait_for
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.geometry import Region
-from econdor_gcs.mission import load_mission
 from sim_vehicle.mavlink_vehicle import MavlinkVehicle
 from sim_vehicle.sensor import SensorModel
 from sim_vehicle.state import VehicleSettings

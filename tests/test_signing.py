@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import re
 from pathlib import Path
 
 import pytest
@@ -11,8 +12,8 @@ import pytest
 from econdor_gcs.errors import EcondorError
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.router import Router
+from econdor_gcs.link.signing import SigningKey, load_signing_key
 from econdor_gcs.link.tlog import TlogWriter, read_tlog
-from econdor_gcs.signing import SigningKey, load_signing_key
 
 HEX = "0123456789abcdef" * 4
 KEY = SigningKey(bytes.fromhex(HEX))
@@ -26,9 +27,15 @@ def heartbeat(kind: int = mavlink.MAV_TYPE_QUADROTOR) -> mavlink.MAVLink_message
 # -- key files ------------------------------------------------------------------------------
 
 
+def _key_file(path: Path, text: str) -> Path:
+    """A key file as it should be: readable by its owner alone."""
+    path.write_text(text)
+    path.chmod(0o600)
+    return path
+
+
 def test_a_key_file_of_64_hex_characters_is_the_secret(tmp_path: Path) -> None:
-    path = tmp_path / "key"
-    path.write_text(HEX.upper() + "\n")
+    path = _key_file(tmp_path / "key", HEX.upper() + "\n")
     assert load_signing_key(path).secret == bytes.fromhex(HEX)
 
 
@@ -36,26 +43,24 @@ def test_a_key_file_of_64_hex_characters_is_the_secret(tmp_path: Path) -> None:
                                   "zz" * 32])
 def test_anything_else_is_a_passphrase_hashed_as_mavproxy_does(tmp_path: Path,
                                                                text: str) -> None:
-    path = tmp_path / "key"
-    path.write_text(text)
+    path = _key_file(tmp_path / "key", text)
     # MAVProxy's `signing setup PASSPHRASE`: hashlib.sha256(passphrase.encode()).digest()
     assert load_signing_key(path).secret == hashlib.sha256(text.strip().encode()).digest()
 
 
 def test_unusable_key_files_name_the_file_never_the_key(tmp_path: Path) -> None:
-    empty = tmp_path / "empty"
-    empty.write_text("  \n")
+    empty = _key_file(tmp_path / "empty", "  \n")
     with pytest.raises(EcondorError, match=r"empty: an empty signing key"):
         load_signing_key(empty)
     with pytest.raises(EcondorError, match=r"nope: no such signing key file"):
         load_signing_key(tmp_path / "nope")
     binary = tmp_path / "binary"
     binary.write_bytes(b"\xff\xfe s3cret")
+    binary.chmod(0o600)
     with pytest.raises(EcondorError, match="binary: the signing key file is not UTF-8") as exc:
         load_signing_key(binary)
     assert "s3cret" not in str(exc.value)
-    passphrase = tmp_path / "pass"
-    passphrase.write_text("s3cret")
+    passphrase = _key_file(tmp_path / "pass", "s3cret")
     key = load_signing_key(passphrase)
     assert "s3cret" not in repr(key) and key.secret.hex() not in repr(key)
 
@@ -191,8 +196,7 @@ def test_an_unsigned_client_cannot_change_a_signed_vehicles_mission(tmp_path: Pa
     nothing changes, and the vehicle counts what it ignored."""
     from vehicle_helpers import GcsLink, VehicleProcess, item_int
 
-    key_file = tmp_path / "key"
-    key_file.write_text("correct horse battery staple\n")
+    key_file = _key_file(tmp_path / "key", "correct horse battery staple\n")
     key = load_signing_key(key_file)
     mission = [item_int(0, mavlink.MAV_CMD_NAV_WAYPOINT, 47.3977, 8.5456, 0, current=1),
                item_int(1, mavlink.MAV_CMD_NAV_TAKEOFF, 47.3977, 8.5456, 20),
@@ -229,3 +233,134 @@ def test_an_unsigned_client_cannot_change_a_signed_vehicles_mission(tmp_path: Pa
     m = re.search(r"unsigned (\d+) badsig (\d+)", line)
     assert m and int(m[1]) >= 3 and int(m[2]) >= 3, line
     assert key.secret.hex() not in line and "correct horse" not in line
+
+
+# -- issue 34, point 5 ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o604, 0o620])
+def test_a_key_file_others_may_read_or_write_is_refused(tmp_path: Path, mode: int) -> None:
+    """As OpenSSH refuses a private key others can read: a key others can read signs for
+    them, one they can write becomes theirs. One line, with the fix; never the key."""
+    path = _key_file(tmp_path / "key", "s3cret passphrase")
+    path.chmod(mode)
+    with pytest.raises(EcondorError, match=rf"key: the signing key file may be read or "
+                                           rf"written by others \(mode 0{mode:o}\); make it "
+                                           rf"yours alone: chmod 600 .*key$") as exc:
+        load_signing_key(path)
+    assert "s3cret" not in str(exc.value)
+    path.chmod(0o600)
+    assert load_signing_key(path).secret == hashlib.sha256(b"s3cret passphrase").digest()
+
+
+def test_a_world_readable_key_stops_run_and_sim_vehicle_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import subprocess
+    import sys
+
+    from vehicle_helpers import DEMO, REPO
+
+    from econdor import cli
+
+    path = tmp_path / "key"
+    path.write_text("s3cret passphrase")
+    path.chmod(0o644)
+    assert cli.main(["run", str(DEMO), "--out", str(tmp_path / "run"), "--quiet",
+                     "--signing-key", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "chmod 600" in err and "s3cret" not in err
+    proc = subprocess.run([sys.executable, "-m", "sim_vehicle.cli", "--mission", str(DEMO),
+                           "--signing-key", str(path)], capture_output=True, text=True,
+                          cwd=REPO, timeout=60)
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "chmod 600" in proc.stderr
+
+
+def test_a_signed_arm_replayed_to_a_restarted_vehicle_is_refused(tmp_path: Path) -> None:
+    """Issue 34: a captured signed ARM replayed to the vehicle after its restart armed it
+    (its stream timestamps were forgotten, and the packet was within the guide's one
+    minute for new streams). The vehicle keeps them on disk per key: refused."""
+    from vehicle_helpers import inproc_vehicle, wait_for
+
+    with _signed_link(KEY) as station:
+        with inproc_vehicle(connect=f"udpout:127.0.0.1:{station.port}", signing=KEY) as v:
+            station.recv_match("HEARTBEAT", timeout=10)
+            arm = station.pack(mavlink.MAVLink_command_long_message(
+                1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0))
+            station.send_raw(arm)  # the captured packet, as a listener kept it
+            wait_for(lambda: v.armed, 10, "armed")
+            assert station.command_long(1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == 0
+            wait_for(lambda: not v.armed, 10, "disarmed")
+        with inproc_vehicle(connect=f"udpout:127.0.0.1:{station.port}", signing=KEY) as v:
+            station.flush()
+            station.remote = None
+            station.recv_match("HEARTBEAT", timeout=10)  # the new vehicle's address
+            before = v.io_counters["rx_bad_signature"]
+            station.send_raw(arm)  # the replay
+            wait_for(lambda: v.io_counters["rx_bad_signature"] > before, 10, "the refusal")
+            assert not v.armed
+            # a fresh command with the key still works
+            assert station.command_long(1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+            wait_for(lambda: v.armed, 10, "armed")
+
+
+def test_without_the_stored_timestamps_the_replay_would_have_armed_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The premise of the test above: a vehicle that forgot its timestamps (a fresh state
+    folder) takes the replayed ARM, as the issue reported."""
+    from vehicle_helpers import inproc_vehicle, wait_for
+
+    from econdor_gcs.link.signing import STATE_DIR_ENV
+
+    with _signed_link(KEY) as station:
+        monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path / "first"))
+        with inproc_vehicle(connect=f"udpout:127.0.0.1:{station.port}", signing=KEY) as v:
+            station.recv_match("HEARTBEAT", timeout=10)
+            arm = station.pack(mavlink.MAVLink_command_long_message(
+                1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0))
+            station.send_raw(arm)
+            wait_for(lambda: v.armed, 10, "armed")
+        monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path / "forgotten"))
+        with inproc_vehicle(connect=f"udpout:127.0.0.1:{station.port}", signing=KEY) as v:
+            station.flush()
+            station.remote = None
+            station.recv_match("HEARTBEAT", timeout=10)
+            station.send_raw(arm)
+            wait_for(lambda: v.armed, 10, "armed by the replay")
+
+
+def test_a_replay_to_a_restarted_station_is_refused() -> None:
+    """The station keeps its timestamps too (per key, as system 255): a vehicle's signed
+    packet captured before the station restarted is refused after it."""
+    from econdor_gcs.station.executor import Station
+
+    vehicle = Codec(1, 1, KEY)
+    captured = vehicle.encode(heartbeat())
+    first = Station("udpin:127.0.0.1:0", signing=KEY)
+    assert len(first.router.parser.feed(captured)) == 1
+    first.start()
+    first.close()  # its timestamps go to disk
+    second = Station("udpin:127.0.0.1:0", signing=KEY)
+    assert second.router.parser.feed(captured) == []
+    assert second.router.parser.refused_by_source() == {1: {"replayed": 1}}
+    assert len(second.router.parser.feed(vehicle.encode(heartbeat()))) == 1  # a new one
+    second.close()
+
+
+def test_a_vehicle_with_another_key_is_named(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 34: a wrongly keyed vehicle showed up only as "vehicles 2, 3 never appeared"."""
+    from vehicle_helpers import DEMO, free_port, inproc_vehicle
+
+    from econdor import cli
+
+    key_file = _key_file(tmp_path / "key", HEX)
+    port = free_port()
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", signing=OTHER):
+        code = cli.main(["run", str(DEMO), "--connect", f"udpin:127.0.0.1:{port}",
+                         "--vehicles", "1", "--out", str(tmp_path / "run"), "--quiet",
+                         "--signing-key", str(key_file), "--timeout", "3"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1, err
+    assert "vehicle 1 never appeared" in err
+    assert re.search(r"vehicle 1: its packets are signed with another key \(\d+ refused\)",
+                     err), err

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from vehicle_helpers import DEMO, MavproxyShell, VehicleProcess, free_port, wait_for
 
-from econdor_gcs.mission import load_mission
+from econdor_gcs.config import load_mission
 
 pytestmark = pytest.mark.interop
 

@@ -22,10 +22,11 @@ from vehicle_helpers import (
     wait_for,
 )
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.tasks import Phase
 from econdor_gcs.link.reports import trace_report
-from econdor_gcs.mission import load_mission
 from sim_vehicle.mission_server import MissionServer
+from sim_vehicle.state import PARAM_NAMES
 
 GCS = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
 DECODER = mavlink.MAVLink(None)
@@ -299,9 +300,9 @@ def test_heartbeat_and_version(vehicle, gcs):
 def test_params_list_read_set(vehicle, gcs):
     gcs.send(mavlink.MAVLink_param_request_list_message(1, 1))
     names = set()
-    while len(names) < 10:
+    while len(names) < len(PARAM_NAMES):
         pv = gcs.recv_match("PARAM_VALUE")
-        assert pv.param_type == mavlink.MAV_PARAM_TYPE_REAL32 and pv.param_count == 10
+        assert pv.param_type == mavlink.MAV_PARAM_TYPE_REAL32 and pv.param_count == len(PARAM_NAMES)
         names.add(pv.param_id)
     assert {"SPEED_MPS", "SAMPLE_HZ", "SEARCH_RAD_M", "TEL_RATE_HZ", "NOISE_STD", "LAG_S",
             "POS_STD_M", "POS_TAU_S"} <= names

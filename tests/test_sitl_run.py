@@ -21,8 +21,8 @@ import yaml
 from sitl_helpers import Sitl, requires_sitl, sitls
 from vehicle_helpers import DEMO, REPO, free_port
 
+from econdor_gcs.config import load_mission
 from econdor_gcs.link.tlog import read_tlog
-from econdor_gcs.mission import load_mission
 from econdor_gcs.payload import field_script
 
 pytestmark = [pytest.mark.e2e, pytest.mark.sitl, requires_sitl]

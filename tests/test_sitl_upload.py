@@ -11,9 +11,9 @@ from sitl_helpers import Sitl, Watch, requires_sitl, sitls
 from vehicle_helpers import DEMO
 
 from econdor.cli import main as econdor
+from econdor_gcs.config import load_mission
+from econdor_gcs.files.autopilot_files import read_mission_file
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.mission import load_mission
-from econdor_gcs.mission_files import read_mission_file
 from econdor_gcs.payload import sensor_script
 
 pytestmark = [pytest.mark.e2e, pytest.mark.sitl, requires_sitl]

@@ -25,9 +25,9 @@ from pathlib import Path
 import pytest
 from vehicle_helpers import DEMO, REPO, MavproxyShell, VehicleProcess, free_port, mavproxy_exe, wait_for
 
-from econdor_gcs.export import export_cli
+from econdor_gcs.app.export import export_cli
+from econdor_gcs.files.autopilot_files import read_mission_file, read_wpl
 from econdor_gcs.link.tlog import read_tlog
-from econdor_gcs.mission_files import read_mission_file, read_wpl
 
 pytestmark = pytest.mark.interop
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from econdor.cli import main
-from econdor_gcs.dfc import IterationRecord
+from econdor_gcs.config import Mission, load_mission
+from econdor_gcs.dfc.loop import IterationRecord
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.mission import Mission, load_mission
 from econdor_lab.inprocess import InProcessExecutor
 from econdor_lab.study import parse_seeds, run_seed, run_study
 
@@ -154,7 +154,7 @@ def _small(**algorithm):
 
 def test_gamma_rule_stops_when_learning_error_levels_off():
     """gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2}) within 1 +- lambda (and a stable span)."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
 
     dfc = Dfc(_small(stop_lambda=0.05), FieldExecutor())
     dfc.records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, 0, 0)
@@ -170,7 +170,7 @@ def test_gamma_rule_stops_when_learning_error_levels_off():
 def test_run_stops_on_the_gamma_rule():
     """Through the whole loop: the run ends with ``learning_error_converged`` at the first
     iteration (>= min_iterations) whose gamma is within 1 +- lambda with a stable span."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
 
     lam = 0.3
     result = Dfc(_small(stop_lambda=lam, min_iterations=3, max_iterations=12), FieldExecutor(),
@@ -184,8 +184,8 @@ def test_run_stops_on_the_gamma_rule():
 
 def test_run_stalls_when_there_is_nothing_to_fly(monkeypatch):
     """A planner with nothing to fly for max_idle_iterations + 1 iterations: ``stalled``."""
-    from econdor_gcs import dfc as dfc_module
     from econdor_gcs.core.planners import Batch
+    from econdor_gcs.dfc import loop as dfc_module
 
     class Idle:
         name = "idle"
@@ -211,8 +211,8 @@ def test_run_stalls_when_there_is_nothing_to_fly(monkeypatch):
 def test_lawnmower_initiation_pattern(tmp_path):
     from dataclasses import replace
 
-    from econdor_gcs.mission import InitiationConfig
-    from econdor_gcs.rundir import read_samples
+    from econdor_gcs.config import InitiationConfig
+    from econdor_gcs.files.rundir import read_samples
 
     mission = load_mission(ROOT / "missions" / "demo.yaml")
     mission = replace(mission.with_overrides(max_iterations=1, min_iterations=1),
@@ -247,7 +247,7 @@ def test_cli_study_takes_a_list_of_planners(demo, tmp_path, capsys):
 
 def test_levels_traced_counts_levels_actually_traced(demo):
     """Levels whose pieces were never found are planned, not traced."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
 
     mission = demo.with_overrides(max_iterations=1, min_iterations=1, search_radius_m=0.5)
     field = mission.build_field(1)
@@ -260,7 +260,7 @@ def test_levels_traced_counts_levels_actually_traced(demo):
 
 
 def test_samples_of_a_run_still_writing_are_read_up_to_the_last_whole_line(tmp_path):
-    from econdor_gcs.rundir import SAMPLE_COLUMNS, read_samples
+    from econdor_gcs.files.rundir import SAMPLE_COLUMNS, read_samples
 
     path = tmp_path / "samples.csv"
     values = {"t_s": "1.5", "x_m": "2", "y_m": "3", "value": "4.25", "phase": "2",
@@ -276,7 +276,7 @@ def _survey_mission(vehicles: dict | None = None, **lawnmower) -> Mission:
     """The paper mission (8 iterations) flying one survey given by ``lawnmower``."""
     import yaml
 
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
 
     raw = yaml.safe_load((ROOT / "missions" / "paper.yaml").read_text(encoding="utf-8"))
     raw["algorithm"]["planner"] = "lawnmower"
@@ -315,7 +315,7 @@ def test_a_survey_sized_by_its_budget_flies_within_it(budget_m, vehicles):
     """The line-count rule counts the turns (the vehicle overshoots every corner): the
     survey flies within ``budget_m``, and not much less (the turns are charged, at most,
     twice what the vehicle flies beyond its corners)."""
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
 
     mission = _survey_mission(vehicles, budget_m=budget_m)
     field = mission.build_field(0)
@@ -326,7 +326,7 @@ def test_a_survey_sized_by_its_budget_flies_within_it(budget_m, vehicles):
 
 
 def test_a_survey_of_given_lines(tmp_path):
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_gcs.errors import MissionError
 
     mission = _survey_mission(lines=12)

@@ -403,8 +403,8 @@ def test_a_contour_lost_at_a_saddle_is_taken_up_where_it_was_last_held(
     entry to the north edge. Searching where the vehicle is instead (``recover_m = 0``,
     the tracer before) ends the trace lost after ~70 m. (Without the edge walk, so that
     the trace ends at the west edge: with it, it walks on to the next piece.)"""
-    from econdor_gcs.dfc import isoline_levels
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
+    from econdor_gcs.dfc.loop import isoline_levels
 
     mission = parse_mission({"name": "saddle", "field": {"model": "paper"},
                              "vehicles": {"count": 1}})
@@ -442,8 +442,8 @@ def test_a_trace_round_a_loop_past_a_saddle_ends_where_it_rejoins_its_track(
     start does not lie on. Ending where it comes back onto its own track, it stops after
     one round (measured: 253 m traced); closed only at its start, it went round the lobe
     until its 400 m limit."""
-    from econdor_gcs.dfc import isoline_levels
-    from econdor_gcs.mission import parse_mission
+    from econdor_gcs.config import parse_mission
+    from econdor_gcs.dfc.loop import isoline_levels
 
     mission = parse_mission({"name": "saddle", "field": {"model": "paper"},
                              "vehicles": {"count": 1}})

@@ -12,9 +12,9 @@ import pytest
 import yaml
 from vehicle_helpers import DEMO, inproc_vehicle
 
+from econdor_gcs.app.run import run_mission
+from econdor_gcs.config import load_mission
 from econdor_gcs.link.codec import Codec, mavlink
-from econdor_gcs.mission import load_mission
-from econdor_gcs.run import run_mission
 
 pytestmark = pytest.mark.e2e
 

@@ -11,12 +11,12 @@ import pytest
 from vehicle_helpers import DEMO, free_port, inproc_vehicle, wait_for
 
 from econdor.cli import main
-from econdor_gcs.export import export_cli
+from econdor_gcs.app.export import export_cli
+from econdor_gcs.app.upload import compare_items
+from econdor_gcs.files.autopilot_files import read_mission_file
 from econdor_gcs.link.autopilots import AutopilotKind
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.mission import waypoint_item
-from econdor_gcs.mission_files import read_mission_file
-from econdor_gcs.upload import compare_items
+from econdor_gcs.link.transfer import waypoint_item
 
 ORIGIN_ITEMS = [waypoint_item(0, 47.397742, 8.545594, 0.0),
                 waypoint_item(1, 47.3978, 8.5457, 30.123)]

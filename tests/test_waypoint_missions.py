@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 import shapely
 
+from econdor_gcs.app.export import export_cli
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.planners import ContourPlanner, PlanContext
 from econdor_gcs.core.tasks import Phase, TaskStyle, TraceTask, Waypoint
 from econdor_gcs.core.waypoints import piece_route, simplify_route, task_waypoints
 from econdor_gcs.errors import EcondorError
-from econdor_gcs.export import export_cli
+from econdor_gcs.files.autopilot_files import read_mission_file, read_plan, read_wpl
+from econdor_gcs.files.plans import read_next_batch, read_tasks, write_next_batch, write_tasks
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.mission import plan_mission
-from econdor_gcs.mission import load_mission
-from econdor_gcs.mission_files import read_mission_file, read_plan, read_wpl
-from econdor_gcs.plans import read_next_batch, read_tasks, write_next_batch, write_tasks
+from econdor_gcs.link.transfer import plan_mission
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "missions" / "demo.yaml"

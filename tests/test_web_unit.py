@@ -18,19 +18,22 @@ import numpy as np
 import pytest
 
 from econdor import cli
-from econdor_gcs import control as control_module
-from econdor_gcs import rundir as rundir_module
-from econdor_gcs.control import ControlAction, ControlState, RunControl
+from econdor_gcs.app.web import messages
+from econdor_gcs.app.web import server as server_module
+from econdor_gcs.app.web.feed import Cursor, LiveFeed
+from econdor_gcs.app.web.replay import ReplayFeed
+from econdor_gcs.app.web.server import WebServer, parse_web_address
+from econdor_gcs.config import load_mission
 from econdor_gcs.core.contours import ContourPiece
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.planners import Batch, Job
 from econdor_gcs.core.tasks import Phase, SampleLog, TraceTask, Waypoint
-from econdor_gcs.dfc import Dfc, IterationDone, IterationPlanned, IterationRecord, RunDone
+from econdor_gcs.dfc import control as control_module
+from econdor_gcs.dfc.control import ControlAction, ControlState, RunControl
+from econdor_gcs.dfc.loop import Dfc, IterationDone, IterationPlanned, IterationRecord, RunDone
 from econdor_gcs.errors import ControlError, WebError
-from econdor_gcs.gcs import VehicleStatus
-from econdor_gcs.link.router import Sample
-from econdor_gcs.mission import load_mission
-from econdor_gcs.rundir import (
+from econdor_gcs.files import rundir as rundir_module
+from econdor_gcs.files.rundir import (
     IterationFrame,
     PlannedPiece,
     RunDir,
@@ -41,11 +44,8 @@ from econdor_gcs.rundir import (
     read_log,
     write_iteration,
 )
-from econdor_gcs.web import messages
-from econdor_gcs.web import server as server_module
-from econdor_gcs.web.feed import Cursor, LiveFeed
-from econdor_gcs.web.replay import ReplayFeed
-from econdor_gcs.web.server import WebServer, parse_web_address
+from econdor_gcs.link.router import Sample
+from econdor_gcs.station.executor import VehicleStatus
 from econdor_lab.inprocess import InProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -333,7 +333,10 @@ def test_another_host_than_loopback_needs_a_token() -> None:
     feed = ReplayFeed.__new__(ReplayFeed)  # never served: only the server's policy is asked
     s = WebServer(feed, "0.0.0.0", 8765)
     assert s.token and len(s.token) >= 20 and s.url.endswith(f"/?token={s.token}")
-    assert WebServer(feed, "127.0.0.1", 8765).token is None
+    assert s.exposed
+    assert WebServer(feed, "127.0.0.1", 8765).token is None  # a replay: nothing to guard
+    live = WebServer(feed, "127.0.0.1", 8765, controls=True)  # the controls: always a token
+    assert live.token and live.url.endswith(f"/?token={live.token}") and not live.exposed
 
 
 @pytest.fixture()
@@ -415,6 +418,34 @@ def test_a_token_guards_the_page_and_its_socket(replay_server: Any) -> None:
     with pytest.raises(aiohttp.WSServerHandshakeError):
         _ws(s.bound_port)
     assert _ws(s.bound_port, "/ws?token=s3cret-token")[0]["type"] == "hello"
+
+
+@pytest.mark.parametrize("origin", [None, "null"])
+def test_no_control_without_the_token_whatever_the_origin(origin: str | None) -> None:
+    """A page of another site cannot stop the run: on loopback a socket without the token
+    (no Origin, as a script sends; or ``Origin: null``, a sandboxed frame or a file://
+    page) gets no controls and its requests are refused; only the token obeys."""
+    import aiohttp
+
+    feed, control, _ = _live_feed()
+    s = WebServer(feed, "127.0.0.1", 0, controls=True)
+    s.start()
+    try:
+        stop = [{"type": "control", "action": "stop"}]
+        if origin == "null":
+            with pytest.raises(aiohttp.WSServerHandshakeError):
+                _ws(s.bound_port, origin=origin, send=stop)
+        else:
+            hello, *rest = _ws(s.bound_port, send=stop, n=5)
+            assert hello["type"] == "hello" and hello["controls"] is False
+            assert any(m["type"] == "error" and "need the token" in m["text"] for m in rest)
+        assert control.state is ControlState.RUNNING
+        hello, *rest = _ws(s.bound_port, f"/ws?token={s.token}", send=stop, n=5)
+        assert hello["controls"] is True
+        assert any(m["type"] == "control" and m["state"] == "stopping" for m in rest), rest
+        assert control.state is ControlState.STOPPING
+    finally:
+        s.stop(flush_s=0.2)
 
 
 def test_requests_a_replay_cannot_grant_come_back_as_errors(replay_server: Any) -> None:

@@ -276,7 +276,7 @@ def inproc_vehicle(mission_path: Path | str = DEMO, sysid: int = 1, speedup: flo
                    companion: bool = True, **overrides: Any) -> Iterator[Any]:
     """A MavlinkVehicle on a thread, listening on an ephemeral loopback port (by default
     PX4 habits with the tracer on board)."""
-    from econdor_gcs.mission import load_mission
+    from econdor_gcs.config import load_mission
     from sim_vehicle.mavlink_vehicle import AUTOPILOTS, MavlinkVehicle
 
     mission = load_mission(mission_path)

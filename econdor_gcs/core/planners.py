@@ -50,7 +50,7 @@ from .tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
 from .waypoints import piece_route
 
 PLANNER_NAMES = ("econdor", "no-sg", "lawnmower", "adaptive")
-"""The planners a mission or the command line may name (built by ``econdor_gcs.dfc``)."""
+"""The planners a mission or the command line may name (built by ``econdor_gcs.dfc.loop``)."""
 
 AUTHORS_FIRST_BINS = 500
 """Histogram bins of the first batch's Lloyd-Max levels in the authors' code."""

@@ -7,8 +7,7 @@ placed on each vehicle's position track), ``mission`` (protocol state machines),
 ``autopilots`` (per-family procedures), ``tlog``, ``forward``, ``relay``.
 """
 
-from .codec import Codec, Parser, mavlink
-from .mission import (
+from econdor_gcs.link.transfer import (
     CommandSender,
     MissionClear,
     MissionDownloader,
@@ -16,6 +15,8 @@ from .mission import (
     MissionUploader,
     build_mission,
 )
+
+from .codec import Codec, Parser, mavlink
 from .pairing import Sample, SamplePairer
 from .router import Received, Router
 from .tlog import TlogWriter, read_tlog

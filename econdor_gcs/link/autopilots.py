@@ -31,14 +31,16 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from dataclasses import dataclass
 from enum import StrEnum
 
-from ..errors import CommandRejected, LinkError, VehicleTimeout
+from ..errors import CommandRejected, EcondorError, LinkError, VehicleTimeout
 from .codec import MAVLinkMessage, mavlink
 from .router import Router
 
 __all__ = ["ARDUPILOT_POSITION_COMMANDS", "AutopilotKind", "FlightMode", "arm_when_ready",
-           "mission_start_params", "mode_params", "set_mode", "start_mission", "takeoff"]
+           "flight_mode", "mission_start_params", "mode_params", "set_mode", "start_mission",
+           "takeoff", "AUTOPILOT_NAMES", "VehicleKind"]
 
 ARDUPILOT_POSITION_COMMANDS = frozenset({
     mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
@@ -106,6 +108,28 @@ def mode_params(kind: AutopilotKind, mode: FlightMode) -> tuple[float, float, fl
         return base, float(COPTER_NUMBER[mode.value]), 0.0
     raise LinkError(f"cannot set mode {mode.value!r} on a {kind.value} autopilot: its mode "
                     "numbers are not known")
+
+
+def flight_mode(kind: AutopilotKind, custom_mode: int) -> FlightMode | None:
+    """The mode a HEARTBEAT's ``custom_mode`` names, the inverse of :func:`mode_params`
+    (None: a mode the station never asks for, e.g. PX4's AUTO.TAKEOFF, or an unknown
+    autopilot).
+
+    >>> flight_mode(AutopilotKind.PX4, (4 << 16) | (5 << 24)).value
+    'rtl'
+    >>> flight_mode(AutopilotKind.ARDUPILOT, 3).value
+    'mission'
+    """
+    if kind == AutopilotKind.PX4:
+        if (custom_mode >> 16) & 0xFF != PX4_MAIN_AUTO:
+            return None
+        sub = (custom_mode >> 24) & 0xFF
+        return next((FlightMode(name) for name, n in PX4_SUB.items()
+                     if n == sub and name in FlightMode.__members__.values()), None)
+    if kind == AutopilotKind.ARDUPILOT:
+        return next((FlightMode(name) for name, n in COPTER_NUMBER.items()
+                     if n == custom_mode), None)
+    return None
 
 
 def _kind(router: Router, sysid: int) -> AutopilotKind:
@@ -184,3 +208,35 @@ async def start_mission(router: Router, sysid: int, first_seq: int = 1,
         await set_mode(router, sysid, FlightMode.GUIDED)
     await arm_when_ready(router, sysid, timeout_s)
     await router.start_mission(sysid, *mission_start_params(kind, first_seq))
+
+
+AUTOPILOT_NAMES = ("px4", "ardupilot")
+
+
+@dataclass(frozen=True)
+class VehicleKind:
+    """A simulated vehicle's personality and whether a companion computer runs the tracer.
+
+    >>> VehicleKind.parse("ardupilot+companion")
+    VehicleKind(autopilot='ardupilot', companion=True)
+    >>> str(VehicleKind("px4", False))
+    'px4'
+    """
+
+    autopilot: str = "px4"
+    companion: bool = True
+
+    @classmethod
+    def parse(cls, text: str) -> VehicleKind:
+        name, plus, extra = text.strip().partition("+")
+        if name not in AUTOPILOT_NAMES or (plus and extra != "companion"):
+            raise EcondorError(f"--autopilot: {text!r} is not one of px4, ardupilot, "
+                               "px4+companion, ardupilot+companion")
+        return cls(name, bool(plus))
+
+    def args(self) -> list[str]:
+        """The ``sim-vehicle`` options for this kind."""
+        return ["--autopilot", self.autopilot, *(["--companion"] if self.companion else [])]
+
+    def __str__(self) -> str:
+        return self.autopilot + ("+companion" if self.companion else "")

@@ -12,11 +12,19 @@ Build messages with the dialect module re-exported here, e.g.
 from __future__ import annotations
 
 import struct
+from collections import Counter
 from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from ..signing import SigningKey, refusal_counts, refused, share_signing
+from econdor_gcs.link.signing import (
+    SigningKey,
+    refusal_counts,
+    refusal_counts_by_source,
+    refused,
+    share_signing,
+    unsigned_sources,
+)
 
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "Codec", "MAVLinkMessage", "Parser", "mavlink"]
 
@@ -88,6 +96,8 @@ class Parser:
         self.unknown_packets = 0
         self.unsigned_packets = 0
         self.bad_signature_packets = 0
+        self.unsigned_by: Counter[int] = Counter()
+        """Unsigned packets dropped, by the system id they claim."""
         self.bytes = 0
 
     def _new_mav(self) -> mavlink.MAVLink:
@@ -100,6 +110,22 @@ class Parser:
             else:  # a fresh parser keeps the streams' timestamps: replays stay refused
                 share_signing(mav, self._signing_state)
         return mav
+
+    @property
+    def signing_state(self) -> mavlink.MAVLinkSigning | None:
+        """The signing state every packet is checked against (None: not signing)."""
+        return self._signing_state
+
+    def refused_by_source(self) -> dict[int, dict[str, int]]:
+        """Per system id: packets refused as ``bad_signature`` (signed with another key),
+        ``replayed`` and ``unsigned`` (empty when not signing)."""
+        out: dict[int, dict[str, int]] = {}
+        if self._signing_state is not None:
+            for (reason, sysid), n in refusal_counts_by_source(self._signing_state).items():
+                out.setdefault(sysid, {})[reason] = n
+        for sysid, n in self.unsigned_by.items():
+            out.setdefault(sysid, {})["unsigned"] = n
+        return out
 
     def forget(self, stream: object) -> None:
         """Drop what is buffered of ``stream`` (its connection closed)."""
@@ -130,6 +156,8 @@ class Parser:
         wrong, unsigned = refused(sig, before)  # these came back as BAD_DATA too
         self.bad_signature_packets += wrong
         self.unsigned_packets += unsigned
+        if unsigned:
+            self.unsigned_by.update(unsigned_sources(data))
         refusals = wrong + unsigned
         for msg in found:
             kind = msg.get_type()

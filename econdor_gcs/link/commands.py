@@ -12,9 +12,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Protocol
 
-from ..errors import LinkError, MissionRejected
-from .codec import MAVLinkMessage, mavlink
-from .mission import (
+from econdor_gcs.link.transfer import (
     DEFAULT_RETRIES,
     DEFAULT_TIMEOUT_S,
     CommandSender,
@@ -23,6 +21,9 @@ from .mission import (
     MissionItemSpec,
     MissionUploader,
 )
+
+from ..errors import LinkError, MissionRejected
+from .codec import MAVLinkMessage, mavlink
 from .vehicles import AUTOPILOT_COMPONENT, VehicleLink
 
 __all__ = ["CommandVocabulary", "Machine"]

@@ -309,6 +309,11 @@ def build_mission(
     return plan_mission(origin, tasks, altitude_m, home=home, end=end).items
 
 
+MISSION_FENCE_MARGIN_M = 5.0
+"""The inclusion fence every vehicle of a run gets: the mission area plus this on every side
+(the station uploads it; the in-process executor flies inside the same fence)."""
+
+
 def fence_items(origin: Origin, region: Region, margin_m: float) -> list[MissionItemSpec]:
     """The area plus ``margin_m`` on every side as an inclusion fence: four
     ``MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION`` items (param1 = vertex count), mission

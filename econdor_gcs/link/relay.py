@@ -20,6 +20,10 @@ same :class:`Faults`, each datagram independently:
 ``corrupt``
     one random bit of it is flipped (MAVLink's CRC-16 rejects it on the other side).
 
+And whole outages (a radio drop-out): ``outages`` (``--outage START:SECONDS``, START seconds
+after the first datagram) or :attr:`Relay.blackout` set by a program (a test that waits
+for the moment it wants), during which every datagram both ways is lost.
+
 It relays between loopback addresses only: it is a tool for tests and for users checking
 what their own link setup does on a bad link, not a network service.
 """
@@ -29,6 +33,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ipaddress
+import math
 import random
 import socket
 from collections.abc import Callable
@@ -37,7 +42,7 @@ from typing import Any
 
 from ..errors import LinkError
 
-__all__ = ["DirectionStats", "Faults", "Relay", "parse_relay_endpoint"]
+__all__ = ["DirectionStats", "Faults", "Relay", "parse_outage", "parse_relay_endpoint"]
 
 REORDER_HOLD_S = 0.05
 """Longest a held-back datagram waits for the next one before it goes out anyway."""
@@ -96,6 +101,22 @@ class Faults:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
 
 
+def parse_outage(text: str) -> tuple[float, float]:
+    """``START:SECONDS`` -> ``(start_s, duration_s)``.
+
+    >>> parse_outage("40:15")
+    (40.0, 15.0)
+    """
+    start, sep, length = text.partition(":")
+    try:
+        out = (float(start), float(length))
+    except ValueError:
+        raise LinkError(f"bad outage {text!r}: expected START:SECONDS, e.g. 40:15") from None
+    if not sep or not (out[0] >= 0 and out[1] > 0) or any(map(math.isinf, out)):
+        raise LinkError(f"bad outage {text!r}: START >= 0 and SECONDS > 0, both finite")
+    return out
+
+
 @dataclass
 class DirectionStats:
     """What the relay did to one direction's datagrams."""
@@ -106,10 +127,12 @@ class DirectionStats:
     duplicated: int = 0
     reordered: int = 0
     corrupted: int = 0
+    blacked_out: int = 0
 
     def line(self) -> str:
         return (f"in {self.received} out {self.sent} dropped {self.dropped} duplicated "
-                f"{self.duplicated} reordered {self.reordered} corrupted {self.corrupted}")
+                f"{self.duplicated} reordered {self.reordered} corrupted {self.corrupted} "
+                f"blacked out {self.blacked_out}")
 
 
 @dataclass
@@ -162,6 +185,11 @@ class Relay:
     to: Address
     faults: Faults = field(default_factory=Faults)
     seed: int | None = None
+    outages: list[tuple[float, float]] = field(default_factory=list)
+    """``(start_s, duration_s)`` after the first datagram: every datagram is lost then."""
+    blackout: bool = False
+    """Set (from the relay's loop, or with :meth:`set_blackout` from another thread): every
+    datagram both ways is lost until it is cleared."""
     upstream_stats: DirectionStats = field(default_factory=DirectionStats)
     """Towards ``to`` (vehicles -> GCS)."""
     downstream_stats: DirectionStats = field(default_factory=DirectionStats)
@@ -172,9 +200,11 @@ class Relay:
         self._rng = random.Random(self.seed)
         self._clients: dict[Address, _Client] = {}
         self._listener: asyncio.DatagramTransport | None = None
+        self._first: float | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self) -> Relay:
-        loop = asyncio.get_running_loop()
+        loop = self._loop = asyncio.get_running_loop()
         try:
             transport, _ = await loop.create_datagram_endpoint(
                 lambda: _Socket(self._from_client, self._count_error), local_addr=self.listen)
@@ -200,6 +230,20 @@ class Relay:
         if self._listener is not None:
             self._listener.close()
             self._listener = None
+
+    def set_blackout(self, on: bool) -> None:
+        """Start or end an outage now (any thread)."""
+        if self._loop is None:
+            self.blackout = on
+        else:
+            self._loop.call_soon_threadsafe(setattr, self, "blackout", on)
+
+    def _out_now(self) -> bool:
+        now = asyncio.get_running_loop().time()
+        if self._first is None:
+            self._first = now
+        t = now - self._first
+        return self.blackout or any(a <= t < a + d for a, d in self.outages)
 
     def stats_line(self) -> str:
         return (f"to {self.to[0]}:{self.to[1]}: {self.upstream_stats.line()}; back: "
@@ -248,6 +292,9 @@ class Relay:
         """One datagram through the faults of its direction."""
         f, rng, st = self.faults, self._rng, lane.stats
         st.received += 1
+        if self._out_now():
+            st.blacked_out += 1
+            return
         if rng.random() < f.drop:
             st.dropped += 1
             return

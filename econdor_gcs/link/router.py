@@ -26,8 +26,9 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from econdor_gcs.link.signing import SigningKey
+
 from ..errors import LinkError, VehicleTimeout
-from ..signing import SigningKey
 from .codec import GCS_COMPONENT_ID, GCS_SYSTEM_ID, Codec, MAVLinkMessage, Parser, mavlink
 from .commands import CommandVocabulary, Machine
 from .pairing import Sample, SamplePairer

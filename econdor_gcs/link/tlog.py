@@ -6,6 +6,7 @@ by the raw MAVLink packet bytes.  The ground station logs every message it sends
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import time
 from pathlib import Path
@@ -39,6 +40,10 @@ class TlogWriter:
         self._file: BinaryIO | None = open(self.path, "ab" if append else "wb")  # noqa: SIM115
         self._last_flush = time.monotonic()
         self.records = 0
+        self.error: OSError | None = None
+        """The write that failed (a full disk...): the log stops there, the station goes on
+        (it is written from the link's receive path, which must not break); the run
+        reports it."""
 
     @property
     def closed(self) -> bool:
@@ -52,20 +57,36 @@ class TlogWriter:
         if not data:
             return
         stamp = time.time() if t_unix_s is None else t_unix_s
-        self._file.write(_STAMP.pack(int(stamp * 1e6)) + bytes(data))
-        self.records += 1
-        now = time.monotonic()
-        if now - self._last_flush >= self.flush_interval_s:
-            self._file.flush()
-            self._last_flush = now
+        try:
+            self._file.write(_STAMP.pack(int(stamp * 1e6)) + bytes(data))
+            self.records += 1
+            now = time.monotonic()
+            if now - self._last_flush >= self.flush_interval_s:
+                self._file.flush()
+                self._last_flush = now
+        except OSError as exc:
+            self._fail(exc)
+
+    def _fail(self, exc: OSError) -> None:
+        self.error = exc
+        file, self._file = self._file, None
+        if file is not None:
+            with contextlib.suppress(OSError):  # the same failure, flushing the buffer
+                file.close()
 
     def flush(self) -> None:
         if self._file is not None:
-            self._file.flush()
+            try:
+                self._file.flush()
+            except OSError as exc:
+                self._fail(exc)
 
     def close(self) -> None:
         if self._file is not None:
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError as exc:
+                self.error = exc
             self._file = None
 
     def __enter__(self) -> TlogWriter:

@@ -255,11 +255,6 @@ class VehicleLink:
     messages: int = 0
 
     @property
-    def last_heartbeat_mono(self) -> float:
-        """:attr:`last_heartbeat` on the router's clock, ``time.monotonic()``."""
-        return self.last_heartbeat
-
-    @property
     def source(self) -> Source:
         return Source(self.link, self.address)
 

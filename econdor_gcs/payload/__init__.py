@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from econdor_gcs.config import Mission
+
 from ..core.fields import FrontField, GaussianSumField
 from ..errors import EcondorError
-from ..mission import Mission
 
 __all__ = ["SENSOR_SCRIPT", "enu_fit", "field_script", "sensor_script"]
 
@@ -44,7 +45,7 @@ def enu_fit(mission: Mission) -> tuple[int, int, list[float], list[float], float
     ``c0 a + c1 b + c2 a^2 + c3 a b + c4 b^2`` of ``a`` = lat - lat0 and ``b`` = lon - lon0
     in degE7, least-squares over the area and its margin.
 
-    >>> from econdor_gcs.mission import parse_mission
+    >>> from econdor_gcs.config import parse_mission
     >>> m = parse_mission({"field": {"model": "paper"}})
     >>> lat0, lon0, ce, cn, err = enu_fit(m)
     >>> err < FIT_TOLERANCE_M

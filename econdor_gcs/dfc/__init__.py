@@ -1,0 +1,2 @@
+"""The data fusion center: the DFC loop, independent of the transport, and an operator's
+control of it."""

@@ -1,0 +1,631 @@
+"""The data fusion center loop, independent of the transport.
+
+The DFC flies the initiation pattern, reconstructs the field, asks the planner for a
+batch of jobs, assigns them to the fleet, has an :class:`Executor` fly them, collects the
+samples, re-estimates, updates the planner (kappa, delta) and repeats until the stop rule.
+The in-process executor (:mod:`econdor_lab.inprocess`) calls the tracer directly; the
+MAVLink executor uploads missions to vehicles. Only the transport differs.
+
+Stop rule (all configurable in the mission's ``algorithm`` section):
+
+* ``max_iterations`` reached;
+* ``flight_budget_m`` (> 0) spent;
+* after ``min_iterations``: ``gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2})`` within
+  ``1 +- stop_lambda`` (``stop_lambda`` > 0; the learning error has levelled off) and the
+  span of the estimate changed by less than 1 % in the last iteration;
+* ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
+  redundant or without a contour piece): the run has stalled. An idle iteration still
+  counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
+* the planner says it is done (``Batch.done`` with nothing to fly; threshold mapping
+  with no place left where an iso-line could be): reason ``planner_done``;
+* the ``checkpoint`` asked before each iteration says stop (``stop_reason = "stopped"``,
+  e.g. an operator's stop on the web page); it may also hold the loop there (pause).
+
+Distances are booked the same way for every planner: a row of ``metrics.csv`` (and of a
+study's ``study.csv``) holds the flight and the samples behind its estimate. The flight
+home after the last iteration is behind no estimate: it is in no row, nor in the
+summary's ``flight_distance_m`` (the last row's), but in its ``return_m`` and
+``total_flown_m``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from econdor_gcs.config import Mission
+from econdor_gcs.core import metrics
+from econdor_gcs.core.adaptive import AdaptiveParams, adaptive_planner
+from econdor_gcs.core.assignment import assign_jobs
+from econdor_gcs.core.fields import Field
+from econdor_gcs.core.geometry import FloatArray, Grid
+from econdor_gcs.core.lag import LagCorrection, correct_lag
+from econdor_gcs.core.planners import (
+    Batch,
+    ContourPlanner,
+    LawnmowerPlanner,
+    PlanContext,
+    Planner,
+    diagonal_jobs,
+    survey_jobs,
+    survey_turn_m,
+)
+from econdor_gcs.core.spline import fit_field
+from econdor_gcs.core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
+from econdor_gcs.errors import MissionError, RunError
+
+
+class Executor(Protocol):
+    """Flies per-vehicle task lists and reports what happened."""
+
+    n_vehicles: int
+
+    def positions(self) -> list[tuple[float, float]]: ...
+
+    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]: ...
+
+    def finish(self) -> list[FlightReport]:
+        """Bring every vehicle home; return what was flown doing so."""
+        ...
+
+
+@dataclass
+class IterationRecord:
+    """One row of ``metrics.csv`` (DESIGN.md §5)."""
+
+    iteration: int
+    levels_planned: int
+    levels_traced: int
+    kappa: int
+    delta: float
+    learning_error: float
+    mae: float
+    mae_db: float
+    span_ratio: float
+    contour_distance_m: float
+    flight_distance_m: float
+    samples: int
+    mae_rel: float = math.nan
+    sim_s: float = 0.0
+    reconstruction_s: float = 0.0
+    levels: list[float] = field(default_factory=list)
+    dropped: list[float] = field(default_factory=list)
+    pieces: int = 0
+    outcomes: dict[str, int] = field(default_factory=dict)
+    isoline_error_m: dict[str, float] = field(default_factory=dict)
+    forced: int = 0
+    noise_std: float = math.nan
+    """The samples' noise as this iteration's reconstruction estimated it (field units; 0:
+    taken as exact and interpolated; the previous iteration's when nothing new was flown)."""
+
+    CSV_COLUMNS = (
+        "iteration", "levels_planned", "levels_traced", "kappa", "delta", "learning_error",
+        "mae", "mae_db", "span_ratio", "contour_distance_m", "flight_distance_m", "samples",
+    )
+
+    def csv_row(self) -> dict[str, Any]:
+        d = asdict(self)
+        return {k: d[k] for k in self.CSV_COLUMNS}
+
+
+FINISH = -1
+"""The iteration number of the flight home (:meth:`Executor.finish`) in flight records."""
+
+
+@dataclass
+class FlightRecord:
+    """One flight of the executor as the run directory keeps it (``flights.jsonl`` plus the
+    samples in ``samples.csv``); a resumed run replays these instead of flying again.
+
+    ``positions_before_m`` are the vehicle positions the flight was planned from;
+    ``executor_state`` is what an executor with ``state()`` / ``restore(state)`` (the
+    in-process one) needs to continue exactly where it was after the flight.
+    """
+
+    iteration: int
+    plans: list[list[Task]]
+    reports: list[FlightReport]
+    positions_before_m: list[tuple[float, float]]
+    executor_state: dict[str, Any] | None = None
+
+
+@dataclass
+class RunResult:
+    planner: str
+    seed: int
+    records: list[IterationRecord]
+    samples: SampleLog
+    grid: Grid
+    estimate: FloatArray
+    truth: FloatArray | None
+    converged: bool
+    stop_reason: str
+    vehicles: int
+    sim_s: float
+    wall_s: float
+    reconstruction_s: float
+    flight_distance_m: float
+    contour_distance_m: float
+    isoline_error_m: dict[str, float] = field(default_factory=dict)
+    mission: dict[str, Any] = field(default_factory=dict)
+    return_m: float = 0.0
+    """Flight home after the last iteration: flown, but behind no estimate, so neither in
+    ``flight_distance_m`` nor in any record's (``total_flown_m`` has it)."""
+
+    @property
+    def total_flown_m(self) -> float:
+        """Everything flown: ``flight_distance_m`` and the flight home."""
+        return self.flight_distance_m + self.return_m
+
+    def summary(self) -> dict[str, Any]:
+        last = self.records[-1] if self.records else None
+        return {
+            "planner": self.planner,
+            "seed": self.seed,
+            "iterations": max(0, len(self.records) - 1),  # after the initiation (row 0)
+            "final_mae": last.mae if last else math.nan,
+            "final_mae_db": last.mae_db if last else math.nan,
+            "final_mae_rel": last.mae_rel if last else math.nan,
+            "span_ratio": last.span_ratio if last else math.nan,
+            "flight_distance_m": self.flight_distance_m,
+            "return_m": self.return_m,
+            "total_flown_m": self.total_flown_m,
+            "contour_distance_m": self.contour_distance_m,
+            "samples": len(self.samples),
+            "converged": self.converged,
+            "stop_reason": self.stop_reason,
+            "wall_s": self.wall_s,
+            "sim_s": self.sim_s,
+            "reconstruction_s": self.reconstruction_s,
+            "noise_std": last.noise_std if last else math.nan,
+            "vehicles": self.vehicles,
+            "isoline_error_m": self.isoline_error_m,
+            **self.mission,
+        }
+
+
+# -- planners by name -------------------------------------------------------------------------
+
+PlannerFactory = Callable[[Mission], Planner]
+
+
+def _contour_planner(sg: bool) -> PlannerFactory:
+    def build(mission: Mission) -> Planner:
+        a = mission.algorithm
+        return ContourPlanner(
+            m0=a.m0, sg=sg, lloyd_bins=a.lloyd_bins, lloyd_iterations=a.lloyd_iterations,
+            min_piece_length_m=a.min_piece_length_m, search_radius_m=a.search_radius_m,
+            max_trace_length_m=a.max_trace_length_m, lloyd_variant=a.lloyd_variant)
+
+    return build
+
+
+def _adaptive_planner(mission: Mission) -> Planner:
+    params = AdaptiveParams(**asdict(mission.adaptive),
+                            target_levels=mission.algorithm.target_levels)
+    return adaptive_planner(params, seed=mission.seed)
+
+
+def _lawnmower_planner(mission: Mission) -> Planner:
+    lm, v = mission.lawnmower, mission.vehicles
+    try:
+        return LawnmowerPlanner(mission.region, lm.spacing_m, lm.budget_m, lm.lines,
+                                turn_m=survey_turn_m(v.speed_mps, v.max_accel_mps2))
+    except ValueError as exc:
+        raise MissionError(str(exc)) from exc
+
+
+PLANNERS: dict[str, PlannerFactory] = {
+    "econdor": _contour_planner(sg=True),
+    "no-sg": _contour_planner(sg=False),
+    "lawnmower": _lawnmower_planner,
+    "adaptive": _adaptive_planner,
+}
+"""Every planner a mission may name (``core.planners.PLANNER_NAMES``), built from the mission."""
+
+
+def build_planner(name: str, mission: Mission) -> Planner:
+    """The planner called ``name``, configured from ``mission``."""
+    factory = PLANNERS.get(name)
+    if factory is None:
+        raise MissionError(f"planner: unknown planner {name!r} (one of {', '.join(PLANNERS)})")
+    return factory(mission)
+
+
+
+# -- progress events ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunStarted:
+    planner: str
+    seed: int
+    vehicles: int
+
+
+@dataclass(frozen=True)
+class IterationPlanned:
+    """A batch is about to be flown: its levels, and each vehicle's task list."""
+
+    iteration: int
+    batch: Batch
+    plans: list[list[Task]]
+
+
+@dataclass(frozen=True)
+class IterationDone:
+    """An iteration was flown and re-estimated (row ``record`` of metrics.csv)."""
+
+    record: IterationRecord
+    estimate: FloatArray
+
+
+@dataclass(frozen=True)
+class RunDone:
+    summary: dict[str, Any]
+
+
+DfcEvent = RunStarted | IterationPlanned | IterationDone | RunDone
+Progress = Callable[[DfcEvent], None]
+Checkpoint = Callable[[int], bool]
+"""Asked between iterations with the number of the next one: ``True`` flies it, ``False``
+stops the run (the vehicles are then brought home). It may block, e.g. while an operator
+has paused the run (:class:`econdor_gcs.dfc.control.RunControl`)."""
+
+
+def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
+    lo, hi = float(np.min(truth)), float(np.max(truth))
+    return [lo + f * (hi - lo) for f in fractions]
+
+
+class Dfc:
+    """One DFC run. ``truth`` (the true field) is only used for metrics, never for planning."""
+
+    def __init__(
+        self,
+        mission: Mission,
+        executor: Executor,
+        planner: str | None = None,
+        truth: Field | None = None,
+        seed: int | None = None,
+        progress: Progress | None = None,
+        on_samples: Callable[[SampleLog], None] | None = None,
+        on_flight: Callable[[FlightRecord], None] | None = None,
+        replay: Sequence[FlightRecord] = (),
+        checkpoint: Checkpoint | None = None,
+    ) -> None:
+        self.mission = mission
+        self.executor = executor
+        self.planner_name = planner or mission.algorithm.planner
+        self.planner: Planner = build_planner(self.planner_name, mission)
+        self.truth_field = truth
+        self.seed = mission.seed if seed is None else seed
+        self.progress: Progress = progress or (lambda event: None)
+        self.on_samples = on_samples
+        """Called with the samples of each flight as the DFC takes them in (displays)."""
+        self.on_flight = on_flight
+        """Called with each flight the executor flew, before the DFC uses its samples (the
+        run directory records them: samples, then the flight's line)."""
+        self._replay = {r.iteration: r for r in replay}
+        self.replayed = len(self._replay)
+        self._planned_from: list[tuple[float, float]] | None = None
+        self.checkpoint: Checkpoint = checkpoint or (lambda iteration: True)
+        self.grid = mission.grid
+        self.truth = None
+        if truth is not None:
+            xx, yy = self.grid.mesh
+            self.truth = np.asarray(truth(xx, yy), dtype=float)
+        self.logs: list[SampleLog] = []
+        self.records: list[IterationRecord] = []
+        self.flight_m = 0.0
+        self.contour_m = 0.0
+        self.sim_s = 0.0
+        self.recon_s = 0.0
+        self._last_recon_s = 0.0
+        self.return_m = 0.0
+        self.noise_std = math.nan
+        """The samples' noise as the last reconstruction estimated it (field units)."""
+
+    # -- helpers --------------------------------------------------------------------------
+    def _samples(self) -> SampleLog:
+        return SampleLog.concat(self.logs)
+
+    def _reconstruct(self) -> FloatArray:
+        s = self._samples()
+        if not self.mission.algorithm.keep_diagonals and len(self.records) > 0:
+            keep = s.phase != Phase.SURVEY
+            s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
+                          s.vehicle[keep])
+        t0 = time.perf_counter()
+        # One BLAS thread: the station shares the cores with the vehicles (and a study
+        # with its other runs); idle BLAS threads spin and slow every process down.
+        method = self.mission.algorithm.reconstruction
+        with threadpool_limits(limits=1, user_api="blas"):
+            rec = fit_field(s.x_m, s.y_m, s.value, self.grid, method=method)
+        self._last_recon_s = time.perf_counter() - t0
+        self.recon_s += self._last_recon_s
+        self.noise_std = rec.noise_std
+        return rec.values
+
+    def _account(self, reports: list[FlightReport], batch: Batch | None = None) -> None:
+        """Add a flight's samples and distances to the run's totals.
+
+        ``batch`` is the planner's batch that was flown (its survey lines count as
+        productive, 'contour' distance).
+        """
+        for r in reports:
+            self.logs.append(r.samples)
+            if self.on_samples is not None:
+                self.on_samples(r.samples)
+        self.flight_m += sum(r.flown_m for r in reports)
+        self.contour_m += sum(r.traced_m for r in reports)
+        if batch is not None:
+            self.contour_m += batch.survey_m
+        self.sim_s += max((r.sim_s for r in reports), default=0.0)
+
+    def _as_sensed(self, reports: list[FlightReport]) -> list[FlightReport]:
+        """The flights' samples as the station uses them: corrected for the sensor's known
+        lag (``vehicles.sensor.lag_s``, :mod:`econdor_gcs.core.lag`), for every planner and
+        transport alike. The run directory keeps the samples as received."""
+        sensor = self.mission.vehicles.sensor
+        if sensor.lag_s <= 0.0 or sensor.lag_correction == LagCorrection.NONE:
+            return reports
+        return [dataclasses.replace(r, samples=correct_lag(
+            r.samples, sensor.lag_s, LagCorrection(sensor.lag_correction))) for r in reports]
+
+    def _positions(self, iteration: int) -> list[tuple[float, float]]:
+        """Where the vehicles are when ``iteration`` is planned (recorded ones on replay)."""
+        rec = self._replay.get(iteration)
+        pos = list(rec.positions_before_m) if rec is not None else self.executor.positions()
+        self._planned_from = pos
+        return pos
+
+    def _fly(self, plans: list[list[Task]], iteration: int, pattern: bool = False
+             ) -> list[FlightReport]:
+        """Fly ``plans`` (or replay the recorded flight of ``iteration``); the samples are
+        handed to ``on_flight`` -- written to disk -- before the DFC uses them.
+
+        ``pattern`` marks the mission's initiation pattern, whose samples are tagged
+        ``Phase.SURVEY``.
+        """
+        rec = self._replay.pop(iteration, None)
+        if rec is not None:
+            if rec.plans != plans:
+                raise RunError(f"cannot resume: the plans of iteration {iteration} differ from "
+                               "the recorded ones (was the mission or the code changed?)")
+            if not self._replay and rec.executor_state is not None:
+                restore = getattr(self.executor, "restore", None)
+                if restore is not None:  # the executor takes over from here
+                    restore(rec.executor_state)
+            return self._as_sensed([dataclasses.replace(
+                r, samples=dataclasses.replace(r.samples), outcomes=list(r.outcomes))
+                for r in rec.reports])
+        before = self._planned_from if self._planned_from is not None else \
+            self.executor.positions()
+        reports = self.executor.fly(plans, iteration)
+        if pattern:
+            for r in reports:
+                r.samples.phase = np.full(len(r.samples), Phase.SURVEY, dtype=np.int8)
+        if self.on_flight is not None:
+            state = getattr(self.executor, "state", None)
+            self.on_flight(FlightRecord(iteration, [list(p) for p in plans], reports,
+                                        list(before), state() if state is not None else None))
+        self._planned_from = None
+        return self._as_sensed(reports)
+
+    def _context(self, iteration: int, estimate: FloatArray | None) -> PlanContext:
+        budget = self.mission.algorithm.flight_budget_m
+        return PlanContext(
+            iteration=iteration, region=self.mission.region, n_vehicles=self.executor.n_vehicles,
+            grid=self.grid, estimate=estimate, samples=self._samples(),
+            positions_m=self._positions(iteration),
+            budget_left_m=budget - self.flight_m if budget > 0 else math.inf,
+            flown_m=self.flight_m)
+
+    def _pattern(self) -> tuple[Batch, list[list[Task]]]:
+        """The mission's initiation pattern (the two diagonals or a survey) and its plans."""
+        m = self.mission
+        n = self.executor.n_vehicles
+        if m.initiation.pattern == "lawnmower":
+            xs = np.arange(m.region.xmin, m.region.xmax + 1e-9, m.initiation.spacing_m)
+            jobs = survey_jobs(m.region, xs)
+        else:
+            jobs = diagonal_jobs(m.region, n)
+            if len(jobs) == n:  # one diagonal share per vehicle, in order
+                return Batch(jobs, levels_planned=0), [list(j.tasks) for j in jobs]
+        batch = Batch(jobs, levels_planned=0)
+        return batch, assign_jobs(jobs, self._positions(0), m.algorithm.search_radius_m)
+
+    def _subsample_initiation(self, reports: list[FlightReport]) -> None:
+        k = self.mission.initiation.samples_per_diagonal
+        if k <= 0:
+            return
+        total = 2 * k
+        per = max(1, total // max(1, len(reports)))
+        for r in reports:
+            s = r.samples
+            if len(s) > per:
+                idx = np.unique(np.linspace(0, len(s) - 1, per).round().astype(int))
+                r.samples = SampleLog(s.t_s[idx], s.x_m[idx], s.y_m[idx], s.value[idx],
+                                      s.phase[idx], s.vehicle[idx])
+
+    def _record(self, it: int, batch: Batch | None, estimate: FloatArray,
+                previous: FloatArray | None, reports: list[FlightReport]) -> IterationRecord:
+        le = metrics.learning_error(estimate, previous) if previous is not None else math.nan
+        if self.truth is not None:
+            mae = metrics.mae(self.truth, estimate)
+            span_t = metrics.span(self.truth)
+            rec_mae_rel = mae / span_t if span_t > 0 else math.nan
+            sr = metrics.span_ratio(estimate, self.truth)
+            iso = self._isoline_errors(estimate)
+        else:
+            mae, rec_mae_rel, sr, iso = math.nan, math.nan, math.nan, {}
+        outcomes: dict[str, int] = {}
+        for r in reports:
+            for o in r.outcomes:
+                outcomes[o.status] = outcomes.get(o.status, 0) + 1
+        traced = {o.task.level for r in reports for o in r.outcomes
+                  if isinstance(o.task, TraceTask) and o.traced_m > 0}
+        rec = IterationRecord(
+            iteration=it,
+            levels_planned=batch.levels_planned if batch else 0,
+            levels_traced=len(traced),
+            kappa=batch.kappa if batch else 0,
+            delta=batch.delta if batch else 0.0,
+            learning_error=le,
+            mae=mae,
+            mae_db=metrics.to_db(mae) if not math.isnan(mae) else math.nan,
+            span_ratio=sr,
+            contour_distance_m=self.contour_m,
+            flight_distance_m=self.flight_m,
+            samples=sum(len(s) for s in self.logs),
+            mae_rel=rec_mae_rel,
+            sim_s=self.sim_s,
+            reconstruction_s=self._last_recon_s,
+            levels=[float(v) for v in batch.levels] if batch else [],
+            dropped=[float(v) for v in batch.dropped] if batch else [],
+            pieces=len(batch.jobs) if batch else 0,
+            outcomes=outcomes,
+            isoline_error_m=iso,
+            forced=batch.forced if batch else 0,
+            noise_std=self.noise_std,
+        )
+        self.records.append(rec)
+        self.progress(IterationDone(rec, estimate))
+        return rec
+
+    # -- the loop -------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        wall0 = time.perf_counter()
+        a = self.mission.algorithm
+        self.progress(RunStarted(self.planner_name, self.seed, self.executor.n_vehicles))
+        first = self.planner.initiation(self._context(0, None))
+        if first is None:  # the mission's pattern; the DFC keeps only a few of its samples
+            pattern, plans = self._pattern()
+            self.progress(IterationPlanned(0, pattern, plans))
+            reports = self._fly(plans, 0, pattern=True)
+            self._subsample_initiation(reports)
+            self._account(reports)
+        else:
+            plans = assign_jobs(first.jobs, self._positions(0), a.search_radius_m)
+            self.progress(IterationPlanned(0, first, plans))
+            reports = self._fly(plans, 0)
+            self._account(reports, batch=first)
+        estimate = self._reconstruct()
+        self._record(0, first, estimate, None, reports)
+        converged, reason = False, "max_iterations"
+        span_prev = metrics.span(estimate)
+        idle = 0
+        for it in range(1, a.max_iterations + 1):
+            if not self.checkpoint(it):
+                reason = "stopped"
+                break
+            if a.flight_budget_m > 0 and self.flight_m >= a.flight_budget_m:
+                reason = "flight_budget"
+                break
+            batch = self.planner.next_batch(self._context(it, estimate))
+            if batch.done and not batch.jobs:
+                reason = "planner_done"
+                break
+            idle = 0 if batch.jobs else idle + 1
+            if idle > a.max_idle_iterations:
+                reason = "stalled"
+                break
+            plans = assign_jobs(batch.jobs, self._positions(it), a.search_radius_m,
+                                first_piece_id=1000 * it)
+            self.progress(IterationPlanned(it, batch, plans))
+            previous = estimate
+            if batch.jobs:
+                reports = self._fly(plans, it)
+                self._account(reports, batch=batch)
+                estimate = self._reconstruct()
+            else:  # nothing new: the estimate (and so E_n = 0) is unchanged
+                reports = []
+                self._last_recon_s = 0.0
+            rec = self._record(it, batch, estimate, previous, reports)
+            self.planner.observe(rec.learning_error, reports)
+            span_now = metrics.span(estimate)
+            if it >= a.min_iterations and self._gamma_converged(span_prev, span_now):
+                converged, reason = True, "learning_error_converged"
+                break
+            span_prev = span_now
+        home_rec = self._replay.pop(FINISH, None)
+        if self._replay:
+            raise RunError(f"cannot resume: {len(self._replay)} recorded flights were never "
+                           "reached (was the mission or the code changed?)")
+        if home_rec is not None:  # it died after coming home: only the results were missing
+            home = home_rec.reports
+        else:
+            before = self.executor.positions()
+            home = self.executor.finish()
+            if self.on_flight is not None:
+                self.on_flight(FlightRecord(FINISH, [], home, before))
+        home = self._as_sensed(home)
+        if home:  # flown, and its samples kept, but behind no estimate: no row's
+            flown_before = self.flight_m
+            self._account(home)
+            self.return_m = self.flight_m - flown_before
+        result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
+        self.progress(RunDone(result.summary()))
+        return result
+
+    def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
+        lam = self.mission.algorithm.stop_lambda
+        errs = [r.learning_error for r in self.records if not math.isnan(r.learning_error)]
+        if lam <= 0 or len(errs) < 3:
+            return False
+        e0, e1, e2 = errs[-1], errs[-2], errs[-3]
+        denom = e0 + e1 + e2
+        gamma = 3 * e0 / denom if denom > 0 else 1.0
+        span_ok = span_now > 0 and abs(span_now - span_prev) / span_now < 0.01
+        return abs(gamma - 1.0) <= lam and span_ok
+
+    def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
+        """Iso-line error (m) at 25, 50 and 75 % of the true span; with target levels also
+        the error at each (``target@L``) and their mean (``target``), and the true iso-line
+        pieces missed (``target@L_missed``; all levels: ``target_missed`` of
+        ``target_pieces``)."""
+        assert self.truth is not None
+        out = {f"p{frac}": metrics.isoline_error(self.truth, estimate, self.grid, lv)
+               for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True)}
+        targets = self.mission.algorithm.target_levels
+        if targets:
+            errs = [metrics.isoline_error(self.truth, estimate, self.grid, lv) for lv in targets]
+            missed = [metrics.isoline_components_missed(self.truth, estimate, self.grid, lv)
+                      for lv in targets]
+            finite = [e for e in errs if not math.isnan(e)]
+            out["target"] = sum(finite) / len(finite) if finite else math.nan
+            for lv, e, (m, _n) in zip(targets, errs, missed, strict=True):
+                out[f"target@{lv:g}"] = e
+                out[f"target@{lv:g}_missed"] = float(m)
+            out["target_missed"] = float(sum(m for m, _ in missed))
+            out["target_pieces"] = float(sum(n for _, n in missed))
+        return out
+
+    def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float
+                ) -> RunResult:
+        iso = self.records[-1].isoline_error_m if self.records else {}
+        return RunResult(
+            planner=self.planner_name, seed=self.seed, records=self.records,
+            samples=self._samples(), grid=self.grid, estimate=estimate, truth=self.truth,
+            converged=converged, stop_reason=reason, vehicles=self.executor.n_vehicles,
+            sim_s=self.sim_s, wall_s=wall_s, reconstruction_s=self.recon_s,
+            flight_distance_m=self.flight_m - self.return_m,
+            contour_distance_m=self.contour_m,
+            isoline_error_m=iso,
+            return_m=self.return_m,
+            mission={
+                "mission": self.mission.name,
+                "origin": asdict(self.mission.origin),
+                "region": asdict(self.grid.region),
+                "area": {"width_m": self.grid.region.width_m,
+                         "height_m": self.grid.region.height_m},
+            },
+        )

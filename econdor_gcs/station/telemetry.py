@@ -1,0 +1,588 @@
+"""What the ground station knows of each vehicle, from what the vehicle sends.
+
+Parts of :class:`~.gcs.MavlinkExecutor` (the records are re-exported by
+:mod:`econdor_gcs.station.executor`):
+
+:class:`StationTelemetry`
+    The router's sample and message callbacks, on the station's loop thread (which alone
+    owns the vehicle state): samples buffered raw per vehicle and converted to local metres
+    in batches of :data:`SAMPLE_BATCH`, mission progress, phases, trace reports and texts,
+    and each flight's samples settled into a :class:`~.core.tasks.FlightReport`.
+:class:`VehicleState`
+    One vehicle's bookkeeping across flights.
+:class:`VehicleStatus`
+    One vehicle as the live display sees it at one moment.
+
+:class:`~.flight.Flight`, :func:`~.flight.build_report` and
+:class:`~.flight.StatusAssembler` (a flight, its report, STATUSTEXT texts) live in
+:mod:`.flight` and are re-exported here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import bisect
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, TypeVar
+
+import numpy as np
+
+from econdor_gcs.core.geodesy import Origin
+from econdor_gcs.core.tasks import (
+    FlightReport,
+    OutcomeStatus,
+    Phase,
+    SampleLog,
+    Task,
+    TaskStyle,
+    TraceTask,
+)
+from econdor_gcs.errors import ProtocolError
+from econdor_gcs.link.autopilots import AutopilotKind, FlightMode, flight_mode
+from econdor_gcs.link.codec import MAVLinkMessage, mavlink
+from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
+from econdor_gcs.link.router import Router, Sample
+from econdor_gcs.link.transfer import MissionItemSpec, MissionPlan
+from econdor_gcs.station.flight import Flight as Flight
+from econdor_gcs.station.flight import StatusAssembler as StatusAssembler
+from econdor_gcs.station.flight import build_report as build_report
+
+if TYPE_CHECKING:
+    from econdor_gcs.link.autopilots import VehicleKind
+
+__all__ = [
+    "Flight",
+    "StatusAssembler",
+    "StationTelemetry",
+    "VehicleState",
+    "VehicleStatus",
+    "build_report",
+]
+
+T = TypeVar("T")
+log = logging.getLogger(__name__)
+
+SAMPLE_BATCH = 512
+"""Raw samples buffered per vehicle before they are converted to local metres anyway."""
+SAMPLE_BATCH_S = 1.0
+"""... or the wall time the oldest of them may wait: converted batches go to the run
+directory as they are made (:attr:`StationTelemetry.on_rows`), so a station that dies
+loses at most this much of what it had received."""
+LATE = -2
+"""Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+RUNNING_STATES = frozenset({mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED,
+                            mavlink.MISSION_STATE_COMPLETE})
+"""``mission_state``s of a mission that was started."""
+
+# --------------------------------------------------------------------------------------------
+# pure helpers (unit-tested in tests/test_gcs_unit.py)
+
+
+# --------------------------------------------------------------------------------------------
+# per-vehicle state
+
+
+@dataclass
+class VehicleState:
+    """Ground-side bookkeeping of one vehicle across flights (for the live display too)."""
+
+    index: int
+    sysid: int
+    current_seq: int | None = None
+    items: list[MissionItemSpec] = field(default_factory=list)
+    item_phases: dict[int, Phase] = field(default_factory=dict)
+    """The phase each item of the uploaded mission implies (for vehicles that report none)."""
+    item_phase: Phase = Phase.TRANSIT
+    """The phase the current mission item implies."""
+    style: TaskStyle | None = None
+    """How this vehicle gets contour pieces: trace items until it refuses one (None: it has
+    not been given any yet)."""
+    tasks_flown: dict[str, int] = field(
+        default_factory=lambda: {"trace": 0, "waypoints": 0, "legs": 0})
+    """Tasks flown to an outcome (since this station started): contour pieces as ``trace``
+    items or as ``waypoints`` polylines, and plain waypoint ``legs`` (initiation, survey)."""
+    phases: PhaseTrack = field(default_factory=PhaseTrack)
+    last_text: str = ""
+    """The vehicle's last STATUSTEXT, for people."""
+    last_xy: tuple[float, float] | None = None
+    flown_m: float = 0.0            # the whole run
+    samples: int = 0                # the whole run
+    flight: Flight | None = None
+    stray: list[tuple[float, float, float, float, int]] = field(default_factory=list)
+    status: str = "idle"
+    raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
+    """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+    raw_since: float = 0.0
+    """Wall time the oldest of ``raw`` arrived."""
+    seen_ms: list[int] = field(default_factory=list)
+    """Sorted times of every sample received (a resent one that is already here is a
+    duplicate); with ``_seen`` for the lookups."""
+    _seen: set[int] = field(default_factory=set)
+    newest_ms: int = -1
+    synced_ms: int = -1
+    """Every sample up to this time is here (the vehicle's count says so)."""
+    duplicates: int = 0
+    recovered: int = 0
+    """Samples that came only after a resend request."""
+    recovering: bool = False
+    lost: str | None = None
+    """Why the vehicle was given up (None while it serves)."""
+    item_since: float = 0.0
+    """Wall time the current mission item began (for the item time limit)."""
+    item_since_ms: int = 0
+    """The vehicle's own (sim) time when the current mission item began."""
+    vehicle_samples: int | None = None
+    """How many samples the vehicle says it took (its count at the last recovery)."""
+    missing: int | None = 0
+    """Samples the vehicle took that never arrived, despite the recovery (0 = none lost;
+    None: unknown, the vehicle was given up before it could be asked)."""
+    no_recovery: str | None = None
+    """Why this vehicle's samples cannot be recovered (its payload does not answer the
+    sample count: a stock autopilot's Lua script); None while recovery works."""
+    silent: bool = False
+    """Its link was out when the item time limits were last checked."""
+    link_out: bool = False
+    """Its link was found out (no HEARTBEAT for :data:`~.losses.SILENT_S`) and is not
+    back yet."""
+    back_since: float | None = None
+    """Monotonic time its HEARTBEATs came back after a silence."""
+    clock_first: tuple[float, int] | None = None
+    """(monotonic time, ``time_boot_ms``) of its first position, ..."""
+    clock_last: tuple[float, int] | None = None
+    """... and of its latest: how fast its clock runs (:meth:`StationTelemetry.clock_rate`)."""
+    mission_state: int = 0
+    """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
+    that does not say)."""
+    mission_state_at: float = 0.0
+    """Monotonic time that MISSION_CURRENT arrived."""
+    mission_news_at: float = 0.0
+    """Monotonic time of the last sign that the uploaded mission runs or ran: a
+    MISSION_CURRENT of it ACTIVE, PAUSED or COMPLETE, or a MISSION_ITEM_REACHED (a short
+    mission can be over before a once-a-second MISSION_CURRENT says ACTIVE)."""
+
+    def count_seen(self, first_ms: int, last_ms: int) -> int:
+        return bisect.bisect_right(self.seen_ms, last_ms) - \
+            bisect.bisect_left(self.seen_ms, first_ms)
+
+
+@dataclass(frozen=True)
+class VehicleStatus:
+    """One vehicle as the ground station sees it at one moment (:meth:`MavlinkExecutor.status_rows`)."""
+
+    sysid: int
+    index: int
+    x_m: float | None
+    """Local ENU position (m); ``None`` before the first position report."""
+    y_m: float | None
+    alt_rel_m: float
+    heading_deg: float | None
+    """Course over ground, degrees from north (``None`` until the vehicle has moved)."""
+    flight_time_s: float
+    """Vehicle (sim) time spent airborne over the whole run."""
+    armed: bool
+    lost: bool
+    item: int
+    """Current mission item (0 before a mission)."""
+    items: int
+    """Mission items after home (takeoff + tasks)."""
+    phase: Phase
+    flown_m: float
+    samples: int
+    status: str
+    """The executor's word: idle, uploading, arming, flying, holding, returning, landed, lost,
+    ..."""
+    message: str = ""
+    """The vehicle's last STATUSTEXT (for people)."""
+
+
+# --------------------------------------------------------------------------------------------
+# what the vehicles send
+
+
+class StationTelemetry:
+    """Keeps every vehicle's :class:`VehicleState` from what it sends: the router's sample
+    and message callbacks, the conversion of samples to local metres, and the per-flight
+    bookkeeping that ends in a :class:`~.core.tasks.FlightReport` (a part of
+    :class:`~.gcs.MavlinkExecutor`).
+
+    Everything here runs on the station's loop thread, which alone owns the vehicle state;
+    the executor hands other threads' questions to that thread.
+
+    Parameters
+    ----------
+    router:
+        The station's router: its per-vehicle links give positions and vehicle times.
+    origin:
+        The mission's origin; samples and positions are local ENU metres of it.
+    sysids:
+        System ids, in vehicle-index order.
+    changed:
+        Set by every sample and message from a vehicle: the executor's waits wake on it.
+    home:
+        The position of a vehicle that has reported none.
+    """
+
+    def __init__(self, router: Router, origin: Origin, sysids: Sequence[int],
+                 changed: asyncio.Event, home: tuple[float, float] = (0.0, 0.0)) -> None:
+        self.router = router
+        self.origin = origin
+        self.changed = changed
+        self.home = home
+        self.vehicles = {s: VehicleState(i, s) for i, s in enumerate(sysids)}
+        self.on_rows: Callable[[VehicleState, list[tuple[float, float, float, float, int]]],
+                               None] | None = None
+        """Told every batch of samples as it is converted (``(t_s, x_m, y_m, value,
+        phase)`` rows, in arrival order, the phase as known then): the run directory's
+        journal of everything received."""
+        self.assembler = StatusAssembler()
+        self.report_errors = 0
+        """Malformed PHASE / TRACE reports received (logged, then ignored)."""
+
+    # -- callbacks (the router's, on the station's loop thread) ---------------------------------
+    def on_sample(self, s: Sample) -> None:
+        v = self.vehicles.get(s.sysid)
+        if v is None:
+            return
+        seq = v.current_seq if v.current_seq is not None else -1
+        self.changed.set()
+        t = s.time_boot_ms
+        if t in v._seen:
+            v.duplicates += 1  # a resend of a sample that had arrived
+            return
+        v._seen.add(t)
+        if t > v.newest_ms:
+            v.newest_ms = t
+            v.seen_ms.append(t)
+        else:  # a resent sample: its item and phase are settled at the end, by time
+            bisect.insort(v.seen_ms, t)
+            seq = LATE
+        if v.recovering:
+            v.recovered += 1
+        phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
+        now = time.monotonic()
+        if not v.raw:
+            v.raw_since = now
+        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
+                      seq))
+        v.samples += 1
+        f = v.flight
+        if f is not None:
+            if f.start_ms is None:
+                f.start_ms = s.time_boot_ms
+            f.last_ms = s.time_boot_ms if f.last_ms is None else max(f.last_ms, s.time_boot_ms)
+        if len(v.raw) >= SAMPLE_BATCH or now - v.raw_since >= SAMPLE_BATCH_S:
+            self._convert(v)
+
+    def _convert(self, v: VehicleState) -> None:
+        """Convert ``v``'s raw samples to local rows in one vectorised pymap3d call.
+
+        Everything that changes ``v.flight`` calls this first, so one batch always belongs
+        to one flight (or to none: stray samples)."""
+        raw, v.raw = v.raw, []
+        if not raw:
+            return
+        a = np.asarray(raw, dtype=float)
+        x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
+        f = v.flight
+        seqs = a[:, 5].astype(np.int64)
+        live = seqs != LATE  # the live display's odometer follows the samples in order
+        if live.any():
+            xs, ys = x[live], y[live]
+            start = v.last_xy if v.last_xy is not None else (float(xs[0]), float(ys[0]))
+            v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
+                                               np.diff(ys, prepend=start[1]))))
+            v.last_xy = (float(xs[-1]), float(ys[-1]))
+        rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
+                        a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        if self.on_rows is not None:
+            self.on_rows(v, rows)
+        if f is not None:
+            f.rows.extend(rows)
+            f.row_seqs.extend(seqs.tolist())
+        else:
+            v.stray.extend(rows)
+
+    def _convert_all(self) -> None:
+        for v in self.vehicles.values():
+            self._convert(v)
+
+    def convert_due(self) -> None:
+        """Convert the batches that waited :data:`SAMPLE_BATCH_S` (samples that stopped
+        coming, e.g. in a link outage, still reach the run directory)."""
+        now = time.monotonic()
+        for v in self.vehicles.values():
+            if v.raw and now - v.raw_since >= SAMPLE_BATCH_S:
+                self._convert(v)
+
+    def on_message(self, sysid: int, msg: MAVLinkMessage) -> None:
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return
+        self.changed.set()
+        kind = msg.get_type()
+        f = v.flight
+        if kind == "MISSION_CURRENT":
+            v.mission_state = int(getattr(msg, "mission_state", 0) or 0)
+            v.mission_state_at = time.monotonic()
+            total = getattr(msg, "total", 0)
+            if v.mission_state in RUNNING_STATES and total == len(v.items):
+                v.mission_news_at = v.mission_state_at
+            if msg.seq != v.current_seq:
+                v.current_seq = msg.seq
+                v.item_since = time.monotonic()
+                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
+                v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
+            self._judge(v, msg)
+        elif kind == "HEARTBEAT":
+            self._judge(v, msg)
+        elif kind == "GLOBAL_POSITION_INT":
+            # the vehicle's clock against ours (a resent sample's older time is no news)
+            pair = (time.monotonic(), int(msg.time_boot_ms))
+            if v.clock_first is None:
+                v.clock_first = pair
+            elif v.clock_last is None or pair[1] > v.clock_last[1]:
+                v.clock_last = pair
+        elif kind == "MISSION_ITEM_REACHED":
+            v.mission_news_at = time.monotonic()
+            if f is not None:
+                f.reached.add(msg.seq)
+            if f is not None and f.tasks and msg.seq == f.last_seq and f.interrupted is None:
+                f.done = True
+                v.status = "holding"
+        elif kind == "NAMED_VALUE_INT":
+            change = self._decode(phase_change, msg)
+            if change is not None:
+                v.phases.add(*change)
+        elif kind == "DEBUG_FLOAT_ARRAY":
+            rep = self._decode(trace_report, msg)
+            if rep is not None and f is not None:
+                f.pieces[rep.piece_id] = rep
+        elif kind == "EXTENDED_SYS_STATE":
+            if (f is not None and not f.tasks and v.status == "returning"
+                    and msg.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND):
+                f.landed = True
+                v.status = "landed"
+        elif kind == "STATUSTEXT":
+            raw = bytes(msg.text) if isinstance(msg.text, bytes | bytearray) else \
+                msg.text.encode("utf-8", "replace")
+            text = self.assembler.add(sysid, raw, getattr(msg, "id", 0),
+                                      getattr(msg, "chunk_seq", 0))
+            if text is not None:
+                v.last_text = text
+
+    def _judge(self, v: VehicleState, msg: MAVLinkMessage) -> None:
+        """Whether the flight in progress ended, from the vehicle's HEARTBEAT and
+        MISSION_CURRENT, whatever acknowledgement or progress message was lost on the way.
+
+        Done: MISSION_CURRENT says COMPLETE at the last item (in case its last
+        MISSION_ITEM_REACHED was lost); for an autopilot that states no ``mission_state``,
+        its HEARTBEAT shows HOLD (PX4's AUTO.LOITER after a mission) at the last item.
+        Left before its end on its own (a failsafe): once it has shown that it flies this
+        mission, its HEARTBEAT shows RTL or LAND, or disarmed, or its MISSION_CURRENT says
+        PAUSED (or, without a ``mission_state``, HOLD before the last item)."""
+        f = v.flight
+        if f is None or not f.tasks or f.done or f.interrupted is not None \
+                or v.status != "flying":
+            return
+        link = self.router.vehicles[v.sysid]
+        if msg.get_type() == "MISSION_CURRENT":
+            state = v.mission_state
+            total = getattr(msg, "total", 0)
+            ours = total in (0, 0xFFFF) or total == len(v.items)  # not an old mission's
+            if not ours:
+                return
+            if state == mavlink.MISSION_STATE_ACTIVE:
+                f.in_mission = True
+            elif state == mavlink.MISSION_STATE_COMPLETE and msg.seq == f.last_seq:
+                f.done = True
+                v.status = "holding"
+            elif state == mavlink.MISSION_STATE_PAUSED and f.in_mission:
+                f.interrupted = f"it left its mission at item {msg.seq} (MISSION_CURRENT: " \
+                                "paused)"
+        else:
+            mode = flight_mode(AutopilotKind.of(link.autopilot), link.custom_mode)
+            if mode == FlightMode.MISSION and link.armed:
+                f.in_mission = True
+            elif not f.in_mission:
+                return
+            elif not link.armed:
+                f.interrupted = "it landed and disarmed"
+            elif mode in (FlightMode.RTL, FlightMode.LAND):
+                f.interrupted = f"it switched to {mode.value.upper()}"
+            elif mode == FlightMode.HOLD and v.mission_state == mavlink.MISSION_STATE_UNKNOWN:
+                if v.current_seq == f.last_seq:
+                    f.done = True
+                    v.status = "holding"
+                else:
+                    f.interrupted = f"it holds at item {v.current_seq}"
+        if f.interrupted is not None:
+            v.status = "interrupted"
+            log.warning("vehicle %d left its mission before the end on its own: %s",
+                        v.sysid, f.interrupted)
+
+    def _decode(self, decode: Callable[[MAVLinkMessage], T | None], msg: MAVLinkMessage
+                ) -> T | None:
+        """A report from ``msg``; a malformed one is logged and counted, then ignored (its
+        piece shows as unreported)."""
+        try:
+            return decode(msg)
+        except ProtocolError as exc:
+            self.report_errors += 1
+            log.warning("%s", exc)
+            return None
+
+    # -- positions and flights ------------------------------------------------------------------
+    def position(self, sysid: int) -> tuple[float, float]:
+        link = self.router.vehicles.get(sysid)
+        if link is None or link.lat_deg is None or link.lon_deg is None:
+            return self.home
+        x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
+        return x, y
+
+    def begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
+              ) -> Flight:
+        self._convert(v)  # samples so far belong to the previous state
+        link = self.router.vehicles[v.sysid]
+        # where it hovers now (the in-process vehicles also start from rest after braking)
+        start = self.position(v.sysid)
+        f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
+                   task_seqs=list(plan.task_seqs) if plan else [],
+                   style=plan.style if plan else TaskStyle.TRACE)
+        old = v.flight  # a flight begun again (its upload was cut short by the link)
+        carried = list(v.stray) + (old.rows if old is not None else [])
+        f.rows.extend(carried)  # nothing is ever dropped
+        f.row_seqs.extend([LATE] * len(carried))
+        v.stray.clear()
+        v.flight = f
+        return f
+
+    def end(self, v: VehicleState) -> FlightReport:
+        self._convert(v)
+        f = v.flight
+        v.flight = None
+        if f is None:
+            return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self.position(v.sysid),
+                                0.0)
+        self._settle(v, f)
+        report = build_report(f)
+        for o in report.outcomes:
+            if o.status != OutcomeStatus.UNREPORTED:
+                way = f.style.value if isinstance(o.task, TraceTask) else "legs"
+                v.tasks_flown[way] += 1
+        return report
+
+    def _settle(self, v: VehicleState, f: Flight) -> None:
+        """Put a flight's samples in time order (resent ones arrive late), give each the
+        phase the vehicle reported for its time, and each late one the mission item of the
+        sample before it; then the distance flown per item, along the ordered path."""
+        if not f.rows:
+            return
+        order = sorted(range(len(f.rows)), key=lambda i: f.rows[i][0])
+        rows = [f.rows[i] for i in order]
+        seqs = [f.row_seqs[i] if i < len(f.row_seqs) else LATE for i in order]
+        if v.phases.known:
+            rows = [(t, x, y, val, int(v.phases.at(round(t * 1000.0))))
+                    for t, x, y, val, _ in rows]
+        prev = -1
+        for k, s in enumerate(seqs):
+            if s == LATE:
+                seqs[k] = prev
+            prev = seqs[k]
+        f.rows, f.row_seqs = rows, seqs
+        xy = np.vstack([np.asarray(f.start_xy)[None, :], np.asarray(rows)[:, 1:3]])
+        steps = np.hypot(*np.diff(xy, axis=0).T)
+        f.item_flown_m = {}
+        for s, step in zip(seqs, steps.tolist(), strict=True):
+            if s >= 0:
+                f.item_flown_m[s] = f.item_flown_m.get(s, 0.0) + step
+
+    def end_idle(self, v: VehicleState) -> FlightReport:
+        self._convert(v)
+        x, y = v.last_xy if v.last_xy is not None else self.position(v.sysid)
+        return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], x, y, 0.0)
+
+    def pending_samples(self) -> SampleLog:
+        """Take out every sample received but not yet in a report (the stray ones and the
+        rows of the flights in progress): :meth:`~.gcs.MavlinkExecutor.pending_samples`."""
+        logs = []
+        self._convert_all()
+        for v in self.vehicles.values():
+            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+            v.stray.clear()
+            if v.flight is not None:
+                v.flight.rows.clear()
+                v.flight.row_seqs.clear()
+            if rows:
+                a = np.asarray(rows, dtype=float)
+                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
+                                      a[:, 4].astype(np.int8),
+                                      np.full(len(rows), v.index, dtype=np.int16)))
+        return SampleLog.concat(logs)
+
+    # -- snapshots for the displays and the summary -------------------------------------------
+    def status_rows(self) -> list[VehicleStatus]:
+        """The rows of :meth:`~.gcs.MavlinkExecutor.status_rows` (made here, on the
+        station's loop thread)."""
+        rows = []
+        self._convert_all()
+        for v in self.vehicles.values():
+            link = self.router.vehicles.get(v.sysid)
+            x_m = y_m = None
+            if link is not None and link.lat_deg is not None and link.lon_deg is not None:
+                x_m, y_m, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
+            rows.append(VehicleStatus(
+                sysid=v.sysid,
+                index=v.index,
+                x_m=x_m,
+                y_m=y_m,
+                alt_rel_m=(link.rel_alt_m or 0.0) if link else 0.0,
+                heading_deg=link.heading_deg if link else None,
+                flight_time_s=link.airborne_s if link else 0.0,
+                armed=bool(link.armed) if link else False,
+                lost=v.lost is not None or (bool(link.lost) if link else False),
+                item=v.current_seq if v.current_seq is not None else 0,
+                items=len(v.items) - 1 if v.items else 0,
+                phase=self._phase_now(v),
+                flown_m=v.flown_m,
+                samples=v.samples,
+                status=v.status,
+                message=v.last_text,
+            ))
+        return rows
+
+    def clock_rate(self) -> float:
+        """The vehicles' sim-time speed-up as achieved: their clocks (positions'
+        ``time_boot_ms``) over ours since their first position, the median of the vehicles
+        in service heard over 5 s or more (NaN: none). Over the whole run, the staleness of
+        a position (up to a quarter second between the display's positions) does not
+        count."""
+        rates = sorted(
+            (b[1] - a[1]) / 1000.0 / (b[0] - a[0]) for v in self.vehicles.values()
+            if v.lost is None and (a := v.clock_first) is not None
+            and (b := v.clock_last) is not None and b[0] - a[0] >= 5.0)
+        if not rates:
+            return float("nan")
+        mid = len(rates) // 2
+        return rates[mid] if len(rates) % 2 else (rates[mid - 1] + rates[mid]) / 2
+
+    def fleet_summary(self, started: Sequence[VehicleKind] | None = None
+                      ) -> list[dict[str, Any]]:
+        """The rows of :meth:`~.gcs.MavlinkExecutor.fleet_summary`."""
+        out = []
+        for i, (sysid, v) in enumerate(self.vehicles.items()):
+            link = self.router.vehicles.get(sysid)
+            out.append({
+                "sysid": sysid,
+                "autopilot": AutopilotKind.of(link.autopilot).value if link else None,
+                "started_as": str(started[i]) if started else None,
+                "mode": v.style.value if v.style else None,
+                "tasks_flown": dict(v.tasks_flown),
+            })
+        return out
+
+    @staticmethod
+    def _phase_now(v: VehicleState) -> Phase:
+        return v.phases.latest if v.phases.known else v.item_phase
