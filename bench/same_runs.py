@@ -37,7 +37,7 @@ def one_run(field: str, planner: str, sensor: dict[str, Any], seed: int) -> dict
     import numpy as np
     from runs import mid_level, mission_for
 
-    from econdor_gcs.dfc import Dfc
+    from econdor_gcs.dfc.loop import Dfc
     from econdor_lab.inprocess import InProcessExecutor
 
     name = planner.removesuffix(":threshold")
