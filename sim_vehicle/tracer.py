@@ -172,6 +172,13 @@ class TracerParams:
         comes within ``closure_radius_m`` of one, flown either way (that stretch is
         traced). 0: only the start closes the loop, and no track is kept (the tracer
         before this parameter).
+    sensor_lag_s
+        The sensor's first-order time constant as the vehicle is told it (s; as the
+        station is told ``vehicles.sensor.lag_s``); 0: the readings are taken as
+        instantaneous. The trace leg brings its filtered offset forward by this lag, a
+        search puts the crossing back to where the vehicle was this long before.
+        The readings' noise is not a parameter: the vehicle estimates it itself
+        (:mod:`sim_vehicle.machine.noise`).
     """
 
     speed_mps: float = 8.0
@@ -202,6 +209,7 @@ class TracerParams:
     recover_m: float = 20.0
     edge_walk_m: float = 100.0
     rejoin_min_m: float = 20.0
+    sensor_lag_s: float = 0.0
 
 
 # ----------------------------------------------------------------------------- the machine

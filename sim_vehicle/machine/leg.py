@@ -20,6 +20,7 @@ from numba import njit
 
 from ..kinematics import wrap_angle_rad
 from .fits import fit_cross_gradient, ring_push
+from .noise import alpha_beta_gains, noise_std
 from .records import (
     BOUNDARY,
     BUDGET,
@@ -37,6 +38,9 @@ from .records import command as _command
 from .track import track_push
 from .vehicle import contains, edge_ahead_m, ground_speed, heading
 
+GAIN_ACCEL_MPS2 = 100.0
+"""The offset's unmodelled acceleration the filter's gains are matched to (see post)."""
+
 GOOD_OFFSET_M = 1.0
 """A trace sample within this lateral offset of the level is where a lost trace resumes
 (searched for where the vehicle is when it is already within this distance of it)."""
@@ -49,6 +53,19 @@ def call(ctl, tr, lg, heading_rad: float, side: float) -> None:
     lg.heading = heading_rad
     tr.side = side
     ctl.pc = PC_LEG_START
+
+
+@njit(inline="always")
+def call_from_crossing(ctl, params, tr, lg, cr, b, heading_rad: float, side: float) -> None:
+    """:func:`call` just after the crossing detector found the level. When it filtered
+    noisy readings or knows of a lag, the vehicle is past the crossing by more than a
+    reading can tell: the leg starts from the offset the crossing's place and gradient
+    give instead."""
+    call(ctl, tr, lg, heading_rad, side)
+    if cr.gain < 1.0 or params.sensor_lag_s > 0.0:
+        g = max(math.hypot(cr.gx, cr.gy), 1e-9)
+        lg.d_init = side * ((b.x_m - cr.x_m) * cr.gx + (b.y_m - cr.y_m) * cr.gy) / g
+        lg.has_init = 1
 
 
 @njit(inline="always")
@@ -68,7 +85,9 @@ def _start(ctl, params, task, tr, lg, b, recent: np.ndarray) -> None:
     if ctl.rec_len > 0:
         k = (ctl.rec_start + ctl.rec_len - 1) % recent.shape[0]
         e0 = recent[k, 2] - task.level
-    lg.d_f = tr.side * e0 / tr.grad_mag
+    lg.d_f = lg.d_init if lg.has_init else tr.side * e0 / tr.grad_mag
+    lg.has_init = 0
+    lg.beta = params.filter_beta
     lg.dd_f = 0.0
     lg.lost_s = 0.0
     lg.has_prev_dist = 0
@@ -92,13 +111,18 @@ def _steer(ctl, params, tr, lg, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarra
     lat_accel = params.lateral_accel_fraction * b.max_accel_mps2
     turn_max = math.radians(b.max_turn_rate_dps)
     p = min(params.trace_bandwidth_rps, 0.3 / dt)
+    # the loop stays inside what the offset's filter follows (its natural frequency
+    # sqrt(beta) / dt) and what a known lag leaves of the readings' news
+    p = min(p, 0.5 * math.sqrt(lg.beta) / dt)
+    if params.sensor_lag_s > 0.0:
+        p = min(p, 0.5 / params.sensor_lag_s)
     v = lg.speed_mps
     # --- lateral PID (integral state = path curvature)
     kp = 3.0 * p * p / v
     kd = 3.0 * p / v
     ki = p**3 / v
     d_clip = 1.5 * params.lost_offset_m
-    d_c = max(-d_clip, min(d_clip, lg.d_f))
+    d_c = max(-d_clip, min(d_clip, lg.d_f + params.sensor_lag_s * lg.dd_f))
     w_max = min(turn_max, lat_accel / v)
     omega = v * lg.curvature_1pm - kp * d_c - kd * lg.dd_f
     curv_need = max(abs(lg.curvature_1pm), abs(omega) / v)  # the curvature asked for
@@ -199,17 +223,32 @@ def post(ctl, params, task, tr, lg, tk, b, fv: np.ndarray, fr: np.ndarray, fc: n
     # --- measurement update
     lg.win_start, lg.win_len = ring_push(window, lg.win_start, lg.win_len, x, y, v)
     lg.n_fit += 1
+    sigma = noise_std(b)
     if lg.n_fit % 4 == 0 and lg.win_len >= max(6, params.gradient_window // 2):
         gn, spread = fit_cross_gradient(window, lg.win_start, lg.win_len)
         if spread >= params.min_spread_m and gn > 0.0:
-            g_new = 0.8 * tr.grad_mag + 0.2 * gn
+            # a noisy fit moves the estimate less: weighed by its signal to its error
+            se = sigma / (spread * math.sqrt(lg.win_len))
+            w = 0.2 if se <= 0.01 * gn else 0.2 * gn * gn / (gn * gn + se * se)
+            g_new = (1.0 - w) * tr.grad_mag + w * gn
             tr.grad_mag = min(max(g_new, 0.25 * tr.grad_mag0), 4.0 * tr.grad_mag0)
     dt = b.dt_s
     d_meas = tr.side * (v - task.level) / tr.grad_mag
+    # the filter's gains: the tuned ones, lower only when the offset's noise is large
+    # beside what a lateral acceleration of GAIN_ACCEL_MPS2 moves it in a tick (gains
+    # matched to the vehicle's own lateral acceleration filter so much that the loop
+    # lags and loses the contour: docs/experiments/2026-12-05-tracer-noise.md)
+    alpha, beta = alpha_beta_gains(sigma / tr.grad_mag, GAIN_ACCEL_MPS2, dt)
+    alpha, beta = min(alpha, params.filter_alpha), min(beta, params.filter_beta)
+    lg.beta = beta
     d_pred = lg.d_f + lg.dd_f * dt
     resid = d_meas - d_pred
-    lg.d_f = d_pred + params.filter_alpha * resid
-    lg.dd_f += params.filter_beta / dt * resid
+    lg.d_f = d_pred + alpha * resid
+    lg.dd_f += beta / dt * resid
+    if sigma > 0.0 or params.sensor_lag_s > 0.0:
+        # noisy or lagging readings: the tests take the filtered offset, brought forward
+        # by the known lag, not one reading
+        d_meas = lg.d_f + params.sensor_lag_s * lg.dd_f
     if abs(d_meas) < GOOD_OFFSET_M:
         tr.has_good, tr.good_x, tr.good_y = 1, x, y
     # --- termination checks

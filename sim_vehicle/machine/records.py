@@ -41,6 +41,11 @@ BODY = np.dtype([
     ("fence_margin_m", "f8"), ("fence_limited", "i8"), ("fence_attempts", "i8"),
     ("fence_last_tick", "i8"), ("fence_outside", "i8"), ("fence_breaches", "i8"),
     ("fence_event_tick", "i8"), ("fence_stuck", "i8"), ("guard_brakes", "i8"),
+    # the onboard estimate of the readings' noise (see noise.noise_update): the last five
+    # readings, the running mean squares of their fourth, fifth and first differences
+    # (scaled), the count
+    ("nh1", "f8"), ("nh2", "f8"), ("nh3", "f8"), ("nh4", "f8"), ("nh5", "f8"),
+    ("noise_var", "f8"), ("noise_var5", "f8"), ("diff_var", "f8"), ("noise_n", "i8"),
 ])
 """The simulated vehicle's state (one record, shared by Python and compiled code)."""
 
@@ -62,7 +67,7 @@ PARAMS = np.dtype([
     ("boundary_margin_m", _F), ("lost_offset_m", _F), ("lost_time_s", _F),
     ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
     ("budget_factor", _F), ("edge_skip_m", _F), ("recover_speed_mps", _F), ("recover_m", _F),
-    ("edge_walk_m", _F), ("rejoin_min_m", _F),
+    ("edge_walk_m", _F), ("rejoin_min_m", _F), ("sensor_lag_s", _F),
 ])
 """The tracer's tuning, field for field :class:`~sim_vehicle.tracer.TracerParams`."""
 
@@ -88,6 +93,8 @@ CROSSING = np.dtype([
     ("level", _F), ("ret", _I),
     ("has_prev", _I), ("prev_x", _F), ("prev_y", _F), ("prev_v", _F),
     ("found", _I), ("x_m", _F), ("y_m", _F), ("gx", _F), ("gy", _F),
+    # the value filtered along the track when the readings are noisy (see crossing)
+    ("vf", _F), ("prev_vf", _F), ("gain", _F),
 ])
 """The level looked for and where the detector returns when it finds it; the previous
 sample; the crossing found and the gradient there."""
@@ -119,7 +126,7 @@ LEG = np.dtype([
     ("d_f", _F), ("dd_f", _F), ("lost_s", _F), ("has_prev_dist", _I), ("prev_dist", _F),
     ("n_fit", _I), ("turned", _F), ("th_start", _I), ("th_len", _I), ("turn_k", _I),
     ("turn_n", _I), ("ux", _F), ("uy", _F), ("heading_before", _F), ("status", _I),
-    ("win_start", _I), ("win_len", _I),
+    ("win_start", _I), ("win_len", _I), ("has_init", _I), ("d_init", _F), ("beta", _F),
 ])
 """One trace leg: the commanded heading ``psi`` and the path curvature (the controller's
 integral state), speed, the filtered lateral offset and its rate, the window of the

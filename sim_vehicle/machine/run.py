@@ -19,6 +19,7 @@ from ..sensor import gnss_step, sensed_value
 from . import fly, leg, search, trace, walk
 from .fits import ring_push
 from .guard import guard
+from .noise import noise_update
 from .records import (
     KIND_TRACE,
     PART_FLY,
@@ -156,6 +157,7 @@ def advance(body: np.ndarray, state: np.ndarray, field_kind: int, fcx: np.ndarra
                                                        fcy, finv, fw)
         n_out = ctl.n_out
         value = sensed_value(sn, value, noise, n_out)
+        noise_update(b, value)
         if ctl.cmd_phase == TRACING:
             ctl.traced_m += b.odometer_m - ctl.odo_before
         ctl.rec_start, ctl.rec_len = ring_push(recent, ctl.rec_start, ctl.rec_len, b.x_m, b.y_m,

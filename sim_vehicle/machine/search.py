@@ -45,6 +45,7 @@ def call(ctl, cr, sr, level: float, cx: float, cy: float, radius: float, ret: in
     sr.radius_m = max(radius, 0.0)
     cr.ret = ret
     cr.found = 0
+    cr.gain = 1.0
     sr.probe_k = 0
     ctl.pc = PC_SR_PROBE_START
 
@@ -69,6 +70,7 @@ def _probe_start(ctl, params, cr, sr, b, fv: np.ndarray, fr: np.ndarray, fc: np.
             k = (ctl.rec_start + ctl.rec_len - 1) % recent.shape[0]
             cr.has_prev = 1
             cr.prev_x, cr.prev_y, cr.prev_v = recent[k, 0], recent[k, 1], recent[k, 2]
+            cr.prev_vf = cr.prev_v
         else:
             cr.has_prev = 0
         # probe: a short leg across the arrival direction (two if still degenerate)
@@ -162,7 +164,7 @@ def pre(ctl, params, cr, sr, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray,
         gx, gy, _ = fit_gradient(recent, ctl.rec_start, ctl.rec_len,
                                  max(params.gradient_window, 30))
         gn = math.hypot(gx, gy)
-        e = cr.prev_v - cr.level
+        e = cr.prev_vf - cr.level
         if gn < 1e-9:
             ctl.pc = PC_SR_SPIRAL_START
             return False
@@ -201,13 +203,13 @@ def pre(ctl, params, cr, sr, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray,
 def post(ctl, params, cr, sr, b, recent: np.ndarray, x: float, y: float, v: float) -> None:
     """What the search does with the sample its command produced."""
     if ctl.pc != PC_SR_DESCENT:  # probe legs and the spiral
-        if not bracketed(ctl, params, cr, recent, x, y, v):
+        if not bracketed(ctl, params, cr, b, recent, x, y, v):
             remember(cr, x, y, v)
         return
-    if bracketed(ctl, params, cr, recent, x, y, v):
+    if bracketed(ctl, params, cr, b, recent, x, y, v):
         return
     remember(cr, x, y, v)
-    err = abs(v - cr.level)
+    err = abs(cr.vf - cr.level)
     if err < sr.best * 0.999:
         sr.best, sr.since_best = err, 0
     else:

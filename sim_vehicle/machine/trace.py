@@ -110,7 +110,7 @@ def _after_search(ctl, params, task, cr, tr, lg, b, fv: np.ndarray, fr: np.ndarr
     tr.slow_until_m = 0.0
     tr.lost_at_m = 0.0
     tr.walks = 0
-    leg.call(ctl, tr, lg, tr.heading0, 1.0)
+    leg.call_from_crossing(ctl, params, tr, lg, cr, b, tr.heading0, 1.0)
 
 
 @njit(cache=True)
@@ -210,7 +210,8 @@ def pre(ctl, params, task, ft, cr, sr, tr, lg, wk, b, fv: np.ndarray, fr: np.nda
             _emit(ctl, events, EV_REACQUIRED)
             if params.recover_m > 0.0:
                 tr.slow_until_m = ctl.traced_m + params.recover_m
-            leg.call(ctl, tr, lg, heading_from_gradient(cr.gx, cr.gy, tr.side), tr.side)
+            leg.call_from_crossing(ctl, params, tr, lg, cr, b,
+                                   heading_from_gradient(cr.gx, cr.gy, tr.side), tr.side)
         else:
             ctl.status = LOST
             ctl.pc = PC_TR_END
