@@ -39,7 +39,7 @@ def test_the_vehicle_estimates_its_noise_in_transit_and_tracing(noise_std: float
     assert _estimate(body) == pytest.approx(noise_std, rel=0.15)
     task = TraceTask(_level_at(20.0), 74.0, 50.0, 10.0, 0.0, 0)
     run_task_batch(body, task, TracerParams(speed_mps=8.0))
-    # the estimate forgets at 1/1000 per reading: 3-4 % of spread after ~1,500
+    # the estimate forgets at 1/1000 per reading (the vehicle keeps it across tasks)
     assert _estimate(body) == pytest.approx(noise_std, rel=0.1)
 
 
