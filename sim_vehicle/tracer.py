@@ -172,6 +172,13 @@ class TracerParams:
         comes within ``closure_radius_m`` of one, flown either way (that stretch is
         traced). 0: only the start closes the loop, and no track is kept (the tracer
         before this parameter).
+    sensor_lag_s
+        The sensor's first-order time constant as the vehicle is told it (s; as the
+        station is told ``vehicles.sensor.lag_s``); 0: the readings are taken as
+        instantaneous. The trace leg brings its filtered offset forward by this lag, a
+        search puts the crossing back to where the vehicle was this long before.
+        The readings' noise is not a parameter: the vehicle estimates it itself
+        (:mod:`sim_vehicle.machine.noise`).
     """
 
     speed_mps: float = 8.0
@@ -202,6 +209,7 @@ class TracerParams:
     recover_m: float = 20.0
     edge_walk_m: float = 100.0
     rejoin_min_m: float = 20.0
+    sensor_lag_s: float = 0.0
 
 
 # ----------------------------------------------------------------------------- the machine
@@ -218,41 +226,42 @@ class _TaskRun:
         self.body = body
         self.task = task
         self.state = np.zeros(1, dtype=m.STATE)
-        s = self.state[0]
+        p = self.state[0]["params"]
         for f in fields(TracerParams):
             value = getattr(params, f.name)
             if value is not None:
-                s[f.name] = value
-        s["transit_speed_mps"] = params.transit_speed_mps or body.limits.max_speed_mps
-        s["task_x_m"], s["task_y_m"] = float(task.x_m), float(task.y_m)
+                p[f.name] = value
+        p["transit_speed_mps"] = params.transit_speed_mps or body.limits.max_speed_mps
+        t = self.state[0]["task"]
+        t["task_x_m"], t["task_y_m"] = float(task.x_m), float(task.y_m)
         self.recent = np.zeros((m.RECENT_SAMPLES, 3))
         self.window = np.zeros((max(1, params.gradient_window), 3))
         self.events = np.zeros((64, 2), dtype=np.int64)
         self.traced_m = 0.0
         if isinstance(task, TraceTask):
-            s["kind"] = m.KIND_TRACE
-            s["level"] = task.level
-            s["search_radius_m"] = task.search_radius_m
-            s["max_length_m"] = task.max_length_m
+            t["kind"] = m.KIND_TRACE
+            t["level"] = task.level
+            t["search_radius_m"] = task.search_radius_m
+            t["max_length_m"] = task.max_length_m
             n_ticks = m.trace_tick_budget(body.state, self.state) + 2
             self.turns = np.zeros((n_ticks, 2))
             self.track = np.zeros((n_ticks, 5))
             self.prior = body.traced_track(task.level)
         else:
-            s["kind"] = m.KIND_FLY_TO
-            s["wp_phase"] = int(phase)
-            s["wp_tolerance_m"] = tolerance_m
-            s["wp_speed_mps"] = body.limits.max_speed_mps if speed_mps is None else speed_mps
+            t["kind"] = m.KIND_FLY_TO
+            t["wp_phase"] = int(phase)
+            t["wp_tolerance_m"] = tolerance_m
+            t["wp_speed_mps"] = body.limits.max_speed_mps if speed_mps is None else speed_mps
             self.turns = np.zeros((1, 2))
             self.track = np.zeros((1, 5))
             self.prior = np.zeros((0, 5))
         m.start_task(body.state, self.state)
-        self._s = s
+        self._ctl = self.state[0]["ctl"]
         self._remembered = False
 
     @property
     def done(self) -> bool:
-        return int(self._s["pc"]) == m.PC_DONE and not self._s["await_value"]
+        return int(self._ctl["pc"]) == m.PC_DONE and not self._ctl["await_value"]
 
     def advance(self, n: int) -> tuple[np.ndarray, list[tuple[TracerEvent, int]]]:
         """Up to ``n`` ticks: their ``(t_s, x_m, y_m, value, phase)`` rows and the events
@@ -274,20 +283,21 @@ class _TaskRun:
             body.noise_used(used)
             events.extend((_EVENTS[int(c)], done + int(i)) for c, i in self.events[:n_ev])
             done += k
-            if self._s["await_value"]:  # a field the compiled code cannot read
+            if self._ctl["await_value"]:  # a field the compiled code cannot read
                 value = float(body._field(np.float64(body.true_x_m),
                                           np.float64(body.true_y_m)))
         if self.done and isinstance(self.task, TraceTask) and not self._remembered:
             self._remembered = True
-            body.remember_track(self.task.level, self.track[: int(self._s["tk_len"])])
+            body.remember_track(self.task.level,
+                                self.track[: int(self.state[0]["track"]["len"])])
         return out[:done], events
 
     def outcome(self) -> TaskOutcome:
-        s = self._s
-        status = m.STATUS_NAMES[int(s["status"])]
-        flown_m = self.body.odometer_m - float(s["odo0_m"])
+        ctl = self._ctl
+        status = m.STATUS_NAMES[int(ctl["status"])]
+        flown_m = self.body.odometer_m - float(ctl["odo0_m"])
         if isinstance(self.task, TraceTask):
-            return TaskOutcome(self.task, status, flown_m, float(s["traced_m"]))
+            return TaskOutcome(self.task, status, flown_m, float(ctl["traced_m"]))
         return TaskOutcome(self.task, status, flown_m)
 
     def samples(self, on_event: EventCallback | None

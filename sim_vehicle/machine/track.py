@@ -1,0 +1,57 @@
+"""The trace's track: a point every metre traced, to tell when the trace comes back onto
+its own track or onto an earlier trace's of the same level (see :func:`track_push`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+TRACK_STEP_M = 1.0
+"""The trace keeps a point of its track every this many metres traced (with the
+direction it was flown in) to tell when it comes back onto it."""
+REJOIN_MIN_COS = 0.5
+"""A trace rejoins its track where it comes back within ``closure_radius_m`` of it
+flying within 60 degrees of the direction the track was flown in (the other way along
+it is the trace's other sense, or the far side of a thin tongue)."""
+
+
+@njit(cache=True)
+def track_push(ctl, params, tr, tk, track: np.ndarray, prior: np.ndarray, x: float, y: float
+               ) -> bool:
+    """Keep a point of the trace's track every ``TRACK_STEP_M`` traced; True when the new
+    one comes onto ``prior`` (an earlier trace of the level flew there, either way), or
+    rejoins the trace's own track flown at least ``rejoin_min_m`` before, the same way,
+    away from its start (that closure is the start's own test): the trace has gone round
+    a loop that does not pass its start (past a saddle, or after a loss)."""
+    if tk.has and ctl.traced_m - tk.m < TRACK_STEP_M:
+        return False
+    if tk.len >= track.shape[0]:
+        return False
+    ux, uy = 0.0, 0.0  # the first point after a break has no direction
+    if tk.has:
+        step = math.hypot(x - tk.x, y - tk.y)
+        if step > 1e-9:
+            ux, uy = (x - tk.x) / step, (y - tk.y) / step
+    k = tk.len
+    track[k, 0], track[k, 1], track[k, 2], track[k, 3], track[k, 4] = (x, y, ctl.traced_m,
+                                                                       ux, uy)
+    tk.len += 1
+    tk.has, tk.x, tk.y, tk.m = 1, x, y, ctl.traced_m
+    if ux == 0.0 and uy == 0.0:
+        return False
+    r = params.closure_radius_m
+    for i in range(prior.shape[0]):  # a track an earlier trace of this level flew
+        if (math.hypot(prior[i, 0] - x, prior[i, 1] - y) <= r
+                and abs(prior[i, 3] * ux + prior[i, 4] * uy) >= REJOIN_MIN_COS):
+            return True
+    before_m = ctl.traced_m - params.rejoin_min_m
+    for i in range(k):
+        if track[i, 2] > before_m:
+            break
+        if (math.hypot(track[i, 0] - x, track[i, 1] - y) <= r
+                and track[i, 3] * ux + track[i, 4] * uy >= REJOIN_MIN_COS
+                and math.hypot(track[i, 0] - tr.start_x, track[i, 1] - tr.start_y) > r):
+            return True
+    return False
