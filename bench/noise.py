@@ -413,6 +413,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--fresh", default="",
                    help="seeds reported apart as fresh (not looked at while tuning), e.g. 920:940")
     p.add_argument("--markdown", action="store_true")
+    p.add_argument("--figures", default=None,
+                   help="draw MAE-against-distance figures (noise_<field>.png) here")
     p.add_argument("--out", default=None, help="also write the report here, stamped")
     a = p.parse_args(argv)
     for f in a.fields.split(","):
@@ -504,12 +506,66 @@ def main(argv: list[str] | None = None) -> int:
              "the shortest survey's that maps it so.",
              *report(runs, surveys, md,
                      frozenset(parse_seeds(a.fresh)) if a.fresh else frozenset())]
+    if a.figures:
+        shown = figures(Path(a.figures), runs, surveys, frozenset(parse_seeds(a.fresh))
+                        if a.fresh else frozenset())
+        rel = Path(a.out).parent if a.out else Path(".")
+        lines += ["", "## Figures", ""] + [f"![{p.stem}]({os.path.relpath(p, rel)})"
+                                           for p in shown]
     text = "\n".join(lines) + "\n"
     print(text, end="")
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(text, encoding="utf-8")
     return 0
+
+
+def figures(out: Path, runs: list[dict[str, Any]], surveys: list[dict[str, Any]],
+            fresh: frozenset[int]) -> list[Path]:
+    """Per field: median MAE against distance for the adaptive planner and the best survey
+    of each distance, one colour per noise level (plain sensors only, tuned seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    out.mkdir(parents=True, exist_ok=True)
+    grid = np.linspace(250.0, BUDGET_M, 32)
+    paths = []
+    for field in sorted({r["field"] for r in surveys}):
+        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+        noises = sorted({r["noise"] for r in surveys if r["field"] == field and not r["variant"]})
+        for i, noise in enumerate(noises):
+            colour = f"C{i}"
+            sv = [r for r in surveys if r["field"] == field and r["noise"] == noise
+                  and not r["variant"] and r["seed"] not in fresh]
+            rs = [r for r in runs if r["field"] == field and r["noise"] == noise
+                  and not r["variant"] and r["planner"] == "adaptive"
+                  and r["seed"] not in fresh]
+            for label, curves, style in (
+                    ("adaptive", [[(at_budget(r["rows"], d) or {"mae_db": math.nan})["mae_db"]
+                                   for d in grid] for r in rs], "-"),
+                    ("best survey", [[(best_mae_within(r, d) or {"mae_db": math.nan})["mae_db"]
+                                      for d in grid] for r in sv], "--")):
+                if not curves:
+                    continue
+                arr = np.array(curves, dtype=float)
+                ok = np.sum(np.isfinite(arr), axis=0) * 2 > arr.shape[0]
+                med = [_nanmedian(list(col)) if k else math.nan
+                       for col, k in zip(arr.T, ok, strict=True)]
+                ax.plot(grid / 1000, med, style, color=colour,
+                        label=f"{label}, noise {noise:g} ({len(curves)} seeds)")
+        ax.set_xlabel("flight distance (km), all but the flight home")
+        ax.set_ylabel("MAE (dB), median over seeds")
+        ax.set_title(f"{field}: the map against the distance flown, by sensor noise")
+        ax.legend(fontsize=7)
+        path = out / f"noise_{field}.png"
+        fig.tight_layout()
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
 
 
 def fmt_seeds(seeds: list[int]) -> str:
