@@ -109,3 +109,11 @@ def test_the_check_tells_a_runnable_command_from_a_stale_one() -> None:
     assert "does not exist" in str(check_command("python bench/no_such_bench.py --seeds 0"))
     assert "refuses" in str(check_command("python bench/efficiency.py --no-such-option"))
     assert "refuses" in str(check_command("python bench/efficiency.py --workers many"))
+
+
+def test_the_readme_results_are_the_results_files() -> None:
+    """The README's results block is what scripts/readme_results.py reads from docs/results:
+    a number edited by hand, or a results file made again without the README, fails."""
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "readme_results.py"), "--check"],
+                          capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
