@@ -161,7 +161,7 @@ class TracerParams:
         Past the highest value it read, the walk takes the field along the edge for a
         parabola through that top and gives up when that would reach the level beyond
         its length (a plateau, as beside a front, never comes back down). At most six
-        walks a task. 0: no walk (the tracer before this parameter).
+        walks a task. 0: no walk.
     rejoin_min_m
         The loop is also closed when the trace comes back within ``closure_radius_m`` of
         its own track, flown at least this far before in the same direction (within 60
@@ -170,8 +170,7 @@ class TracerParams:
         would otherwise go round it until its length limit. The vehicle also keeps the
         tracks of its traces, by level: a later trace of the same level ends where it
         comes within ``closure_radius_m`` of one, flown either way (that stretch is
-        traced). 0: only the start closes the loop, and no track is kept (the tracer
-        before this parameter).
+        traced). 0: only the start closes the loop, and no track is kept.
     sensor_lag_s
         The sensor's first-order time constant as the vehicle is told it (s; as the
         station is told ``vehicles.sensor.lag_s``); 0: the readings are taken as

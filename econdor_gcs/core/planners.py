@@ -23,12 +23,11 @@ The planners:
   from any traced level) are flown instead (counted in ``Batch.forced``). An empty
   iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
   iteration's error then reads as a rise, which triples delta (eq. 7) and the method
-  stalls for good — measured on the paper's field, not hypothetical.
+  stalls for good (it happens on the paper's field).
   With noisy samples (``PlanContext.noise_std``) the levels are those of the smoothed
   estimate and a level within the noise of a traced one is redundant whatever
-  ``delta_n`` is. Every piece is still traced, however flat the field under it: skipping
-  those the noise could move by metres measured worse on plumes (the tracer's own
-  averaging along a piece does better than not flying it).
+  ``delta_n`` is. Every piece is still traced, however flat the field under it: the
+  tracer's own averaging along a piece maps it better than leaving it unflown.
 * ``no-sg`` — the paper's baseline: ``kappa = 1`` (one more level per iteration), every
   level re-traced, nothing dropped.
 * ``lawnmower`` — a boustrophedon survey; each iteration halves the line spacing by
