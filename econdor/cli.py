@@ -230,6 +230,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="then set the mode, arm (when the pre-arm checks pass) and start it")
     up.add_argument("--timeout", type=_positive_float, default=30.0,
                     help="seconds to wait for the vehicle and each step (default 30)")
+    up.add_argument("--force", action="store_true",
+                    help="upload a mission the plausibility checks refuse (an altitude below "
+                         "home, a waypoint outside the file's own fence, ...)")
     return p
 
 

@@ -182,7 +182,11 @@ def upload_cli(args: argparse.Namespace) -> int:
     mfile = read_mission_file(Path(args.path))
     if not mfile.items:
         raise EcondorError(f"{args.path}: the mission is empty")
-    check_plausible(mfile, str(args.path))  # before a link is opened: nothing reaches the aircraft
+    if not getattr(args, "force", False):  # before a link is opened: nothing reaches the aircraft
+        try:
+            check_plausible(mfile, str(args.path))
+        except EcondorError as exc:
+            raise EcondorError(f"{exc} (--force uploads it anyway)") from None
     station = Station(args.connect, heartbeat_timeout_s=args.timeout)
     try:
         station.start()

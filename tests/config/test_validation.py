@@ -144,7 +144,7 @@ def test_upload_refuses_an_implausible_mission_before_opening_a_link(
                          "--timeout", "1"])
     err = capsys.readouterr().err
     assert code == 1 and err.strip().count("\n") == 0, err
-    assert re.search(r"altitude -30 m is below home", err), err
+    assert re.search(r"altitude -30 m is below home.*\(--force uploads it anyway\)$", err.strip()), err
 
 
 def test_import_refuses_an_amsl_altitude_off_the_earth(tmp_path: Path,

@@ -105,11 +105,14 @@ def test_plan_fence_is_enforced_by_the_autopilot(tmp_path):
                 if abs(it.y / 1e7 - outside[1]) < 1e-6]
     sitl = Sitl(tmp_path / "sitl", speedup=SPEEDUP,
                 params={"FENCE_ENABLE": 1, "FENCE_TYPE": 4, "FENCE_ACTION": 1})
+    # the station refuses it (nothing is sent); --force is the operator's word that it is meant
+    assert econdor(["upload", str(plan), "--connect", "tcp:127.0.0.1:9"]) == 1
     with sitls(sitl):
-        assert econdor(["upload", str(plan), "--connect", f"tcp:127.0.0.1:{sitl.port}"]) == 0
+        assert econdor(["upload", str(plan), "--connect", f"tcp:127.0.0.1:{sitl.port}",
+                        "--force"]) == 0
         watch = Watch(sitl.port2)  # its second port listens once the first is connected
         assert econdor(["upload", str(plan), "--connect", f"tcp:127.0.0.1:{sitl.port}",
-                        "--start", "--timeout", "30"]) == 0
+                        "--start", "--timeout", "30", "--force"]) == 0
         watch.wait(lambda w: any(h.custom_mode == COPTER_RTL for h in w.of("HEARTBEAT")),
                    60, "RTL at the fence")
         watch.wait(lambda w: w.of("HEARTBEAT")[-1].base_mode
