@@ -249,16 +249,19 @@ class Footprints:
     """Which planning cells each candidate path reaches, and how far they are from it.
 
     Stored flat (CSR-like): the cells of candidate ``c`` are
-    ``cells[start[c]:start[c + 1]]`` with distances ``dist_m[...]`` to the path.
+    ``cells[start[c]:start[c + 1]]`` with distances ``dist_m[...]`` to the path. A cell is
+    near within the model's footprint radius, or ``min_radius_m`` if that is more.
     """
 
-    def __init__(self, umap: UncertaintyMap, paths: list[FloatArray], step_m: float = 1.0
-                 ) -> None:
+    def __init__(self, umap: UncertaintyMap, paths: list[FloatArray], step_m: float = 1.0,
+                 min_radius_m: float = 0.0) -> None:
         if umap.grid is None:
             raise ValueError("umap: footprints need the planning grid")
         self.umap = umap
         self.grid = umap.grid
-        self.radius_m = umap.footprint_radius_m()
+        # ``min_radius_m``: what a path changes that the model does not see (a planner's
+        # distance floor) reaches that far whatever the model's own radius
+        self.radius_m = max(umap.footprint_radius_m(), min_radius_m)
         cells: list[NDArray[np.intp]] = []
         dists: list[FloatArray] = []
         for path in paths:

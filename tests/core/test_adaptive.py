@@ -909,3 +909,39 @@ def test_a_trace_spent_at_once_is_not_planned_to_begin_there_again():
     assert planner._unspent([near, entered_near, *kept]) == kept
     planner.observe(0.0, [report(TraceTask(50.0, 20.0, 20.0, 3.0, 275.0, 0), "boundary", 4.0)])
     assert planner._unspent(kept) == kept[1:]
+
+
+def test_threshold_not_done_on_noise_over_a_flat_background() -> None:
+    """Issue 32: noisy samples of a flat background (the start diagonal and one line past a
+    plume they all miss) leave the GP no amplitude, its length at the bound and a nugget
+    of millions; a line then lowers its variance nowhere. The coverage floor is in metres:
+    with most of the area farther than ``explore_m`` from every sample the planner is not
+    done, and flies over that uncovered ground."""
+    from econdor_gcs.core.spline import fit_field
+
+    region = Region(0.0, 100.0, 0.0, 100.0)
+    grid = Grid.with_spacing(region, 1.0)
+    rng = np.random.default_rng(920)
+    diag = np.linspace(0.0, 93.0, 420)
+    line = np.linspace(93.0, 1.0, 420)
+    x = np.r_[diag, np.full(line.size, 93.0)]
+    y = np.r_[diag, line]
+    v = 10.0 + rng.normal(0.0, 1.0, x.size)
+    rec = fit_field(x, y, v, grid)
+    assert rec.noise.noise_std > 0.5  # the station sees the noise
+    samples = SampleLog(t_s=np.arange(x.size) / 10.0, x_m=x, y_m=y, value=v,
+                        phase=np.zeros(x.size, dtype=np.int8),
+                        vehicle=np.zeros(x.size, dtype=np.int16))
+    planner = adaptive_planner(AdaptiveParams(target_levels=(55.0,)), seed=920)
+    ctx = PlanContext(iteration=24, region=region, n_vehicles=1, grid=grid,
+                      estimate=rec.values, samples=samples, positions_m=[(93.0, 1.0)],
+                      noise_std=float(rec.noise.noise_std))
+    batch = planner.next_batch(ctx)
+    assert planner.hyper is not None and planner.hyper.amplitude < 0.05  # the model sees noise
+    assert not batch.done
+    assert batch.jobs
+    # what it flies reaches ground farther than explore_m from every sample
+    flown = np.array([(t.x_m, t.y_m) for job in batch.jobs for t in job.tasks
+                      if isinstance(t, Waypoint)])
+    far = cKDTree(np.column_stack([x, y])).query(flown)[0]
+    assert far.max() > planner.params.explore_m

@@ -187,6 +187,11 @@ class AdaptivePlanner:
                                    hyper=self.hyper, noise_std=context.noise_std)
         return umap, plan_grid
 
+    def floor_reach_m(self) -> float:
+        """How far from a path the cells' value may drop without the model seeing it (a
+        floor measured in metres): the footprints reach at least that far. None here."""
+        return 0.0
+
     def _plan(self, context: PlanContext, umap: UncertaintyMap, cands: list[Candidate],
               now: FloatArray, cell_value: CellValue, batch_m: float,
               near_m: FloatArray | None = None) -> tuple[list[list[Pick]], float]:
@@ -199,7 +204,8 @@ class AdaptivePlanner:
         share = max(batch_m, p.batch_growth * context.flown_m)
         per_vehicle = min(share, context.budget_left_m / max(1, context.n_vehicles))
         positions = context.positions_or_home_m
-        footprints = Footprints(umap, [c.points_m for c in cands])
+        footprints = Footprints(umap, [c.points_m for c in cands],
+                                min_radius_m=self.floor_reach_m())
         picks, _ = greedy_plan(cands, footprints, umap.variance, cell_value, positions,
                                [per_vehicle] * len(positions), p.trace_overhead_m,
                                traces_before_legs=p.first_order == FirstOrder.CROSSINGS,

@@ -125,6 +125,15 @@ class ThresholdPlanner(AdaptivePlanner):
         self._spent: list[tuple[float, float]] = []
         """Where trace tasks began that were spent at once (``SPENT_TRACE_M``)."""
 
+    def floor_reach_m(self) -> float:
+        """The coverage floor is in metres, not in the model: a path closes the uncovered
+        ground within ``explore_m`` of it whatever the model's footprint. A GP fitted to
+        noisy samples of a flat background puts all their spread in the noise (no
+        amplitude, the length at its bound, a nugget of millions): a line then lowers its
+        variance nowhere, its footprint shrinks to nothing, no path would lower any
+        cell's floor, and the planner would stop with uncovered ground left."""
+        return self.params.explore_m
+
     # -- the start line, in steps ------------------------------------------------------------
 
     def _start_survey(self, context: PlanContext, lines: int) -> Batch:
