@@ -27,8 +27,9 @@ map has converged. Three such *starved* iterations in a row give ``gamma`` about
 the rule reads only iterations that flew at least ``FAIR_SHARE`` of what the run's
 largest iteration so far flew (what an iteration of this mission and fleet can fly; a
 median would call the starved iterations typical once they are the majority, and three
-in a row are what fools ``gamma``), takes ``gamma`` over the last three of those, and fires only right after one of them: convergence is a claim
-about new ground sampled, and a starved iteration sampled too little to make it.
+in a row are what fools ``gamma``), takes ``gamma`` over the last three of those, and
+fires only right after one of them: convergence is a claim about new ground sampled, and
+a starved iteration sampled too little to make it.
 """
 
 from __future__ import annotations
