@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -28,7 +29,8 @@ from econdor_gcs.payload import field_script  # noqa: E402
 from tests.helpers.sitl import Sitl, lua_counts, sitl_binary, sitls  # noqa: E402
 
 
-def one_run(mission_path: Path, n: int, speedup: float, work: Path) -> dict[str, float]:
+def one_run(mission_path: Path, n: int, speedup: float, work: Path,
+            keep: Path | None = None) -> dict[str, float]:
     lua = field_script(load_mission(mission_path))
     vehicles = [Sitl(work / f"sitl{i}", sysid=i, speedup=speedup,
                      scripts={"econdor_field.lua": lua}) for i in range(1, n + 1)]
@@ -40,6 +42,8 @@ def one_run(mission_path: Path, n: int, speedup: float, work: Path) -> dict[str,
         for v in vehicles:
             cmd += ["--connect", f"tcp:127.0.0.1:{v.port}"]
         run = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    if keep is not None and out.is_dir():  # its metrics.csv: what each iteration flew
+        shutil.copytree(out, keep, ignore=shutil.ignore_patterns("*.tlog"))
     if run.returncode != 0:
         return {"error": 1.0, "wall_s": time.monotonic() - t0}
     s = json.loads((out / "summary.json").read_text())
@@ -55,6 +59,8 @@ def main() -> int:
     p.add_argument("--vehicles", type=int, default=3)
     p.add_argument("--speedup", type=float, default=20.0)
     p.add_argument("--mission", type=Path, default=REPO / "missions" / "demo.yaml")
+    p.add_argument("--keep", type=Path, default=None,
+                   help="copy each run's output (but its tlog) to KEEP/run<k>")
     args = p.parse_args()
     if sitl_binary() is None:
         print("no ArduPilot SITL (../shared/sitl/arducopter or $ECONDOR_SITL)", file=sys.stderr)
@@ -62,7 +68,8 @@ def main() -> int:
     results = []
     for k in range(args.runs):
         with tempfile.TemporaryDirectory(prefix="econdor-sitl-") as tmp:
-            r = one_run(args.mission, args.vehicles, args.speedup, Path(tmp))
+            r = one_run(args.mission, args.vehicles, args.speedup, Path(tmp),
+                        None if args.keep is None else args.keep / f"run{k}")
         results.append(r)
         print(f"run {k}: " + ", ".join(f"{key} {val:.4g}" for key, val in r.items()), flush=True)
     maes = [r["mae_db"] for r in results if "mae_db" in r]

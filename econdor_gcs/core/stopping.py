@@ -19,6 +19,17 @@ of the noise moves by ``sigma sqrt(1/n - 1/(n + k))`` (standard deviation: the n
 samples' own noise, weighted ``k / (n + k)``, against the old mean's), whose expected
 absolute value is ``sqrt(2/pi)`` of it. ``F_n`` is that, averaged over the grid: places
 that had no sample before count 0 (what changes there is the field, first seen).
+
+A learning error is also small when an iteration flew little: E-CONDOR's ``delta`` may
+drop all but one new level, whose pieces the fleet traces in a few tens of metres, and
+the estimate then hardly moves because hardly anything new was sampled, not because the
+map has converged. Three such *starved* iterations in a row give ``gamma`` about 1. So
+the rule reads only iterations that flew at least ``FAIR_SHARE`` of what the run's
+largest iteration so far flew (what an iteration of this mission and fleet can fly; a
+median would call the starved iterations typical once they are the majority, and three
+in a row are what fools ``gamma``), takes ``gamma`` over the last three of those, and
+fires only right after one of them: convergence is a claim about new ground sampled, and
+a starved iteration sampled too little to make it.
 """
 
 from __future__ import annotations
@@ -31,7 +42,8 @@ from scipy.spatial import cKDTree
 
 from .geometry import FloatArray, Grid
 
-__all__ = ["SMOOTHING_RADIUS_M", "gamma", "gamma_converged", "noise_change", "noise_floor"]
+__all__ = ["FAIR_SHARE", "SMOOTHING_RADIUS_M", "gamma", "gamma_converged", "noise_change",
+           "noise_floor", "sampled_enough"]
 
 SMOOTHING_RADIUS_M = 5.0
 """The radius over which the reconstruction averages noisy samples, about: half the
@@ -40,6 +52,14 @@ peak, wider over flat ground."""
 
 FLOOR_SPACING_M = 2.0
 """The floor is averaged over cells this far apart (the radius is several of them)."""
+
+FAIR_SHARE = 0.15
+"""An iteration that flew less than this share of the largest iteration's flight is
+*starved* (module docstring) and its learning error says nothing about convergence.
+Between the two kinds E-CONDOR flies: one that traced a single level's few pieces flew
+3-9 % of the run's largest iteration over ArduCopter SITL, while iterations that traced
+several levels keep above a fifth of it even as the later ones grow to several times
+the early ones (as the levels multiply)."""
 
 SPAN_TOL = 0.01
 """The span may change by this share and still count as unchanged (the paper's 1 %)."""
@@ -112,10 +132,30 @@ def gamma(errors: Sequence[float]) -> float:
     return 3.0 * e0 / denom if denom > 0 else 1.0
 
 
+def sampled_enough(flown_m: Sequence[float], share: float = FAIR_SHARE) -> list[bool]:
+    """Which iterations flew at least ``share`` of what the largest of them flew (the
+    others are starved: module docstring). Nothing flown anywhere: none did.
+
+    >>> sampled_enough([835.0, 1540.0, 49.0, 66.0, 2226.0])
+    [True, True, False, False, True]
+    >>> sampled_enough([0.0, 0.0])
+    [False, False]
+    """
+    if not len(flown_m):
+        return []
+    largest = max(flown_m)
+    return [f > 0 and f >= share * largest for f in flown_m]
+
+
 def gamma_converged(errors: Sequence[float], floors: Sequence[float], stop_lambda: float,
-                    span_prev: float, span_now: float, span_noise: float = 0.0) -> bool:
+                    span_prev: float, span_now: float, span_noise: float = 0.0,
+                    flown_m: Sequence[float] | None = None) -> bool:
     """The stop rule (module docstring) on the learning errors so far and their noise
     floors (0 for exact samples), and the spans of the last two estimates.
+
+    ``flown_m`` is what each of those iterations flew: only the iterations that sampled
+    enough count (:func:`sampled_enough`), and the last one must be among them. ``None``
+    counts every iteration (all equally sampled).
 
     ``span_noise`` is what the noise may move the span by in the last iteration (the
     change of each extreme, both counted); a change within it and 1 % is no change.
@@ -129,8 +169,20 @@ def gamma_converged(errors: Sequence[float], floors: Sequence[float], stop_lambd
     False
     >>> gamma_converged([5.0, 1.04, 1.02, 1.0], [0, 0, 0, 0], 0.05, 90.0, 90.2)
     True
+    >>> # starved: the last three flew a tenth of the largest iteration
+    >>> gamma_converged([5.0, 0.04, 0.04, 0.04], [0, 0, 0, 0], 0.05, 90.0, 90.2,
+    ...                 flown_m=[800.0, 60.0, 70.0, 60.0])
+    False
     """
-    if stop_lambda <= 0 or len(errors) < 3:
+    if stop_lambda <= 0:
+        return False
+    if flown_m is not None:
+        ok = sampled_enough(flown_m)
+        if not ok or not ok[-1]:
+            return False
+        errors = [e for e, k in zip(errors, ok, strict=True) if k]
+        floors = [f for f, k in zip(floors, ok, strict=True) if k]
+    if len(errors) < 3:
         return False
     net = [max(e - f, 0.0) for e, f in zip(errors, floors, strict=True)]
     span_ok = span_now > 0 and abs(span_now - span_prev) <= SPAN_TOL * span_now + span_noise

@@ -14,7 +14,9 @@ Stop rule (all configurable in the mission's ``algorithm`` section):
   ``1 +- stop_lambda`` (``stop_lambda`` > 0; the learning error has levelled off) and the
   span of the estimate changed by less than 1 % in the last iteration; with noisy
   samples each learning error is taken net of what the noise alone moves the estimate
-  by, and the span may move by that too (:mod:`econdor_gcs.core.stopping`);
+  by, and the span may move by that too; only iterations that flew a fair share of a
+  run's largest iteration's flight are read, the last one among them (a starved iteration's
+  small learning error is little sampled, not convergence: :mod:`econdor_gcs.core.stopping`);
 * ``max_idle_iterations`` + 1 iterations in a row with nothing to fly (every new level
   redundant or without a contour piece): the run has stalled. An idle iteration still
   counts — its learning error is 0, which raises kappa, exactly as in the paper's loop;
@@ -602,10 +604,13 @@ class Dfc:
     def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
         """The learning-error rule, each error net of the noise floor
         (:mod:`econdor_gcs.core.stopping`)."""
+        flown = {r.iteration: r.flight_distance_m - p.flight_distance_m
+                 for p, r in zip(self.records, self.records[1:], strict=False)}
         rows = [r for r in self.records if not math.isnan(r.learning_error)]
         return gamma_converged([r.learning_error for r in rows], [r.noise_floor for r in rows],
                                self.mission.algorithm.stop_lambda, span_prev, span_now,
-                               self.records[-1].span_noise)
+                               self.records[-1].span_noise,
+                               flown_m=[flown.get(r.iteration, 0.0) for r in rows])
 
     def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
         """Iso-line error (m) at 25, 50 and 75 % of the true span; with target levels also

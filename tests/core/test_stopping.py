@@ -8,7 +8,7 @@ import pytest
 from econdor_gcs.core import metrics
 from econdor_gcs.core.geometry import Grid, Region
 from econdor_gcs.core.spline import fit_field
-from econdor_gcs.core.stopping import gamma_converged, noise_floor
+from econdor_gcs.core.stopping import gamma_converged, noise_floor, sampled_enough
 
 GRID = Grid(Region(0.0, 60.0, 0.0, 60.0), 61, 61)
 
@@ -61,3 +61,37 @@ def test_the_span_may_move_by_what_the_noise_moves_it():
     errors, floors = [8.0, 1.0, 1.0, 1.0], [0.0] * 4
     assert not gamma_converged(errors, floors, 0.05, 90.0, 92.0)
     assert gamma_converged(errors, floors, 0.05, 90.0, 92.0, span_noise=1.5)
+
+
+# A SITL run of the demo mission (docs/experiments/2026-12-05-sitl-stop.md): what each
+# iteration after the diagonals flew. Iterations 3 and 4 traced
+# one level each (delta dropped the rest) and flew 49 and 66 m.
+SITL_FLOWN_M = [835.3, 1539.8, 48.8, 66.1, 2225.9]
+
+
+def test_starved_iterations_are_not_read_as_convergence():
+    """Three iterations that each flew a few tens of metres learn little, so their
+    learning errors are small and alike (gamma about 1): the map has not converged, the
+    fleet has hardly sampled anything new."""
+    starved_e = [6.6, 0.99, 0.0036, 0.0038, 0.0037]
+    starved_m = [835.0, 1540.0, 49.0, 66.0, 58.0]
+    floors = [0.0] * 5
+    assert not gamma_converged(starved_e, floors, 0.05, 90.0, 90.1, flown_m=starved_m)
+    # the same errors after iterations that flew their share: levelled off
+    assert gamma_converged(starved_e, floors, 0.05, 90.0, 90.1,
+                           flown_m=[835.0, 1540.0, 900.0, 1100.0, 1000.0])
+
+
+def test_gamma_is_taken_over_the_iterations_that_sampled_enough():
+    """Starved iterations between sampled ones are skipped, not read as zeros or as
+    levelling off; the rule fires only right after an iteration that sampled enough."""
+    assert sampled_enough(SITL_FLOWN_M) == [True, True, False, False, True]
+    floors = [0.0] * 5
+    # levelled off over the sampled ones (1.0, 1.02, 0.99), starved ones in between
+    errors = [1.0, 1.02, 0.003, 0.004, 0.99]
+    assert gamma_converged(errors, floors, 0.05, 90.0, 90.1, flown_m=SITL_FLOWN_M)
+    # ... but not while the last iteration is a starved one
+    assert not gamma_converged(errors[:4], floors[:4], 0.05, 90.0, 90.1,
+                               flown_m=SITL_FLOWN_M[:4])
+    # an iteration that flew nothing sampled nothing
+    assert sampled_enough([0.0, 0.0]) == [False, False]

@@ -158,7 +158,7 @@ def test_gamma_rule_stops_when_learning_error_levels_off():
     from econdor_gcs.dfc.loop import Dfc
 
     dfc = Dfc(_small(stop_lambda=0.05), FieldExecutor())
-    dfc.records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, 0, 0)
+    dfc.records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, 500.0 * (i + 1), 0)
                    for i, e in enumerate([math.nan, 1.0, 1.02, 0.99])]
     assert dfc._gamma_converged(50.0, 50.1)  # gamma = 0.99, span moved 0.2 %
     assert not dfc._gamma_converged(50.0, 55.0)  # span still moving
@@ -166,6 +166,23 @@ def test_gamma_rule_stops_when_learning_error_levels_off():
     assert not dfc._gamma_converged(50.0, 50.1)
     dfc.records = dfc.records[:3]  # fewer than three learning errors: never
     assert not dfc._gamma_converged(50.0, 50.0)
+
+
+def test_gamma_rule_skips_starved_iterations():
+    """The loop gives the rule what each iteration flew (its cumulative flight, less the
+    previous row's): iterations that flew a few tens of metres after 500 m ones are not
+    read as levelling off, however alike their learning errors."""
+    from econdor_gcs.dfc.loop import Dfc
+
+    dfc = Dfc(_small(stop_lambda=0.05), FieldExecutor())
+    flown = [500.0, 1000.0, 1500.0, 1550.0, 1610.0, 1660.0]  # 500 m, then 50-60 m each
+    dfc.records = [IterationRecord(i, 0, 0, 0, 0.0, e, 0, 0, 0, 0, f, 0)
+                   for i, (e, f) in enumerate(zip([math.nan, 1.0, 0.01, 0.0101, 0.0099, 0.01],
+                                                  flown, strict=True))]
+    assert not dfc._gamma_converged(50.0, 50.1)
+    dfc.records[-1].flight_distance_m = 2100.0  # the last one flew its share again
+    dfc.records[-1].learning_error = 0.0099
+    assert not dfc._gamma_converged(50.0, 50.1)  # 1.0, 0.01, 0.0099: still falling
 
 
 def test_run_stops_on_the_gamma_rule():
