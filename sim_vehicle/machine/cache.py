@@ -19,19 +19,20 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
+from typing import Any  # a dispatcher: its stubs say Dispatcher, at runtime a CPUDispatcher
 
 from numba.core.registry import CPUDispatcher
 
 log = logging.getLogger(__name__)
 
 
-def _cache_dir(dispatcher: CPUDispatcher) -> Path | None:
+def _cache_dir(dispatcher: Any) -> Path | None:
     path = dispatcher.stats.cache_path
     return Path(path) if path else None
 
 
 @contextlib.contextmanager
-def cache_lock(dispatcher: CPUDispatcher) -> Iterator[None]:
+def cache_lock(dispatcher: Any) -> Iterator[None]:
     """Hold an exclusive lock on the compiled cache of ``dispatcher``'s package. No lock
     where the cache directory cannot be written."""
     cache_dir = _cache_dir(dispatcher)
@@ -47,7 +48,7 @@ def cache_lock(dispatcher: CPUDispatcher) -> Iterator[None]:
         yield
 
 
-def drop_stale_cache(dispatcher: CPUDispatcher, modules: list[ModuleType],
+def drop_stale_cache(dispatcher: Any, modules: list[ModuleType],
                      sources: list[ModuleType]) -> None:
     """Flush the cache of every compiled function of ``modules`` unless the digest of
     ``modules`` and ``sources`` is the one the cache was made from."""
