@@ -128,6 +128,15 @@ class ArduPilotMissionServer(MissionServer):
         self.speedup = speedup
         self._last_item_wall = 0.0
 
+    def mission_current_msg(self, active: bool, complete: bool = False,
+                            paused: bool = False) -> Any:
+        """As ArduPilot sends it: ``total`` counts the items without home (item 0), as the
+        MAVLink spec allows for an autopilot that stores home in the mission
+        (``GCS_MAVLINK::send_mission_current``: ``num_commands() - 1``)."""
+        msg = super().mission_current_msg(active, complete, paused)
+        msg.total = max(len(self.mission) - 1, 0)
+        return msg
+
     def _wall(self, sim_s: float) -> float:
         return sim_s / max(self.speedup(), 1e-9)
 

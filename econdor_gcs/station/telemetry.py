@@ -81,6 +81,17 @@ RUNNING_STATES = frozenset({mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_
 # per-vehicle state
 
 
+def _counts_ours(msg: MAVLinkMessage, items: Sequence[object], unknown: bool = False) -> bool:
+    """Whether a MISSION_CURRENT's ``total`` is the mission we sent: its item count, or one
+    less where the autopilot keeps home as item 0 and leaves it out of the total (ArduPilot;
+    the MAVLink spec allows both). ``unknown``: a total the autopilot does not state
+    (0 or UINT16_MAX) counts as ours too."""
+    total = int(getattr(msg, "total", 0) or 0)
+    if total in (0, 0xFFFF):
+        return unknown
+    return total in (len(items), len(items) - 1)
+
+
 @dataclass
 class VehicleState:
     """Ground-side bookkeeping of one vehicle across flights (for the live display too)."""
@@ -322,8 +333,7 @@ class StationTelemetry:
         if kind == "MISSION_CURRENT":
             v.mission_state = int(getattr(msg, "mission_state", 0) or 0)
             v.mission_state_at = time.monotonic()
-            total = getattr(msg, "total", 0)
-            if v.mission_state in RUNNING_STATES and total == len(v.items):
+            if v.mission_state in RUNNING_STATES and _counts_ours(msg, v.items):
                 v.mission_news_at = v.mission_state_at
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
@@ -385,9 +395,7 @@ class StationTelemetry:
         link = self.router.vehicles[v.sysid]
         if msg.get_type() == "MISSION_CURRENT":
             state = v.mission_state
-            total = getattr(msg, "total", 0)
-            ours = total in (0, 0xFFFF) or total == len(v.items)  # not an old mission's
-            if not ours:
+            if not _counts_ours(msg, v.items, unknown=True):  # not an old mission's
                 return
             if state == mavlink.MISSION_STATE_ACTIVE:
                 f.in_mission = True

@@ -50,6 +50,15 @@ def test_commands_without_a_position_read_back_with_frame_0_and_no_position():
     assert back[3].param2 == 8.0 and (back[4].x, back[4].y, back[4].z) == (0, 0, 0.0)
 
 
+def test_mission_current_total_leaves_home_out():
+    """ArduPilot's MISSION_CURRENT.total is its item count without home (item 0), as the
+    real ArduCopter sends it (GCS_MAVLINK::send_mission_current: num_commands() - 1)."""
+    ap = make(ArduCopterAutopilot)
+    upload(ap, copter_mission(), request="MISSION_REQUEST")
+    msg = ap.server.mission_current_msg(active=True)
+    assert (msg.total, msg.mission_state) == (2, mavlink.MISSION_STATE_ACTIVE)
+
+
 def test_a_stale_copy_of_an_item_gets_invalid_sequence_and_the_upload_goes_on():
     """ArduPilot requested item 1 again before our answer came; the second copy arrives
     when it waits for item 2: INVALID_SEQUENCE, and it keeps asking for item 2."""
