@@ -155,22 +155,8 @@ class NoisySurveyScan(SurveyScan):
         self.sensor = sensor
         self.dir = cache_dir / noisy_survey_key(field, sensor) if cache_dir else None
 
-    def get(self, lines: int) -> dict[str, Any]:
-        if lines in self.runs:
-            return self.runs[lines]
-        path = self.dir / f"{self.field}-{self.seed}-{lines}.json" if self.dir else None
-        if path is not None and path.exists():
-            row = json.loads(path.read_text())
-        else:
-            row = fly_survey(self.field, self.seed, lines, self.sensor)
-            self.flown += 1
-            if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                tmp = path.with_suffix(".tmp")
-                tmp.write_text(json.dumps(row))
-                tmp.replace(path)
-        self.runs[lines] = row
-        return row
+    def fly(self, lines: int) -> dict[str, Any]:
+        return fly_survey(self.field, self.seed, lines, self.sensor)
 
 
 def code_fingerprint() -> str:

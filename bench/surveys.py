@@ -86,7 +86,7 @@ class SurveyScan:
         if path is not None and path.exists():
             row = json.loads(path.read_text())
         else:
-            row = run_survey(self.field, self.seed, lines, self.recon)
+            row = self.fly(lines)
             self.flown += 1
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
@@ -95,6 +95,10 @@ class SurveyScan:
                 tmp.replace(path)
         self.runs[lines] = row
         return row
+
+    def fly(self, lines: int) -> dict[str, Any]:
+        """Fly the survey of ``lines`` lines (what the cache keeps)."""
+        return run_survey(self.field, self.seed, lines, self.recon)
 
     def all_within(self, budget_m: float) -> list[dict[str, Any]]:
         """Every survey whose planned flight fits ``budget_m`` (2 lines up)."""
