@@ -90,38 +90,43 @@ def block() -> str:
     noise, thr = "noise.md", "threshold-fresh.md"
     out = [BEGIN, "<!-- written by scripts/readme_results.py from docs/results; do not edit -->",
            ""]
-    out += ["**Plumes, by sensor** — MAE in dB (lower is better) after 2 and 4 km of flight; "
+    out += ["**By field and sensor** — MAE in dB (lower is better) after 2 and 4 km of flight; "
             "the distance the adaptive planner needs to reach the best 4 km survey's MAE, and "
             "threshold mode's distance to a 0.5 m iso-line error, each as a multiple of the "
-            "best survey's (stays reached; first reached in brackets) "
+            "best survey's flown with the same sensor (stays reached; first reached in "
+            "brackets; ∞: not reached within the budget) "
             "([results/noise.md](docs/results/noise.md)):", "",
-            "| sensor, seeds | adaptive @2 km | adaptive @4 km | best survey @2 km "
-            "| best survey @4 km | adaptive × survey | threshold × survey |",
-            "|---|---|---|---|---|---|---|"]
+            "| field, sensor, seeds | adaptive @2 km | adaptive @4 km | best survey @2 km "
+            "| best survey @4 km | adaptive × survey | threshold × survey | threshold iso m |",
+            "|---|---|---|---|---|---|---|---|"]
     text = (RESULTS / noise).read_text(encoding="utf-8")
-    for n in (0, 1, 3):
-        for kind in ("tuned", "fresh"):
-            key = f"noise {n} (sensor {{'noise_std': {float(n)}}}; {kind}"
-            heading = next((ln for ln in text.splitlines()
-                            if ln.startswith("#") and key in ln), None)
-            if heading is None:
-                continue
+    field = ""
+    for line in text.splitlines():
+        if line.startswith("## Field: "):
+            field = line.removeprefix("## Field: ").strip()
+            continue
+        if not (field and line.startswith("### ") and "(sensor " in line):
+            continue
+        heading = line.removeprefix("### ")
+        condition, rest = heading.split(" (sensor ", 1)
+        seeds = rest.split("; ", 1)[1].rstrip(")")
 
-            def get(row: str, col: str, key: str = key) -> str:
-                return read(Cell(noise, key, row, col, after=("Field: plume",)))
-            seeds = heading.split("; ", 1)[1].rstrip(")")
-            label = ("perfect" if n == 0 else f"noise {n}") + f", {seeds}"
+        def get(row: str, col: str, key: str = heading, f: str = field) -> str:
+            return read(Cell(noise, key, row, col, after=(f"Field: {f}",)))
+        label = f"{field}, " + (condition.replace("noise 0", "perfect", 1)
+                                if condition == "noise 0" else condition) + f", {seeds}"
+        try:
+            cells = [get("adaptive", "MAE dB @2 km"), get("adaptive", "MAE dB @4 km"),
+                     get("best survey", "MAE dB @2 km"), get("best survey", "MAE dB @4 km"),
+                     get("adaptive", "× survey to its 4 km MAE")]
+        except LookupError:
+            continue
+        for col in ("× survey, stays", "final iso m"):
             try:
-                cells = [get("adaptive", "MAE dB @2 km"), get("adaptive", "MAE dB @4 km"),
-                         get("best survey", "MAE dB @2 km"), get("best survey", "MAE dB @4 km"),
-                         get("adaptive", "× survey to its 4 km MAE")]
-            except LookupError:
-                continue
-            try:
-                cells.append(get("adaptive", "× survey, stays"))
+                cells.append(get("adaptive", col))
             except LookupError:
                 cells.append("—")
-            out.append(f"| {label} | " + " | ".join(cells) + " |")
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
     out += ["", "**Threshold iso-line** (the middle level) — distance to a mean iso-line error "
             "≤ 0.5 m that stays reached, as a multiple of the best survey's, fresh seeds "
             "([results/threshold-fresh.md](docs/results/threshold-fresh.md)):", "",
