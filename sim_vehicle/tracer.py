@@ -151,7 +151,7 @@ class TracerParams:
         How far the trace goes on at ``recover_speed_mps``. The search for a lost contour
         starts where the trace last held it (within 1 m). 0: the search starts where the
         vehicle is, the trace goes on at cruise speed and ``max_reacquire`` counts per
-        task (as the tracer did before this parameter).
+        task.
     edge_walk_m
         At the area's boundary, before flying back to the entry, the trace walks along
         the edge (at ``search_speed_mps``, ``boundary_margin_m`` inside, counterclockwise
