@@ -1,6 +1,7 @@
 """econdor run against ArduCopter SITL, repeated: the spread of the final MAE.
 
     python bench/sitl.py --runs 10 --vehicles 3 --speedup 20 [--mission missions/demo.yaml]
+    python bench/sitl.py --runs 5 --out docs/results/sitl.md     # also a stamped results file
 
 Each run starts ``--vehicles`` SITL copters (``../shared/sitl/arducopter`` or ``$ECONDOR_SITL``)
 with the mission's Lua field script, runs ``econdor run --connect tcp:...`` and prints one
@@ -23,6 +24,10 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+sys.path.insert(0, str(REPO / "bench"))
+
+from report import stamp  # noqa: E402
 
 from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_gcs.payload import field_script  # noqa: E402
@@ -61,6 +66,8 @@ def main() -> int:
     p.add_argument("--mission", type=Path, default=REPO / "missions" / "demo.yaml")
     p.add_argument("--keep", type=Path, default=None,
                    help="copy each run's output (but its tlog) to KEEP/run<k>")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also write the runs and their summary here (Markdown, stamped)")
     args = p.parse_args()
     if sitl_binary() is None:
         print("no ArduPilot SITL (../shared/sitl/arducopter or $ECONDOR_SITL)", file=sys.stderr)
@@ -73,11 +80,36 @@ def main() -> int:
         results.append(r)
         print(f"run {k}: " + ", ".join(f"{key} {val:.4g}" for key, val in r.items()), flush=True)
     maes = [r["mae_db"] for r in results if "mae_db" in r]
-    if maes:
-        print(f"final MAE dB: median {statistics.median(maes):.1f}, min {min(maes):.1f}, "
-              f"max {max(maes):.1f}, <= -40 dB in {sum(m <= -40 for m in maes)} of "
-              f"{len(maes)}; failed runs: {len(results) - len(maes)}")
+    summary = (f"final MAE dB: median {statistics.median(maes):.1f}, min {min(maes):.1f}, "
+               f"max {max(maes):.1f}, <= -40 dB in {sum(m <= -40 for m in maes)} of "
+               f"{len(maes)}; failed runs: {len(results) - len(maes)}" if maes
+               else f"every run failed ({len(results)})")
+    print(summary)
+    if args.out is not None:
+        write_markdown(args.out, args, results, summary)
     return 0
+
+
+def write_markdown(path: Path, args: argparse.Namespace, results: list[dict[str, float]],
+                   summary: str) -> None:
+    """The runs as a stamped results file."""
+    mission = args.mission.resolve()
+    name = mission.relative_to(REPO).as_posix() if mission.is_relative_to(REPO) else mission
+    lines = ["# econdor run against ArduCopter SITL", "", *stamp(sys.argv), "",
+             f"{args.vehicles} SITL copters (ArduPilot's own flight code, the Lua field "
+             f"script), `{name}`, speedup {args.speedup:g}, {args.runs} runs in a row on this "
+             "machine. 'placed of sent': samples on the map over those the Lua scripts sent.",
+             "", "| run | final MAE dB | samples | placed of sent | flown m | wall s |",
+             "|---|---|---|---|---|---|"]
+    for k, r in enumerate(results):
+        if "mae_db" in r:
+            lines.append(f"| {k} | {r['mae_db']:.1f} | {r['samples']:.0f} | "
+                         f"{r['placed_of_sent']:.3f} | {r['flown_m']:.0f} | {r['wall_s']:.0f} |")
+        else:
+            lines.append(f"| {k} | failed | — | — | — | {r['wall_s']:.0f} |")
+    lines += ["", summary.capitalize() + ".", ""]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines), encoding="utf-8")
 
 
 if __name__ == "__main__":
