@@ -74,7 +74,12 @@ class Executor(Protocol):
 
     def positions(self) -> list[tuple[float, float]]: ...
 
-    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]: ...
+    def fly(self, plans: list[list[Task]], iteration: int, *, survey: bool = False
+            ) -> list[FlightReport]:
+        """Fly ``plans``; ``survey``: the flight is the mission's initiation survey, whose
+        samples the executor reports as ``Phase.SURVEY`` (the executor decides a sample's
+        phase once, where it knows it; the DFC never re-tags one)."""
+        ...
 
     def finish(self) -> list[FlightReport]:
         """Bring every vehicle home; return what was flown doing so."""
@@ -356,9 +361,7 @@ class Dfc:
     def _reconstruct(self) -> FloatArray:
         s = self._samples()
         if not self.mission.algorithm.keep_diagonals and len(self.records) > 0:
-            keep = s.phase != Phase.SURVEY
-            s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
-                          s.vehicle[keep])
+            s = s[s.phase != Phase.SURVEY]
         t0 = time.perf_counter()
         # One BLAS thread: the station shares the cores with the vehicles (and a study
         # with its other runs); idle BLAS threads spin and slow every process down.
@@ -403,13 +406,13 @@ class Dfc:
         self._planned_from = pos
         return pos
 
-    def _fly(self, plans: list[list[Task]], iteration: int, pattern: bool = False
+    def _fly(self, plans: list[list[Task]], iteration: int, survey: bool = False
              ) -> list[FlightReport]:
         """Fly ``plans`` (or replay the recorded flight of ``iteration``); the samples are
         handed to ``on_flight`` -- written to disk -- before the DFC uses them.
 
-        ``pattern`` marks the mission's initiation pattern, whose samples are tagged
-        ``Phase.SURVEY``.
+        ``survey`` marks the mission's initiation pattern: the executor is told, and its
+        samples come back ``Phase.SURVEY`` (a replayed one has them so on disk).
         """
         rec = self._replay.pop(iteration, None)
         if rec is not None:
@@ -425,10 +428,7 @@ class Dfc:
                 for r in rec.reports])
         before = self._planned_from if self._planned_from is not None else \
             self.executor.positions()
-        reports = self.executor.fly(plans, iteration)
-        if pattern:
-            for r in reports:
-                r.samples.phase = np.full(len(r.samples), Phase.SURVEY, dtype=np.int8)
+        reports = self.executor.fly(plans, iteration, survey=survey)
         if self.on_flight is not None:
             state = getattr(self.executor, "state", None)
             self.on_flight(FlightRecord(iteration, [list(p) for p in plans], reports,
@@ -469,9 +469,7 @@ class Dfc:
         for r in reports:
             s = r.samples
             if len(s) > per:
-                idx = np.unique(np.linspace(0, len(s) - 1, per).round().astype(int))
-                r.samples = SampleLog(s.t_s[idx], s.x_m[idx], s.y_m[idx], s.value[idx],
-                                      s.phase[idx], s.vehicle[idx])
+                r.samples = s.take(np.unique(np.linspace(0, len(s) - 1, per).round()))
 
     def _record(self, it: int, batch: Batch | None, estimate: FloatArray,
                 previous: FloatArray | None, reports: list[FlightReport]) -> IterationRecord:
@@ -535,7 +533,7 @@ class Dfc:
         if first is None:  # the mission's pattern; the DFC keeps only a few of its samples
             pattern, plans = self._pattern()
             self.progress(IterationPlanned(0, pattern, plans))
-            reports = self._fly(plans, 0, pattern=True)
+            reports = self._fly(plans, 0, survey=True)
             self._subsample_initiation(reports)
             self._account(reports)
         else:

@@ -16,6 +16,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import (
     OutcomeStatus,
     Phase,
+    SampleLog,
     TaskOutcome,
     TaskStyle,
     TraceReport,
@@ -155,7 +156,7 @@ def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
         lat, lon, _ = ex.origin.to_global(float(k), 0.0)
         on_sample(Sample(1, k, lat, lon, 30.0, 0.0))
     v = ex.vehicles[1]
-    assert len(v.raw) == 10 and len(v.stray) == SAMPLE_BATCH
+    assert len(v.raw) == 10 and sum(len(b) for b in v.stray) == SAMPLE_BATCH
     # the path length runs across batch boundaries without a gap or a double count
     assert ex.status_rows()[0].flown_m == pytest.approx(n - 1, abs=1e-3)
     assert len(ex.pending_samples()) == n
@@ -175,8 +176,9 @@ def test_build_report_from_a_flight() -> None:
     tr = TraceTask(level=50.0, x_m=10.0, y_m=10.0, search_radius_m=10.0, max_length_m=0.0,
                    piece_id=1001)
     f = Flight(index=2, sysid=3, tasks=[wp, tr], start_xy=(0.0, 0.0), start_ms=1000)
-    f.rows = [(1.1, 3.0, 4.0, 1.0, Phase.TRANSIT), (1.2, 6.0, 8.0, 2.0, Phase.TRANSIT),
-              (1.3, 6.0, 9.0, 3.0, Phase.TRACE)]
+    f.samples = SampleLog.from_rows([(1.1, 3.0, 4.0, 1.0, Phase.TRANSIT),
+                                     (1.2, 6.0, 8.0, 2.0, Phase.TRANSIT),
+                                     (1.3, 6.0, 9.0, 3.0, Phase.TRACE)], vehicle=2)
     f.last_ms = 3500
     f.item_flown_m = {2: 10.0, 3: 1.0}
     f.pieces[1001] = TraceReport(3, 1001, OutcomeStatus.CLOSED, 42.0, 50.0)
@@ -305,7 +307,7 @@ def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
                         end="none")
     assert plan.task_seqs == [(2, 2), (3, 5)]
     v = ex.vehicles[1]
-    v.items, v.item_phases = plan.items, dict(plan.item_phases)
+    v.items = plan.items
     f = ex.telemetry.begin(v, tasks, plan)
     v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
