@@ -8,7 +8,11 @@ Parts of :class:`~.executor.MavlinkExecutor`:
     in batches of :data:`SAMPLE_BATCH`, mission progress, phases, trace reports and texts,
     and each flight's samples settled into a :class:`~.core.tasks.FlightReport`.
 :class:`VehicleState`
-    One vehicle's bookkeeping across flights.
+    One vehicle's bookkeeping across flights: what is the station's own (its samples, its
+    flights and their mission progress, whether it was given up). What the link knows of
+    a vehicle (heartbeats and modes, components, positions, its clock, the state of its
+    mission) is the link's vehicle table's (:class:`~.link.vehicles.VehicleLink`), read
+    there; the item time limits' view of its link is :class:`~.losses.LinkWatch`.
 :class:`VehicleRow`
     One vehicle as the live display sees it at one moment; its ``status`` is a
     :class:`~.status.VehicleStatus`.
@@ -99,7 +103,8 @@ def _counts_ours(msg: MAVLinkMessage, items: Sequence[object], unknown: bool = F
 
 @dataclass
 class VehicleState:
-    """Ground-side bookkeeping of one vehicle across flights (for the live display too)."""
+    """The station's own bookkeeping of one vehicle across flights (for the live display
+    too); what the link knows of it is its :class:`~.link.vehicles.VehicleLink`."""
 
     index: int
     sysid: int
@@ -155,22 +160,6 @@ class VehicleState:
     no_recovery: str | None = None
     """Why this vehicle's samples cannot be recovered (its payload does not answer the
     sample count: a stock autopilot's Lua script); None while recovery works."""
-    silent: bool = False
-    """Its link was out when the item time limits were last checked."""
-    link_out: bool = False
-    """Its link was found out (no HEARTBEAT for :data:`~.losses.SILENT_S`) and is not
-    back yet."""
-    back_since: float | None = None
-    """Monotonic time its HEARTBEATs came back after a silence."""
-    clock_first: tuple[float, int] | None = None
-    """(monotonic time, ``time_boot_ms``) of its first position, ..."""
-    clock_last: tuple[float, int] | None = None
-    """... and of its latest: how fast its clock runs (:meth:`StationTelemetry.clock_rate`)."""
-    mission_state: int = 0
-    """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
-    that does not say)."""
-    mission_state_at: float = 0.0
-    """Monotonic time that MISSION_CURRENT arrived."""
     mission_news_at: float = 0.0
     """Monotonic time of the last sign that the uploaded mission runs or ran: a
     MISSION_CURRENT of it ACTIVE, PAUSED or COMPLETE, or a MISSION_ITEM_REACHED (a short
@@ -343,27 +332,19 @@ class StationTelemetry:
         self.changed.set()
         kind = msg.get_type()
         f = v.flight
+        link = self.router.vehicles[sysid]  # the link's table has taken the message in
         if kind == "MISSION_CURRENT":
-            v.mission_state = int(getattr(msg, "mission_state", 0) or 0)
-            v.mission_state_at = time.monotonic()
-            if v.mission_state in RUNNING_STATES and _counts_ours(msg, v.items):
-                v.mission_news_at = v.mission_state_at
+            if link.mission_state in RUNNING_STATES and _counts_ours(msg, v.items):
+                v.mission_news_at = link.mission_state_at
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
                 v.item_since = time.monotonic()
-                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
+                v.item_since_ms = link.time_boot_ms or 0
                 v.item_phase = f.item_phases.get(msg.seq, Phase.TRANSIT) if f is not None \
                     else Phase.TRANSIT
             self._judge(v, msg)
         elif kind == "HEARTBEAT":
             self._judge(v, msg)
-        elif kind == "GLOBAL_POSITION_INT":
-            # the vehicle's clock against ours (a resent sample's older time is no news)
-            pair = (time.monotonic(), int(msg.time_boot_ms))
-            if v.clock_first is None:
-                v.clock_first = pair
-            elif v.clock_last is None or pair[1] > v.clock_last[1]:
-                v.clock_last = pair
         elif kind == "MISSION_ITEM_REACHED":
             v.mission_news_at = time.monotonic()
             if f is not None:
@@ -408,7 +389,7 @@ class StationTelemetry:
             return
         link = self.router.vehicles[v.sysid]
         if msg.get_type() == "MISSION_CURRENT":
-            state = v.mission_state
+            state = link.mission_state
             if not _counts_ours(msg, v.items, unknown=True):  # not an old mission's
                 return
             if state == mavlink.MISSION_STATE_ACTIVE:
@@ -429,7 +410,7 @@ class StationTelemetry:
                 f.interrupted = "it landed and disarmed"
             elif mode in (FlightMode.RTL, FlightMode.LAND):
                 f.interrupted = f"it switched to {mode.value.upper()}"
-            elif mode == FlightMode.HOLD and v.mission_state == mavlink.MISSION_STATE_UNKNOWN:
+            elif mode == FlightMode.HOLD and link.mission_state == mavlink.MISSION_STATE_UNKNOWN:
                 if v.current_seq == f.last_seq:
                     f.done = True
                     v.status = VehicleStatus.HOLDING
@@ -550,15 +531,13 @@ class StationTelemetry:
         return rows
 
     def clock_rate(self) -> float:
-        """The vehicles' sim-time speed-up as achieved: their clocks (positions'
-        ``time_boot_ms``) over ours since their first position, the median of the vehicles
-        in service heard over 5 s or more (NaN: none). Over the whole run, the staleness of
-        a position (up to a quarter second between the display's positions) does not
-        count."""
+        """The vehicles' sim-time speed-up as achieved: the median of the clock rates
+        (:attr:`~.link.vehicles.VehicleLink.clock_rate`) of the vehicles in service (NaN:
+        none known yet)."""
         rates = sorted(
-            (b[1] - a[1]) / 1000.0 / (b[0] - a[0]) for v in self.vehicles.values()
-            if v.lost is None and (a := v.clock_first) is not None
-            and (b := v.clock_last) is not None and b[0] - a[0] >= 5.0)
+            rate for v in self.vehicles.values()
+            if v.lost is None and (link := self.router.vehicles.get(v.sysid)) is not None
+            and (rate := link.clock_rate) is not None)
         if not rates:
             return float("nan")
         mid = len(rates) // 2

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import time
 from types import SimpleNamespace
 from typing import Any
 
@@ -217,19 +218,23 @@ def test_mission_json_round_trip() -> None:
 
 class FakeRouter:
     def __init__(self) -> None:
-        import time
-
         # vehicles heard just now (a silent one's item time limits are not watched)
         self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1),
                                         last_heartbeat=time.monotonic()) for s in (1, 2)}
         self.handlers: dict[str, Any] = {}
+
+    def received(self, sysid: int, msg: Any) -> Received:
+        """``msg`` taken in by the vehicle's link first, as the router's table does."""
+        if msg.get_type() != "HEARTBEAT":
+            self.vehicles[sysid].account(msg, time.monotonic())
+        return Received(sysid, msg)
 
     def subscribe(self, kinds: Any, h: Any) -> None:
         kinds = kinds if isinstance(kinds, tuple) else (kinds,)
         if Sample in kinds:
             self.handlers["sample"] = h
         elif Received in kinds:
-            self.handlers["message"] = lambda sysid, msg: h(Received(sysid, msg))
+            self.handlers["message"] = lambda sysid, msg: h(self.received(sysid, msg))
         else:
             self.handlers["event"] = h
 
