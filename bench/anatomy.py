@@ -95,9 +95,9 @@ def instrument(dfc: Any) -> dict[int, dict[str, float]]:
 
     fly = executor.fly
 
-    def flying(plans: list[Any], iteration: int) -> list[Any]:
+    def flying(plans: list[Any], iteration: int, *, survey: bool = False) -> list[Any]:
         before: list[tuple[float, float] | None] = list(executor.positions())
-        reports = fly(plans, iteration)
+        reports = fly(plans, iteration, survey=survey)
         if iteration < 0:
             return reports
         booked: dict[str, float] = defaultdict(float)

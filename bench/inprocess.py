@@ -69,10 +69,10 @@ class _TimedExecutor:
     def positions(self) -> list[tuple[float, float]]:
         return self.inner.positions()
 
-    def fly(self, plans: Any, iteration: int) -> Any:
+    def fly(self, plans: Any, iteration: int, *, survey: bool = False) -> Any:
         t0 = time.perf_counter()
         try:
-            return self.inner.fly(plans, iteration)
+            return self.inner.fly(plans, iteration, survey=survey)
         finally:
             self._flights.append((t0, time.perf_counter()))
 

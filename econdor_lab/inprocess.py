@@ -99,31 +99,39 @@ class InProcessExecutor:
     def positions(self) -> list[tuple[float, float]]:
         return [(b.x_m, b.y_m) for b in self.bodies]
 
-    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+    def fly(self, plans: list[list[Task]], iteration: int, *, survey: bool = False
+            ) -> list[FlightReport]:
+        """Fly each vehicle's plan; the samples of a ``survey`` flight are
+        ``Phase.SURVEY``, the others have the phase the vehicle flew them in."""
+        phase = Phase.SURVEY if survey else None
         reports = []
         for i, (body, tasks) in enumerate(zip(self.bodies, plans, strict=True)):
             if self.style == TaskStyle.WAYPOINTS:
-                reports.append(self._fly_waypoints(body, tasks, i))
+                reports.append(self._fly_waypoints(body, tasks, i, phase))
             else:
-                reports.append(run_plan(body, tasks, vehicle=i, params=self.params))
+                reports.append(run_plan(body, tasks, vehicle=i, params=self.params,
+                                        phase=phase))
             _brake(body)
         return reports
 
-    def _fly_waypoints(self, body: SimBody, tasks: list[Task], vehicle: int) -> FlightReport:
-        """Each task as waypoints (a trace task: its estimated contour, simplified)."""
+    def _fly_waypoints(self, body: SimBody, tasks: list[Task], vehicle: int,
+                       phase: Phase | None = None) -> FlightReport:
+        """Each task as waypoints (a trace task: its estimated contour, simplified); the
+        phase of a leg's samples is the one its mission item implies, or ``phase``."""
         t0_s, odo0_m = body.t_s, body.odometer_m
         rows: list[tuple[float, float, float, float, int]] = []
         outcomes: list[TaskOutcome] = []
 
-        def leg(wp: Waypoint, phase: Phase) -> tuple[float, OutcomeStatus]:
+        def leg(wp: Waypoint, item_phase: Phase) -> tuple[float, OutcomeStatus]:
             odo = body.odometer_m
+            p = int(phase if phase is not None else item_phase)
             gen: Generator[Sample, None, TaskOutcome] = run_task(body, wp, self.params)
             while True:
                 try:
                     s = next(gen)
                 except StopIteration as stop:
                     return body.odometer_m - odo, stop.value.status
-                rows.append((s.t_s, s.x_m, s.y_m, s.value, int(phase)))
+                rows.append((s.t_s, s.x_m, s.y_m, s.value, p))
 
         for task in tasks:
             wps = task_waypoints(task, self.tolerance_m)
@@ -136,10 +144,8 @@ class InProcessExecutor:
                           OutcomeStatus.REACHED)
             outcomes.append(TaskOutcome(task, status, sum(flown),
                                         sum(flown[1:]) if along else 0.0))
-        a = np.asarray(rows, dtype=float).reshape(-1, 5)
-        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
-                        a[:, 4].astype(np.int8), np.full(len(a), vehicle, dtype=np.int16))
-        return FlightReport(vehicle=vehicle, samples=log, flown_m=body.odometer_m - odo0_m,
+        return FlightReport(vehicle=vehicle, samples=SampleLog.from_rows(rows, vehicle),
+                            flown_m=body.odometer_m - odo0_m,
                             traced_m=float(sum(o.traced_m for o in outcomes)),
                             outcomes=outcomes, end_x_m=body.x_m, end_y_m=body.y_m,
                             sim_s=body.t_s - t0_s)

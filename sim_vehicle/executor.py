@@ -70,6 +70,7 @@ def run_plan(
     vehicle: int = 0,
     params: TracerParams = TracerParams(),  # noqa: B008 - frozen, immutable default
     return_to: tuple[float, float] | None = None,
+    phase: Phase | None = None,
 ) -> FlightReport:
     """Run all tasks to completion and collect every sample.
 
@@ -86,6 +87,9 @@ def run_plan(
     return_to
         If given, fly back to this point (TRANSIT samples) after the last task; this
         leg is counted in ``flown_m`` and ``sim_s`` but adds no outcome.
+    phase
+        The phase of every sample when the station decides it for the whole flight (a
+        survey: ``Phase.SURVEY``); None: the phase the tracer flew each one in.
 
     Returns
     -------
@@ -105,17 +109,9 @@ def run_plan(
         rows, _ = run_task_batch(body, Waypoint(*return_to), params)
         chunks.append(rows)
     arr = np.concatenate(chunks) if chunks else np.zeros((0, 5))
-    if len(arr):
-        log = SampleLog(
-            t_s=arr[:, 0].copy(),
-            x_m=arr[:, 1].copy(),
-            y_m=arr[:, 2].copy(),
-            value=arr[:, 3].copy(),
-            phase=arr[:, 4].astype(np.int8),
-            vehicle=np.full(len(arr), vehicle, dtype=np.int16),
-        )
-    else:
-        log = SampleLog()
+    if phase is not None:
+        arr[:, 4] = phase
+    log = SampleLog.from_rows(arr, vehicle=vehicle)
     return FlightReport(
         vehicle=vehicle,
         samples=log,

@@ -230,8 +230,7 @@ def correct_lag(samples: SampleLog, lag_s: float,
     method = LagCorrection(method)
     if not (math.isfinite(lag_s) and lag_s >= 0.0):
         raise ValueError(f"lag_s must be >= 0, got {lag_s!r}")
-    out = SampleLog(samples.t_s.copy(), samples.x_m.copy(), samples.y_m.copy(),
-                    samples.value.copy(), samples.phase.copy(), samples.vehicle.copy())
+    out = samples.copy()
     if lag_s == 0.0 or method == LagCorrection.NONE or len(samples) == 0:
         return out
     for v in np.unique(samples.vehicle):

@@ -70,9 +70,29 @@ class Phase(IntEnum):
     SURVEY = 3
 
 
+SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle")
+"""The columns of a :class:`SampleLog`, in the order of its rows."""
+
+
 @dataclass
 class SampleLog:
-    """Columns of samples: time (s, sim), position (m), value, phase, vehicle index."""
+    """Columns of samples: time (s, sim), position (m), value, phase, vehicle index.
+
+    The one type a sample has from the vehicle to the reconstruction. Its ``phase`` is
+    decided once, by whoever makes the log from what the vehicle did (the vehicle's
+    reported phase at the sample's time, else the mission item it was flown in, else
+    ``SURVEY`` for a flight the station declares a survey); nothing downstream re-tags it.
+
+    A log is indexed like its columns, and the result is a log: ``log[mask]``,
+    ``log.take(idx)``, ``log[a:b]`` (a slice shares the columns' memory, as numpy's do).
+
+    >>> log = SampleLog.from_rows([(0.0, 1.0, 2.0, 5.0, 2), (0.1, 1.5, 2.0, 6.0, 0)],
+    ...                           vehicle=3)
+    >>> len(log), log.vehicle.tolist(), log[log.phase == Phase.TRACE].value.tolist()
+    (2, [3, 3], [5.0])
+    >>> log.take([1, 1]).t_s.tolist()
+    [0.1, 0.1]
+    """
 
     t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     x_m: FloatArray = field(default_factory=lambda: np.zeros(0))
@@ -81,11 +101,48 @@ class SampleLog:
     phase: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
     vehicle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int16))
 
+    def __post_init__(self) -> None:
+        lengths = {c: len(getattr(self, c)) for c in SAMPLE_COLUMNS}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"SampleLog columns differ in length: {lengths}")
+
     def __len__(self) -> int:
         return len(self.x_m)
 
+    def __getitem__(self, key: slice | np.ndarray | Sequence[int]) -> SampleLog:
+        """The samples ``key`` selects: a boolean mask, indices or a slice (a log again;
+        one sample ``k`` is ``log[k:k + 1]``)."""
+        if isinstance(key, int | np.integer):
+            raise TypeError("a SampleLog is indexed by a mask, indices or a slice "
+                            "(one sample k: log[k:k + 1])")
+        if not isinstance(key, slice):
+            key = np.asarray(key)
+            if key.dtype != bool:
+                key = key.astype(np.intp)
+        return SampleLog(*(getattr(self, c)[key] for c in SAMPLE_COLUMNS))
+
+    def take(self, idx: np.ndarray | Sequence[int]) -> SampleLog:
+        """The samples at the indices ``idx``, in that order."""
+        return self[np.asarray(idx, dtype=np.intp)]
+
+    def copy(self) -> SampleLog:
+        """A log with its own columns."""
+        return SampleLog(*(getattr(self, c).copy() for c in SAMPLE_COLUMNS))
+
     @classmethod
-    def concat(cls, logs: list[SampleLog]) -> SampleLog:
+    def from_rows(cls, rows: np.ndarray | Sequence[Sequence[float]],
+                  vehicle: int | None = None) -> SampleLog:
+        """A log of ``rows`` ``(t_s, x_m, y_m, value, phase[, vehicle])``; ``vehicle``
+        (the vehicle index of every row) stands for the sixth column."""
+        a = np.asarray(rows, dtype=float).reshape(-1, 5 if vehicle is not None else 6) \
+            if len(rows) else np.zeros((0, 6))
+        vehicles = np.full(len(a), vehicle, dtype=np.int16) if vehicle is not None \
+            else a[:, 5].astype(np.int16)
+        return cls(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
+                   a[:, 4].astype(np.int8), vehicles)
+
+    @classmethod
+    def concat(cls, logs: Sequence[SampleLog]) -> SampleLog:
         if not logs:
             return cls()
         return cls(

@@ -6,6 +6,9 @@ samples, re-estimates, updates the planner (kappa, delta) and repeats until the 
 The in-process executor (:mod:`econdor_lab.inprocess`) calls the tracer directly; the
 MAVLink executor uploads missions to vehicles. Only the transport differs.
 
+What a run produces and reports (its records, result, progress events) and the truth-only
+scores are in :mod:`.records`; they are re-exported here.
+
 Stop rule (all configurable in the mission's ``algorithm`` section):
 
 * ``max_iterations`` reached;
@@ -38,8 +41,8 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from dataclasses import asdict
+from typing import Protocol
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -49,7 +52,7 @@ from econdor_gcs.core import metrics
 from econdor_gcs.core.adaptive import AdaptiveParams, adaptive_planner
 from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.fields import Field
-from econdor_gcs.core.geometry import FloatArray, Grid
+from econdor_gcs.core.geometry import FloatArray
 from econdor_gcs.core.lag import LagCorrection, correct_lag
 from econdor_gcs.core.planners import (
     Batch,
@@ -64,7 +67,43 @@ from econdor_gcs.core.planners import (
 from econdor_gcs.core.spline import fit_field
 from econdor_gcs.core.stopping import gamma_converged, noise_floor
 from econdor_gcs.core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
+from econdor_gcs.dfc.records import (
+    FINISH,
+    Checkpoint,
+    DfcEvent,
+    FlightRecord,
+    IterationDone,
+    IterationPlanned,
+    IterationRecord,
+    Progress,
+    RunDone,
+    RunResult,
+    RunStarted,
+    isoline_errors,
+    isoline_levels,
+)
 from econdor_gcs.errors import MissionError, RunError
+
+__all__ = [  # the run's records and events are re-exported: most readers import them here
+    "FINISH",
+    "PLANNERS",
+    "SPAN_NOISE_Z",
+    "Checkpoint",
+    "Dfc",
+    "DfcEvent",
+    "Executor",
+    "FlightRecord",
+    "IterationDone",
+    "IterationPlanned",
+    "IterationRecord",
+    "Progress",
+    "RunDone",
+    "RunResult",
+    "RunStarted",
+    "build_planner",
+    "isoline_errors",
+    "isoline_levels",
+]
 
 
 class Executor(Protocol):
@@ -74,135 +113,21 @@ class Executor(Protocol):
 
     def positions(self) -> list[tuple[float, float]]: ...
 
-    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]: ...
+    def fly(self, plans: list[list[Task]], iteration: int, *, survey: bool = False
+            ) -> list[FlightReport]:
+        """Fly ``plans``; ``survey``: the flight is the mission's initiation survey, whose
+        samples the executor reports as ``Phase.SURVEY`` (the executor decides a sample's
+        phase once, where it knows it; the DFC never re-tags one)."""
+        ...
 
     def finish(self) -> list[FlightReport]:
         """Bring every vehicle home; return what was flown doing so."""
         ...
 
 
-@dataclass
-class IterationRecord:
-    """One row of ``metrics.csv`` (DESIGN.md §5)."""
-
-    iteration: int
-    levels_planned: int
-    levels_traced: int
-    kappa: int
-    delta: float
-    learning_error: float
-    mae: float
-    mae_db: float
-    span_ratio: float
-    contour_distance_m: float
-    flight_distance_m: float
-    samples: int
-    mae_rel: float = math.nan
-    sim_s: float = 0.0
-    reconstruction_s: float = 0.0
-    levels: list[float] = field(default_factory=list)
-    dropped: list[float] = field(default_factory=list)
-    pieces: int = 0
-    outcomes: dict[str, int] = field(default_factory=dict)
-    isoline_error_m: dict[str, float] = field(default_factory=dict)
-    forced: int = 0
-    noise_std: float = math.nan
-    """The samples' noise as this iteration's reconstruction estimated it (field units; 0:
-    taken as exact and interpolated; the previous iteration's when nothing new was flown)."""
-    noise_floor: float = 0.0
-    """The learning error the samples' noise alone would make in this iteration (0 for
-    exact samples; :func:`~econdor_gcs.core.stopping.noise_floor`)."""
-    span_noise: float = 0.0
-    """What the noise may move the estimate's span by in this iteration."""
-
-    CSV_COLUMNS = (
-        "iteration", "levels_planned", "levels_traced", "kappa", "delta", "learning_error",
-        "mae", "mae_db", "span_ratio", "contour_distance_m", "flight_distance_m", "samples",
-    )
-
-    def csv_row(self) -> dict[str, Any]:
-        d = asdict(self)
-        return {k: d[k] for k in self.CSV_COLUMNS}
-
-
 SPAN_NOISE_Z = 2.0
 """Each extreme of the estimate may move by this many standard deviations of the noise's
 change in an iteration before the span counts as changed (the learning-error rule)."""
-
-FINISH = -1
-"""The iteration number of the flight home (:meth:`Executor.finish`) in flight records."""
-
-
-@dataclass
-class FlightRecord:
-    """One flight of the executor as the run directory keeps it (``flights.jsonl`` plus the
-    samples in ``samples.csv``); a resumed run replays these instead of flying again.
-
-    ``positions_before_m`` are the vehicle positions the flight was planned from;
-    ``executor_state`` is what an executor with ``state()`` / ``restore(state)`` (the
-    in-process one) needs to continue exactly where it was after the flight.
-    """
-
-    iteration: int
-    plans: list[list[Task]]
-    reports: list[FlightReport]
-    positions_before_m: list[tuple[float, float]]
-    executor_state: dict[str, Any] | None = None
-
-
-@dataclass
-class RunResult:
-    planner: str
-    seed: int
-    records: list[IterationRecord]
-    samples: SampleLog
-    grid: Grid
-    estimate: FloatArray
-    truth: FloatArray | None
-    converged: bool
-    stop_reason: str
-    vehicles: int
-    sim_s: float
-    wall_s: float
-    reconstruction_s: float
-    flight_distance_m: float
-    contour_distance_m: float
-    isoline_error_m: dict[str, float] = field(default_factory=dict)
-    mission: dict[str, Any] = field(default_factory=dict)
-    return_m: float = 0.0
-    """Flight home after the last iteration: flown, but behind no estimate, so neither in
-    ``flight_distance_m`` nor in any record's (``total_flown_m`` has it)."""
-
-    @property
-    def total_flown_m(self) -> float:
-        """Everything flown: ``flight_distance_m`` and the flight home."""
-        return self.flight_distance_m + self.return_m
-
-    def summary(self) -> dict[str, Any]:
-        last = self.records[-1] if self.records else None
-        return {
-            "planner": self.planner,
-            "seed": self.seed,
-            "iterations": max(0, len(self.records) - 1),  # after the initiation (row 0)
-            "final_mae": last.mae if last else math.nan,
-            "final_mae_db": last.mae_db if last else math.nan,
-            "final_mae_rel": last.mae_rel if last else math.nan,
-            "span_ratio": last.span_ratio if last else math.nan,
-            "flight_distance_m": self.flight_distance_m,
-            "return_m": self.return_m,
-            "total_flown_m": self.total_flown_m,
-            "contour_distance_m": self.contour_distance_m,
-            "samples": len(self.samples),
-            "converged": self.converged,
-            "stop_reason": self.stop_reason,
-            "wall_s": self.wall_s,
-            "sim_s": self.sim_s,
-            "reconstruction_s": self.reconstruction_s,
-            "noise_std": last.noise_std if last else math.nan,
-            "vehicles": self.vehicles,
-            "isoline_error_m": self.isoline_error_m,
-            **self.mission,
-        }
 
 
 # -- planners by name -------------------------------------------------------------------------
@@ -252,51 +177,6 @@ def build_planner(name: str, mission: Mission) -> Planner:
         raise MissionError(f"planner: unknown planner {name!r} (one of {', '.join(PLANNERS)})")
     return factory(mission)
 
-
-
-# -- progress events ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RunStarted:
-    planner: str
-    seed: int
-    vehicles: int
-
-
-@dataclass(frozen=True)
-class IterationPlanned:
-    """A batch is about to be flown: its levels, and each vehicle's task list."""
-
-    iteration: int
-    batch: Batch
-    plans: list[list[Task]]
-
-
-@dataclass(frozen=True)
-class IterationDone:
-    """An iteration was flown and re-estimated (row ``record`` of metrics.csv)."""
-
-    record: IterationRecord
-    estimate: FloatArray
-
-
-@dataclass(frozen=True)
-class RunDone:
-    summary: dict[str, Any]
-
-
-DfcEvent = RunStarted | IterationPlanned | IterationDone | RunDone
-Progress = Callable[[DfcEvent], None]
-Checkpoint = Callable[[int], bool]
-"""Asked between iterations with the number of the next one: ``True`` flies it, ``False``
-stops the run (the vehicles are then brought home). It may block, e.g. while an operator
-has paused the run (:class:`econdor_gcs.dfc.control.RunControl`)."""
-
-
-def isoline_levels(truth: FloatArray, fractions: tuple[float, ...] = (0.25, 0.5, 0.75)) -> list[float]:
-    lo, hi = float(np.min(truth)), float(np.max(truth))
-    return [lo + f * (hi - lo) for f in fractions]
 
 
 class Dfc:
@@ -356,9 +236,7 @@ class Dfc:
     def _reconstruct(self) -> FloatArray:
         s = self._samples()
         if not self.mission.algorithm.keep_diagonals and len(self.records) > 0:
-            keep = s.phase != Phase.SURVEY
-            s = SampleLog(s.t_s[keep], s.x_m[keep], s.y_m[keep], s.value[keep], s.phase[keep],
-                          s.vehicle[keep])
+            s = s[s.phase != Phase.SURVEY]
         t0 = time.perf_counter()
         # One BLAS thread: the station shares the cores with the vehicles (and a study
         # with its other runs); idle BLAS threads spin and slow every process down.
@@ -403,13 +281,13 @@ class Dfc:
         self._planned_from = pos
         return pos
 
-    def _fly(self, plans: list[list[Task]], iteration: int, pattern: bool = False
+    def _fly(self, plans: list[list[Task]], iteration: int, survey: bool = False
              ) -> list[FlightReport]:
         """Fly ``plans`` (or replay the recorded flight of ``iteration``); the samples are
         handed to ``on_flight`` -- written to disk -- before the DFC uses them.
 
-        ``pattern`` marks the mission's initiation pattern, whose samples are tagged
-        ``Phase.SURVEY``.
+        ``survey`` marks the mission's initiation pattern: the executor is told, and its
+        samples come back ``Phase.SURVEY`` (a replayed one has them so on disk).
         """
         rec = self._replay.pop(iteration, None)
         if rec is not None:
@@ -425,10 +303,7 @@ class Dfc:
                 for r in rec.reports])
         before = self._planned_from if self._planned_from is not None else \
             self.executor.positions()
-        reports = self.executor.fly(plans, iteration)
-        if pattern:
-            for r in reports:
-                r.samples.phase = np.full(len(r.samples), Phase.SURVEY, dtype=np.int8)
+        reports = self.executor.fly(plans, iteration, survey=survey)
         if self.on_flight is not None:
             state = getattr(self.executor, "state", None)
             self.on_flight(FlightRecord(iteration, [list(p) for p in plans], reports,
@@ -469,9 +344,7 @@ class Dfc:
         for r in reports:
             s = r.samples
             if len(s) > per:
-                idx = np.unique(np.linspace(0, len(s) - 1, per).round().astype(int))
-                r.samples = SampleLog(s.t_s[idx], s.x_m[idx], s.y_m[idx], s.value[idx],
-                                      s.phase[idx], s.vehicle[idx])
+                r.samples = s.take(np.unique(np.linspace(0, len(s) - 1, per).round()))
 
     def _record(self, it: int, batch: Batch | None, estimate: FloatArray,
                 previous: FloatArray | None, reports: list[FlightReport]) -> IterationRecord:
@@ -481,7 +354,8 @@ class Dfc:
             span_t = metrics.span(self.truth)
             rec_mae_rel = mae / span_t if span_t > 0 else math.nan
             sr = metrics.span_ratio(estimate, self.truth)
-            iso = self._isoline_errors(estimate)
+            iso = isoline_errors(self.truth, estimate, self.grid,
+                                 self.mission.algorithm.target_levels)
         else:
             mae, rec_mae_rel, sr, iso = math.nan, math.nan, math.nan, {}
         outcomes: dict[str, int] = {}
@@ -535,7 +409,7 @@ class Dfc:
         if first is None:  # the mission's pattern; the DFC keeps only a few of its samples
             pattern, plans = self._pattern()
             self.progress(IterationPlanned(0, pattern, plans))
-            reports = self._fly(plans, 0, pattern=True)
+            reports = self._fly(plans, 0, survey=True)
             self._subsample_initiation(reports)
             self._account(reports)
         else:
@@ -611,28 +485,6 @@ class Dfc:
                                self.mission.algorithm.stop_lambda, span_prev, span_now,
                                self.records[-1].span_noise,
                                flown_m=[flown.get(r.iteration, 0.0) for r in rows])
-
-    def _isoline_errors(self, estimate: FloatArray) -> dict[str, float]:
-        """Iso-line error (m) at 25, 50 and 75 % of the true span; with target levels also
-        the error at each (``target@L``) and their mean (``target``), and the true iso-line
-        pieces missed (``target@L_missed``; all levels: ``target_missed`` of
-        ``target_pieces``)."""
-        assert self.truth is not None
-        out = {f"p{frac}": metrics.isoline_error(self.truth, estimate, self.grid, lv)
-               for frac, lv in zip((25, 50, 75), isoline_levels(self.truth), strict=True)}
-        targets = self.mission.algorithm.target_levels
-        if targets:
-            errs = [metrics.isoline_error(self.truth, estimate, self.grid, lv) for lv in targets]
-            missed = [metrics.isoline_components_missed(self.truth, estimate, self.grid, lv)
-                      for lv in targets]
-            finite = [e for e in errs if not math.isnan(e)]
-            out["target"] = sum(finite) / len(finite) if finite else math.nan
-            for lv, e, (m, _n) in zip(targets, errs, missed, strict=True):
-                out[f"target@{lv:g}"] = e
-                out[f"target@{lv:g}_missed"] = float(m)
-            out["target_missed"] = float(sum(m for m, _ in missed))
-            out["target_pieces"] = float(sum(n for _, n in missed))
-        return out
 
     def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float
                 ) -> RunResult:

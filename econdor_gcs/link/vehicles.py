@@ -58,6 +58,9 @@ HDG_UNKNOWN = 0xFFFF
 """``GLOBAL_POSITION_INT.hdg`` when the heading is unknown (UINT16_MAX, MAVLink common)."""
 AIRBORNE_ALT_M = 0.5
 """Above home by more than this, a vehicle counts as flying (for ``VehicleLink.airborne_s``)."""
+CLOCK_SPAN_S = 5.0
+"""A vehicle's clock rate is taken over at least this much of our time (the staleness of one
+position, up to a quarter second, then hardly counts)."""
 REBOOT_MS = 10_000
 """A ``time_boot_ms`` this far behind the last one means the vehicle restarted."""
 NOT_VEHICLES = frozenset({mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
@@ -250,7 +253,17 @@ class VehicleLink:
     sensors_health: int = 0
     # mission progress
     mission_current: int | None = None
+    mission_state: int = 0
+    """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
+    that does not say)."""
+    mission_state_at: float = 0.0
+    """When that MISSION_CURRENT arrived."""
     mission_reached: int | None = None
+    clock_first: tuple[float, int] | None = None
+    """(our time, ``time_boot_ms``) of its first position, ..."""
+    clock_last: tuple[float, int] | None = None
+    """... and of its newest (a resent, older one is no news): how fast its clock runs
+    against ours (:attr:`clock_rate`)."""
     statustexts: list[tuple[float, int, str]] = field(default_factory=list)
     messages: int = 0
 
@@ -269,6 +282,58 @@ class VehicleLink:
         if self.sensors_present is None or not self.sensors_present & bit:
             return None
         return bool(self.sensors_health & bit)
+
+    @property
+    def clock_rate(self) -> float | None:
+        """Its clock's speed against ours since its first position (its sim speed-up), once
+        heard over :data:`CLOCK_SPAN_S` or more (None before)."""
+        a, b = self.clock_first, self.clock_last
+        if a is None or b is None or b[0] - a[0] < CLOCK_SPAN_S:
+            return None
+        return (b[1] - a[1]) / 1000.0 / (b[0] - a[0])
+
+    def account(self, msg: MAVLinkMessage, now: float) -> list[Event]:
+        """Take in a message of its autopilot other than a HEARTBEAT (received at
+        ``now``); return the events it caused."""
+        events: list[Event] = []
+        kind = msg.get_type()
+        if kind == "GLOBAL_POSITION_INT":
+            pair = (now, int(msg.time_boot_ms))
+            if self.clock_first is None:
+                self.clock_first = pair
+            elif self.clock_last is None or pair[1] > self.clock_last[1]:
+                self.clock_last = pair
+        if kind == "GLOBAL_POSITION_INT" and no_position(msg):
+            self.time_boot_ms = msg.time_boot_ms
+        elif kind == "GLOBAL_POSITION_INT":
+            rel_alt_m = msg.relative_alt / 1000.0
+            t_ms, last_ms = msg.time_boot_ms, self.last_fix_ms
+            if last_ms is None or t_ms > last_ms or t_ms < last_ms - REBOOT_MS:
+                airborne = rel_alt_m > AIRBORNE_ALT_M
+                if last_ms is not None and t_ms > last_ms and airborne and self.last_fix_airborne:
+                    self.airborne_s += (t_ms - last_ms) / 1000.0
+                self.last_fix_ms, self.last_fix_airborne = t_ms, airborne
+            self.time_boot_ms = msg.time_boot_ms
+            self.lat_deg, self.lon_deg = msg.lat / 1e7, msg.lon / 1e7
+            self.alt_m, self.rel_alt_m = msg.alt / 1000.0, rel_alt_m
+            if msg.hdg != HDG_UNKNOWN:
+                self.heading_deg = msg.hdg / 100.0
+        elif kind == "SYS_STATUS":
+            self.sensors_present = msg.onboard_control_sensors_present
+            self.sensors_health = msg.onboard_control_sensors_health
+        elif kind == "MISSION_CURRENT":
+            self.mission_current = msg.seq
+            self.mission_state = int(getattr(msg, "mission_state", 0) or 0)
+            self.mission_state_at = now
+        elif kind == "MISSION_ITEM_REACHED":
+            self.mission_reached = msg.seq
+            events.append(MissionItemReached(self.sysid, msg.seq))
+        elif kind == "STATUSTEXT":
+            text = _text(msg.text)
+            self.statustexts.append((now, msg.severity, text))
+            del self.statustexts[:-200]
+            events.append(StatusText(self.sysid, msg.severity, text))
+        return events
 
     @property
     def companions(self) -> list[int]:
@@ -379,7 +444,7 @@ class VehicleTable:
                 link.base_mode, link.custom_mode = msg.base_mode, msg.custom_mode
                 link.system_status = msg.system_status
             else:
-                self._autopilot_message(link, msg, kind, now, events)
+                events.extend(link.account(msg, now))
         elif compid in link.components and link.components[compid].source != source:
             # a component that moved (or a second one with its id): it is followed, but it
             # never takes the vehicle's route
@@ -405,37 +470,6 @@ class VehicleTable:
         if link is not None:
             link.messages += 1
         return link, events
-
-    def _autopilot_message(self, link: VehicleLink, msg: MAVLinkMessage, kind: str,
-                           now: float, events: list[Event]) -> None:
-        if kind == "GLOBAL_POSITION_INT" and no_position(msg):
-            link.time_boot_ms = msg.time_boot_ms
-        elif kind == "GLOBAL_POSITION_INT":
-            rel_alt_m = msg.relative_alt / 1000.0
-            t_ms, last_ms = msg.time_boot_ms, link.last_fix_ms
-            if last_ms is None or t_ms > last_ms or t_ms < last_ms - REBOOT_MS:
-                airborne = rel_alt_m > AIRBORNE_ALT_M
-                if last_ms is not None and t_ms > last_ms and airborne and link.last_fix_airborne:
-                    link.airborne_s += (t_ms - last_ms) / 1000.0
-                link.last_fix_ms, link.last_fix_airborne = t_ms, airborne
-            link.time_boot_ms = msg.time_boot_ms
-            link.lat_deg, link.lon_deg = msg.lat / 1e7, msg.lon / 1e7
-            link.alt_m, link.rel_alt_m = msg.alt / 1000.0, rel_alt_m
-            if msg.hdg != HDG_UNKNOWN:
-                link.heading_deg = msg.hdg / 100.0
-        elif kind == "SYS_STATUS":
-            link.sensors_present = msg.onboard_control_sensors_present
-            link.sensors_health = msg.onboard_control_sensors_health
-        elif kind == "MISSION_CURRENT":
-            link.mission_current = msg.seq
-        elif kind == "MISSION_ITEM_REACHED":
-            link.mission_reached = msg.seq
-            events.append(MissionItemReached(link.sysid, msg.seq))
-        elif kind == "STATUSTEXT":
-            text = _text(msg.text)
-            link.statustexts.append((now, msg.severity, text))
-            del link.statustexts[:-200]
-            events.append(StatusText(link.sysid, msg.severity, text))
 
     def _conflict(self, kind: ConflictKind, sysid: int, source: Source,
                   known: Address | None, message: str, now: float) -> Event:

@@ -41,9 +41,12 @@ Conventions and choices (see also DESIGN.md §4):
   in-process vehicles keep their position between iterations. A ``LOITER_UNLIM`` at the
   last task's *point* would send a tracer back to the start of its contour piece (traces
   end elsewhere), adding flight the in-process run does not have.
-* **Phase of a sample**: from the vehicle's ``NAMED_VALUE_INT("PHASE")`` changes, looked up
-  by the sample's ``time_boot_ms`` (:class:`~.link.reports.PhaseTrack`). A vehicle that
-  reports no phases (a stock autopilot) gets the phase its mission item implies.
+* **Phase of a sample**: decided once, when its flight ends
+  (:func:`~.flight.decide_phases`): ``SURVEY`` in a flight the DFC flies as a survey
+  (``fly(..., survey=True)``), else from the vehicle's ``NAMED_VALUE_INT("PHASE")``
+  changes, looked up by the sample's ``time_boot_ms`` (:class:`~.link.reports.PhaseTrack`);
+  a vehicle that reports no phases (a stock autopilot) gets the phase its mission item
+  implies.
 * **Distances.** ``traced_m`` and trace outcomes come from the vehicle's
   ``DEBUG_FLOAT_ARRAY("TRACE")`` reports (:class:`~.core.tasks.TraceReport`); STATUSTEXT is
   for people only (the live display shows the last one). A contour flown as waypoints is
@@ -306,11 +309,12 @@ class MavlinkExecutor:
     def positions(self) -> list[tuple[float, float]]:
         return self._owned(lambda: [self.telemetry.position(s) for s in self.sysids])
 
-    def fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+    def fly(self, plans: list[list[Task]], iteration: int, *, survey: bool = False
+            ) -> list[FlightReport]:
         if len(plans) != self.n_vehicles:
             raise ValueError(f"expected {self.n_vehicles} plans, got {len(plans)}")
         self.iteration = iteration
-        return self.station.call(self._fly(plans, iteration))
+        return self.station.call(self._fly(plans, iteration, survey))
 
     def abort_flight(self) -> None:
         """End the flight in progress now (an operator's stop; any thread): every vehicle
@@ -373,10 +377,12 @@ class MavlinkExecutor:
             with contextlib.suppress(TimeoutError):  # a tick: look again
                 await asyncio.wait_for(self._changed.wait(), tick_s)
 
-    async def _fly(self, plans: list[list[Task]], iteration: int) -> list[FlightReport]:
+    async def _fly(self, plans: list[list[Task]], iteration: int, survey: bool = False
+                   ) -> list[FlightReport]:
         """Fly ``plans``; the plans of vehicles lost before, and the pieces a vehicle left
         unfinished (given up, or its own failsafe took it off its mission), are flown in
-        further rounds, by the vehicles in service (that one too, once its link is back)."""
+        further rounds, by the vehicles in service (that one too, once its link is back).
+        Every round of a ``survey`` is flown as a survey."""
         self.vehicle_losses.check_lost()
         reports = {v.index: self.telemetry.end_idle(v) for v in self.vehicles.values()}
         # until they are returned, the reports of the rounds flown are what an error on the
@@ -386,7 +392,7 @@ class MavlinkExecutor:
         for round_no in range(MAX_ROUNDS):
             if self._abort.is_set():
                 break
-            flown = await self._round(plans, iteration, round_no)
+            flown = await self._round(plans, iteration, round_no, survey)
             leftover: list[tuple[int, list[Task]]] = []
             for v in flown:
                 cut = v.flight.interrupted if v.flight is not None else None
@@ -419,8 +425,8 @@ class MavlinkExecutor:
     async def _await_link(self, v: VehicleState) -> None:
         await self.vehicle_losses.wait_link(v)
 
-    async def _round(self, plans: list[list[Task]], iteration: int, round_no: int
-                     ) -> list[VehicleState]:
+    async def _round(self, plans: list[list[Task]], iteration: int, round_no: int,
+                     survey: bool = False) -> list[VehicleState]:
         """Upload, start and fly one set of plans; return the vehicles that flew."""
         flying: list[VehicleState] = []
         t0 = time.monotonic()
@@ -431,7 +437,7 @@ class MavlinkExecutor:
                 continue
             flying.append(v)
             jobs.append(self.vehicle_losses.tolerant(v, functools.partial(
-                self.vehicle_missions.plan_and_upload, v, tasks, iteration, round_no)))
+                self.vehicle_missions.plan_and_upload, v, tasks, iteration, round_no, survey)))
         # every upload first, then start everyone: streaming vehicles would slow the others'
         # transfers down (their samples share this endpoint)
         await run_all(jobs)

@@ -1,14 +1,20 @@
 """One vehicle's flight as the ground station saw it, and the report made of it.
 
 :class:`Flight` is what one vehicle did for one mission (its samples, the items it
-reached, its trace reports, how the flight ended); :func:`build_report` makes the
+reached, its trace reports, how the flight ended); :func:`settle` puts its samples in
+order and decides their phases, :func:`build_report` makes the
 :class:`~.core.tasks.FlightReport` the DFC takes. :class:`StatusAssembler` joins STATUSTEXT
 chunks into texts, for people. No I/O, no clock: :class:`~.telemetry.StationTelemetry`
 fills them from what the vehicles send.
+
+A received sample has no phase until its flight is settled: the vehicle's ``PHASE`` report
+that covers it may come after it (a resent range repeats its changes), so its phase is
+decided once, at the end, with everything the vehicle said (:func:`decide_phases`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +22,7 @@ import numpy as np
 from econdor_gcs.core.tasks import (
     FlightReport,
     OutcomeStatus,
+    Phase,
     SampleLog,
     Task,
     TaskOutcome,
@@ -23,8 +30,17 @@ from econdor_gcs.core.tasks import (
     TraceReport,
     TraceTask,
 )
+from econdor_gcs.link.reports import PhaseTrack
 
-__all__ = ["Flight", "StatusAssembler", "build_report"]
+__all__ = ["LATE", "Flight", "StatusAssembler", "build_report", "decide_phases", "settle",
+           "settled_samples"]
+
+LATE = -2
+"""Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
+RECEIVED_COLUMNS = ("time_boot_ms", "x_m", "y_m", "value", "seq")
+"""Columns of a batch of received samples (:attr:`Flight.received`): the vehicle's time,
+local ENU metres, the value, and the mission item current when it arrived (-1 outside
+items, :data:`LATE`)."""
 
 
 class StatusAssembler:
@@ -78,10 +94,14 @@ class Flight:
     style: TaskStyle = TaskStyle.TRACE
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_ms: int | None = None
-    rows: list[tuple[float, float, float, float, int]] = field(default_factory=list)
-    row_seqs: list[int] = field(default_factory=list)
-    """Mission item of each row (-1 outside items, :data:`LATE` for a sample that arrived
-    after later ones: attributed at the end, by time)."""
+    item_phases: dict[int, Phase] = field(default_factory=dict)
+    """The phase each item of its mission implies (for a vehicle that reports none)."""
+    survey: bool = False
+    """The station flies this flight as a survey: its samples are ``Phase.SURVEY``."""
+    received: list[np.ndarray] = field(default_factory=list)
+    """Batches of samples as received, phase undecided (:data:`RECEIVED_COLUMNS`)."""
+    samples: SampleLog = field(default_factory=SampleLog)
+    """Its samples in time order with their phases, once :func:`settle` d."""
     pieces: dict[int, TraceReport] = field(default_factory=dict)
     item_flown_m: dict[int, float] = field(default_factory=dict)
     last_ms: int | None = None
@@ -115,19 +135,71 @@ class Flight:
         return None
 
 
+def decide_phases(t_ms: np.ndarray, seqs: np.ndarray, track: PhaseTrack,
+                  item_phases: Mapping[int, Phase], survey: bool = False) -> np.ndarray:
+    """The phase of each sample, decided once: ``SURVEY`` in a flight the station flies as a
+    survey (the vehicle only knows it flies to waypoints); else the phase the vehicle
+    reported for the sample's time; else, for a vehicle that reports none (a stock
+    autopilot), the one its mission item implies (``TRANSIT`` outside the items).
+
+    >>> t = PhaseTrack(); t.add(1000, Phase.TRACE)
+    >>> ms, seqs = np.array([900, 1000]), np.array([2, 3])
+    >>> decide_phases(ms, seqs, t, {}).tolist(), decide_phases(ms, seqs, t, {}, True).tolist()
+    ([0, 2], [3, 3])
+    >>> decide_phases(ms, seqs, PhaseTrack(), {3: Phase.TRACE}).tolist()
+    [0, 2]
+    """
+    if survey:
+        return np.full(len(t_ms), Phase.SURVEY, dtype=np.int8)
+    if track.known:
+        return np.array([track.at(int(t)) for t in t_ms], dtype=np.int8)
+    return np.array([item_phases.get(int(s), Phase.TRANSIT) for s in seqs], dtype=np.int8)
+
+
+def settled_samples(batches: Sequence[np.ndarray], index: int, track: PhaseTrack,
+                    item_phases: Mapping[int, Phase], survey: bool = False
+                    ) -> tuple[SampleLog, np.ndarray]:
+    """Received ``batches`` (:data:`RECEIVED_COLUMNS`) as one vehicle's samples in time order
+    (resent ones arrive late), each late one in the mission item of the sample before it,
+    every phase decided (:func:`decide_phases`); and the mission item of each."""
+    a = np.concatenate(batches) if batches else np.zeros((0, len(RECEIVED_COLUMNS)))
+    a = a[np.argsort(a[:, 0], kind="stable")]
+    seqs = a[:, 4].astype(np.int64)
+    # a late sample takes the item of the sample before it (-1 before any)
+    known = np.flatnonzero(seqs != LATE)
+    before = np.searchsorted(known, np.arange(len(seqs)), side="right") - 1
+    seqs = np.where(before >= 0, seqs[known[np.maximum(before, 0)]] if len(known) else -1, -1)
+    phase = decide_phases(a[:, 0], seqs, track, item_phases, survey)
+    log = SampleLog(a[:, 0] / 1000.0, a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(), phase,
+                    np.full(len(a), index, dtype=np.int16))
+    return log, seqs
+
+
+def settle(flight: Flight, track: PhaseTrack) -> None:
+    """Make the flight's :attr:`~Flight.samples` of what it received
+    (:func:`settled_samples`) and the distance flown per mission item, along the ordered
+    path from where the flight began."""
+    flight.samples, seqs = settled_samples(flight.received, flight.index, track,
+                                           flight.item_phases, flight.survey)
+    flight.received = []
+    s = flight.samples
+    xy = np.vstack([np.asarray(flight.start_xy)[None, :], np.column_stack([s.x_m, s.y_m])])
+    steps = np.hypot(*np.diff(xy, axis=0).T)
+    flight.item_flown_m = {}
+    for seq, step in zip(seqs.tolist(), steps.tolist(), strict=True):
+        if seq >= 0:
+            flight.item_flown_m[seq] = flight.item_flown_m.get(seq, 0.0) + step
+
+
 def build_report(flight: Flight) -> FlightReport:
-    """One :class:`FlightReport` from what was collected during ``flight``."""
-    rows = flight.rows
-    if rows:
-        a = np.asarray(rows, dtype=float)
-        log = SampleLog(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy(), a[:, 3].copy(),
-                        a[:, 4].astype(np.int8),
-                        np.full(len(rows), flight.index, dtype=np.int16))
-        xy = np.vstack([np.asarray(flight.start_xy)[None, :], a[:, 1:3]])
+    """One :class:`FlightReport` from what was collected during ``flight`` (settled)."""
+    log = flight.samples
+    if len(log):
+        xy = np.vstack([np.asarray(flight.start_xy)[None, :],
+                        np.column_stack([log.x_m, log.y_m])])
         flown = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
-        end = (float(a[-1, 1]), float(a[-1, 2]))
+        end = (float(log.x_m[-1]), float(log.y_m[-1]))
     else:
-        log = SampleLog()
         flown = 0.0
         end = flight.start_xy
     outcomes: list[TaskOutcome] = []

@@ -19,6 +19,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Coroutine, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from econdor_gcs.config import Mission
@@ -69,6 +70,19 @@ async def run_all(coros: list[Coroutine[Any, Any, None]]) -> None:
         raise
 
 
+@dataclass
+class LinkWatch:
+    """What :class:`VehicleLosses` keeps of one vehicle's link between its checks (the
+    heartbeats themselves are the link table's: :class:`~.link.vehicles.VehicleLink`)."""
+
+    silent: bool = False
+    """Its link was out when the item time limits were last checked."""
+    link_out: bool = False
+    """Its link was found out (no HEARTBEAT for :data:`SILENT_S`) and is not back yet."""
+    back_since: float | None = None
+    """Monotonic time its HEARTBEATs came back after a silence."""
+
+
 class VehicleLosses:
     """Gives vehicles up and hands their work to the others (a part of
     :class:`~.executor.MavlinkExecutor`, on the station's loop thread).
@@ -97,6 +111,8 @@ class VehicleLosses:
         self.vehicles = vehicles
         self.sysids = sysids
         self.altitude_m = mission.vehicles.altitude_m
+        self.watch = {sysid: LinkWatch() for sysid in sysids}
+        """Each vehicle's link as this part last saw it, by system id."""
         self.iteration = iteration
         self.records: list[dict[str, Any]] = []
         """Every vehicle given up: sysid, reason, iteration, and ``reassigned``: per batch of
@@ -149,15 +165,16 @@ class VehicleLosses:
         if v.lost is not None or link is None:
             return True
         now = time.monotonic()
+        w = self.watch[v.sysid]
         if now - link.last_heartbeat > SILENT_S:
-            v.link_out, v.back_since = True, None
+            w.link_out, w.back_since = True, None
             return False
-        if not v.link_out:
+        if not w.link_out:
             return True
-        if v.back_since is None:
-            v.back_since = now
-        if now - v.back_since >= LINK_BACK_S:
-            v.link_out, v.back_since = False, None
+        if w.back_since is None:
+            w.back_since = now
+        if now - w.back_since >= LINK_BACK_S:
+            w.link_out, w.back_since = False, None
             return True
         return False
 
@@ -225,11 +242,12 @@ class VehicleLosses:
             if v.lost is not None or f is None or f.done or f.landed or \
                     f.interrupted is not None:
                 continue  # a vehicle that finished (or landed, or left) is not late any more
+            w = self.watch[v.sysid]
             if self.silent_s(v, now) > SILENT_S:
-                v.silent = True
+                w.silent = True
                 continue
-            if v.silent:
-                v.silent = False
+            if w.silent:
+                w.silent = False
                 v.item_since = now
                 v.item_since_ms = self.router.vehicles[v.sysid].time_boot_ms or 0
                 continue

@@ -106,10 +106,10 @@ class VehicleMissions:
                            f"{exc.strerror or exc}") from exc
 
     async def plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
-                              round_no: int) -> None:
+                              round_no: int, survey: bool = False) -> None:
         """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
         refused a trace item (the flight begins first: a failed upload leaves its tasks
-        unfinished, for the others).
+        unfinished, for the others; ``survey``: it is flown as a survey).
 
         A vehicle's refusal is its MISSION_ACK to the refused item; when that ACK is lost we
         send the item again and a vehicle with no transfer running answers INVALID_SEQUENCE
@@ -125,10 +125,10 @@ class VehicleMissions:
                                 speed_mps=self.mission.vehicles.speed_mps, end="none")
             self.save_mission(iteration, v.sysid, plan.items, tasks, round_no)
             if f is None:
-                f = self.telemetry.begin(v, tasks, plan)
+                f = self.telemetry.begin(v, tasks, plan, survey=survey)
             else:
                 f.task_seqs, f.style = list(plan.task_seqs), plan.style
-            v.item_phases = dict(plan.item_phases)
+                f.item_phases = dict(plan.item_phases)
             try:
                 await self.upload(v, plan.items)
             except MissionRejected as exc:

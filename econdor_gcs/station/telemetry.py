@@ -8,7 +8,11 @@ Parts of :class:`~.executor.MavlinkExecutor`:
     in batches of :data:`SAMPLE_BATCH`, mission progress, phases, trace reports and texts,
     and each flight's samples settled into a :class:`~.core.tasks.FlightReport`.
 :class:`VehicleState`
-    One vehicle's bookkeeping across flights.
+    One vehicle's bookkeeping across flights: what is the station's own (its samples, its
+    flights and their mission progress, whether it was given up). What the link knows of
+    a vehicle (heartbeats and modes, components, positions, its clock, the state of its
+    mission) is the link's vehicle table's (:class:`~.link.vehicles.VehicleLink`), read
+    there; the item time limits' view of its link is :class:`~.losses.LinkWatch`.
 :class:`VehicleRow`
     One vehicle as the live display sees it at one moment; its ``status`` is a
     :class:`~.status.VehicleStatus`.
@@ -46,7 +50,14 @@ from econdor_gcs.link.codec import MAVLinkMessage, mavlink
 from econdor_gcs.link.items import MissionItemSpec, MissionPlan
 from econdor_gcs.link.reports import PhaseTrack, phase_change, trace_report
 from econdor_gcs.link.router import Router, Sample
-from econdor_gcs.station.flight import Flight, StatusAssembler, build_report
+from econdor_gcs.station.flight import (
+    LATE,
+    Flight,
+    StatusAssembler,
+    build_report,
+    settle,
+    settled_samples,
+)
 from econdor_gcs.station.status import VehicleStatus
 
 if TYPE_CHECKING:
@@ -67,8 +78,6 @@ SAMPLE_BATCH_S = 1.0
 """... or the wall time the oldest of them may wait: converted batches go to the run
 directory as they are made (:attr:`StationTelemetry.on_rows`), so a station that dies
 loses at most this much of what it had received."""
-LATE = -2
-"""Mission seq of a sample that arrived after later ones (attributed by time at the end)."""
 RUNNING_STATES = frozenset({mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED,
                             mavlink.MISSION_STATE_COMPLETE})
 """``mission_state``s of a mission that was started."""
@@ -94,16 +103,16 @@ def _counts_ours(msg: MAVLinkMessage, items: Sequence[object], unknown: bool = F
 
 @dataclass
 class VehicleState:
-    """Ground-side bookkeeping of one vehicle across flights (for the live display too)."""
+    """The station's own bookkeeping of one vehicle across flights (for the live display
+    too); what the link knows of it is its :class:`~.link.vehicles.VehicleLink`."""
 
     index: int
     sysid: int
     current_seq: int | None = None
     items: list[MissionItemSpec] = field(default_factory=list)
-    item_phases: dict[int, Phase] = field(default_factory=dict)
-    """The phase each item of the uploaded mission implies (for vehicles that report none)."""
     item_phase: Phase = Phase.TRANSIT
-    """The phase the current mission item implies."""
+    """The phase the current mission item implies (the live display's, for a vehicle that
+    reports none)."""
     style: TaskStyle | None = None
     """How this vehicle gets contour pieces: trace items until it refuses one (None: it has
     not been given any yet)."""
@@ -118,10 +127,12 @@ class VehicleState:
     flown_m: float = 0.0            # the whole run
     samples: int = 0                # the whole run
     flight: Flight | None = None
-    stray: list[tuple[float, float, float, float, int]] = field(default_factory=list)
+    stray: list[np.ndarray] = field(default_factory=list)
+    """Batches of samples received outside a flight (:data:`.flight.RECEIVED_COLUMNS`; the
+    next flight takes them)."""
     status: VehicleStatus = VehicleStatus.IDLE
-    raw: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
-    """Samples not yet converted: (time_boot_ms, lat, lon, value, phase, mission seq or -1)."""
+    raw: list[tuple[int, float, float, float, int]] = field(default_factory=list)
+    """Samples not yet converted: (time_boot_ms, lat, lon, value, mission seq or -1)."""
     raw_since: float = 0.0
     """Wall time the oldest of ``raw`` arrived."""
     seen_ms: list[int] = field(default_factory=list)
@@ -149,22 +160,6 @@ class VehicleState:
     no_recovery: str | None = None
     """Why this vehicle's samples cannot be recovered (its payload does not answer the
     sample count: a stock autopilot's Lua script); None while recovery works."""
-    silent: bool = False
-    """Its link was out when the item time limits were last checked."""
-    link_out: bool = False
-    """Its link was found out (no HEARTBEAT for :data:`~.losses.SILENT_S`) and is not
-    back yet."""
-    back_since: float | None = None
-    """Monotonic time its HEARTBEATs came back after a silence."""
-    clock_first: tuple[float, int] | None = None
-    """(monotonic time, ``time_boot_ms``) of its first position, ..."""
-    clock_last: tuple[float, int] | None = None
-    """... and of its latest: how fast its clock runs (:meth:`StationTelemetry.clock_rate`)."""
-    mission_state: int = 0
-    """``mission_state`` of its last MISSION_CURRENT (0: MISSION_STATE_UNKNOWN, an autopilot
-    that does not say)."""
-    mission_state_at: float = 0.0
-    """Monotonic time that MISSION_CURRENT arrived."""
     mission_news_at: float = 0.0
     """Monotonic time of the last sign that the uploaded mission runs or ran: a
     MISSION_CURRENT of it ACTIVE, PAUSED or COMPLETE, or a MISSION_ITEM_REACHED (a short
@@ -241,8 +236,9 @@ class StationTelemetry:
         self.on_rows: Callable[[VehicleState, list[tuple[float, float, float, float, int]]],
                                None] | None = None
         """Told every batch of samples as it is converted (``(t_s, x_m, y_m, value,
-        phase)`` rows, in arrival order, the phase as known then): the run directory's
-        journal of everything received."""
+        phase)`` rows, in arrival order): the run directory's journal of everything
+        received. Its phase is the live display's (:meth:`live_phases`), not the
+        sample's, which is decided when its flight ends."""
         self.assembler = StatusAssembler()
         self.report_errors = 0
         """Malformed PHASE / TRACE reports received (logged, then ignored)."""
@@ -267,12 +263,10 @@ class StationTelemetry:
             seq = LATE
         if v.recovering:
             v.recovered += 1
-        phase = v.phases.at(s.time_boot_ms) if v.phases.known else v.item_phase
         now = time.monotonic()
         if not v.raw:
             v.raw_since = now
-        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), int(phase),
-                      seq))
+        v.raw.append((s.time_boot_ms, s.lat_deg, s.lon_deg, float(s.value), seq))
         v.samples += 1
         f = v.flight
         if f is not None:
@@ -293,7 +287,7 @@ class StationTelemetry:
         a = np.asarray(raw, dtype=float)
         x, y, _ = self.origin.to_local_many(a[:, 1], a[:, 2], 0.0)
         f = v.flight
-        seqs = a[:, 5].astype(np.int64)
+        seqs = a[:, 4].astype(np.int64)
         live = seqs != LATE  # the live display's odometer follows the samples in order
         if live.any():
             xs, ys = x[live], y[live]
@@ -301,15 +295,23 @@ class StationTelemetry:
             v.flown_m += float(np.sum(np.hypot(np.diff(xs, prepend=start[0]),
                                                np.diff(ys, prepend=start[1]))))
             v.last_xy = (float(xs[-1]), float(ys[-1]))
-        rows = list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
-                        a[:, 3].tolist(), a[:, 4].astype(np.int64).tolist(), strict=True))
+        batch = np.column_stack([a[:, 0], x, y, a[:, 3], a[:, 4]])
         if self.on_rows is not None:
-            self.on_rows(v, rows)
-        if f is not None:
-            f.rows.extend(rows)
-            f.row_seqs.extend(seqs.tolist())
-        else:
-            v.stray.extend(rows)
+            self.on_rows(v, list(zip((a[:, 0] / 1000.0).tolist(), x.tolist(), y.tolist(),
+                                     a[:, 3].tolist(), self.live_phases(v, a[:, 0], seqs),
+                                     strict=True)))
+        (f.received if f is not None else v.stray).append(batch)
+
+    @staticmethod
+    def live_phases(v: VehicleState, t_ms: np.ndarray, seqs: np.ndarray) -> list[int]:
+        """The phases the live display would show for samples arriving now: the vehicle's
+        phase at their time as reported so far, else their mission item's. A sample's own
+        phase is decided when its flight ends (:func:`~.flight.decide_phases`)."""
+        if v.phases.known:
+            return [int(v.phases.at(int(t))) for t in t_ms]
+        items = v.flight.item_phases if v.flight is not None else {}
+        return [int(items.get(int(s), v.item_phase) if s >= 0 else v.item_phase)
+                for s in seqs]
 
     def _convert_all(self) -> None:
         for v in self.vehicles.values():
@@ -330,26 +332,19 @@ class StationTelemetry:
         self.changed.set()
         kind = msg.get_type()
         f = v.flight
+        link = self.router.vehicles[sysid]  # the link's table has taken the message in
         if kind == "MISSION_CURRENT":
-            v.mission_state = int(getattr(msg, "mission_state", 0) or 0)
-            v.mission_state_at = time.monotonic()
-            if v.mission_state in RUNNING_STATES and _counts_ours(msg, v.items):
-                v.mission_news_at = v.mission_state_at
+            if link.mission_state in RUNNING_STATES and _counts_ours(msg, v.items):
+                v.mission_news_at = link.mission_state_at
             if msg.seq != v.current_seq:
                 v.current_seq = msg.seq
                 v.item_since = time.monotonic()
-                v.item_since_ms = self.router.vehicles[sysid].time_boot_ms or 0
-                v.item_phase = v.item_phases.get(msg.seq, Phase.TRANSIT)
+                v.item_since_ms = link.time_boot_ms or 0
+                v.item_phase = f.item_phases.get(msg.seq, Phase.TRANSIT) if f is not None \
+                    else Phase.TRANSIT
             self._judge(v, msg)
         elif kind == "HEARTBEAT":
             self._judge(v, msg)
-        elif kind == "GLOBAL_POSITION_INT":
-            # the vehicle's clock against ours (a resent sample's older time is no news)
-            pair = (time.monotonic(), int(msg.time_boot_ms))
-            if v.clock_first is None:
-                v.clock_first = pair
-            elif v.clock_last is None or pair[1] > v.clock_last[1]:
-                v.clock_last = pair
         elif kind == "MISSION_ITEM_REACHED":
             v.mission_news_at = time.monotonic()
             if f is not None:
@@ -394,7 +389,7 @@ class StationTelemetry:
             return
         link = self.router.vehicles[v.sysid]
         if msg.get_type() == "MISSION_CURRENT":
-            state = v.mission_state
+            state = link.mission_state
             if not _counts_ours(msg, v.items, unknown=True):  # not an old mission's
                 return
             if state == mavlink.MISSION_STATE_ACTIVE:
@@ -415,7 +410,7 @@ class StationTelemetry:
                 f.interrupted = "it landed and disarmed"
             elif mode in (FlightMode.RTL, FlightMode.LAND):
                 f.interrupted = f"it switched to {mode.value.upper()}"
-            elif mode == FlightMode.HOLD and v.mission_state == mavlink.MISSION_STATE_UNKNOWN:
+            elif mode == FlightMode.HOLD and link.mission_state == mavlink.MISSION_STATE_UNKNOWN:
                 if v.current_seq == f.last_seq:
                     f.done = True
                     v.status = VehicleStatus.HOLDING
@@ -445,19 +440,23 @@ class StationTelemetry:
         x, y, _ = self.origin.to_local(link.lat_deg, link.lon_deg, 0.0)
         return x, y
 
-    def begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None
-              ) -> Flight:
+    def begin(self, v: VehicleState, tasks: list[Task], plan: MissionPlan | None = None,
+              survey: bool = False) -> Flight:
+        """A new flight of ``v`` (``survey``: the station flies it as a survey, its samples
+        are ``Phase.SURVEY``)."""
         self._convert(v)  # samples so far belong to the previous state
         link = self.router.vehicles[v.sysid]
         # where it hovers now (the in-process vehicles also start from rest after braking)
         start = self.position(v.sysid)
         f = Flight(v.index, v.sysid, list(tasks), start_xy=start, start_ms=link.time_boot_ms,
                    task_seqs=list(plan.task_seqs) if plan else [],
-                   style=plan.style if plan else TaskStyle.TRACE)
+                   style=plan.style if plan else TaskStyle.TRACE,
+                   item_phases=dict(plan.item_phases) if plan else {}, survey=survey)
         old = v.flight  # a flight begun again (its upload was cut short by the link)
-        carried = list(v.stray) + (old.rows if old is not None else [])
-        f.rows.extend(carried)  # nothing is ever dropped
-        f.row_seqs.extend([LATE] * len(carried))
+        for batch in [*v.stray, *(old.received if old is not None else [])]:
+            carried = batch.copy()  # nothing is ever dropped; attributed by time at the end
+            carried[:, 4] = LATE
+            f.received.append(carried)
         v.stray.clear()
         v.flight = f
         return f
@@ -469,38 +468,13 @@ class StationTelemetry:
         if f is None:
             return FlightReport(v.index, SampleLog(), 0.0, 0.0, [], *self.position(v.sysid),
                                 0.0)
-        self._settle(v, f)
+        settle(f, v.phases)
         report = build_report(f)
         for o in report.outcomes:
             if o.status != OutcomeStatus.UNREPORTED:
                 way = f.style.value if isinstance(o.task, TraceTask) else "legs"
                 v.tasks_flown[way] += 1
         return report
-
-    def _settle(self, v: VehicleState, f: Flight) -> None:
-        """Put a flight's samples in time order (resent ones arrive late), give each the
-        phase the vehicle reported for its time, and each late one the mission item of the
-        sample before it; then the distance flown per item, along the ordered path."""
-        if not f.rows:
-            return
-        order = sorted(range(len(f.rows)), key=lambda i: f.rows[i][0])
-        rows = [f.rows[i] for i in order]
-        seqs = [f.row_seqs[i] if i < len(f.row_seqs) else LATE for i in order]
-        if v.phases.known:
-            rows = [(t, x, y, val, int(v.phases.at(round(t * 1000.0))))
-                    for t, x, y, val, _ in rows]
-        prev = -1
-        for k, s in enumerate(seqs):
-            if s == LATE:
-                seqs[k] = prev
-            prev = seqs[k]
-        f.rows, f.row_seqs = rows, seqs
-        xy = np.vstack([np.asarray(f.start_xy)[None, :], np.asarray(rows)[:, 1:3]])
-        steps = np.hypot(*np.diff(xy, axis=0).T)
-        f.item_flown_m = {}
-        for s, step in zip(seqs, steps.tolist(), strict=True):
-            if s >= 0:
-                f.item_flown_m[s] = f.item_flown_m.get(s, 0.0) + step
 
     def end_idle(self, v: VehicleState) -> FlightReport:
         self._convert(v)
@@ -513,16 +487,16 @@ class StationTelemetry:
         logs = []
         self._convert_all()
         for v in self.vehicles.values():
-            rows = list(v.stray) + (list(v.flight.rows) if v.flight is not None else [])
+            f = v.flight
+            batches = [*v.stray, *(f.received if f is not None else [])]
             v.stray.clear()
-            if v.flight is not None:
-                v.flight.rows.clear()
-                v.flight.row_seqs.clear()
-            if rows:
-                a = np.asarray(rows, dtype=float)
-                logs.append(SampleLog(a[:, 0], a[:, 1], a[:, 2], a[:, 3],
-                                      a[:, 4].astype(np.int8),
-                                      np.full(len(rows), v.index, dtype=np.int16)))
+            if f is not None:
+                f.received.clear()
+            if batches:  # their phases decided now, with what the vehicle said so far
+                log, _ = settled_samples(batches, v.index, v.phases,
+                                         f.item_phases if f is not None else {},
+                                         f is not None and f.survey)
+                logs.append(log)
         return SampleLog.concat(logs)
 
     # -- snapshots for the displays and the summary -------------------------------------------
@@ -557,15 +531,13 @@ class StationTelemetry:
         return rows
 
     def clock_rate(self) -> float:
-        """The vehicles' sim-time speed-up as achieved: their clocks (positions'
-        ``time_boot_ms``) over ours since their first position, the median of the vehicles
-        in service heard over 5 s or more (NaN: none). Over the whole run, the staleness of
-        a position (up to a quarter second between the display's positions) does not
-        count."""
+        """The vehicles' sim-time speed-up as achieved: the median of the clock rates
+        (:attr:`~.link.vehicles.VehicleLink.clock_rate`) of the vehicles in service (NaN:
+        none known yet)."""
         rates = sorted(
-            (b[1] - a[1]) / 1000.0 / (b[0] - a[0]) for v in self.vehicles.values()
-            if v.lost is None and (a := v.clock_first) is not None
-            and (b := v.clock_last) is not None and b[0] - a[0] >= 5.0)
+            rate for v in self.vehicles.values()
+            if v.lost is None and (link := self.router.vehicles.get(v.sysid)) is not None
+            and (rate := link.clock_rate) is not None)
         if not rates:
             return float("nan")
         mid = len(rates) // 2

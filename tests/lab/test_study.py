@@ -135,12 +135,15 @@ class FieldExecutor:
     def positions(self):
         return [(0.0, 0.0)]
 
-    def fly(self, plans, iteration):
+    def fly(self, plans, iteration, *, survey=False):
         from econdor_gcs.core.tasks import FlightReport, SampleLog
 
         x, y = self.rng.uniform(0.0, 100.0, (2, 300))
         value = 50.0 + 20.0 * np.sin(x / 30.0) * np.cos(y / 40.0) + self.rng.normal(0, 0.01, 300)
-        log = SampleLog(np.arange(300) / 10.0, x, y, value, np.zeros(300, np.int8),
+        from econdor_gcs.core.tasks import Phase
+
+        phase = Phase.SURVEY if survey else Phase.TRANSIT
+        log = SampleLog(np.arange(300) / 10.0, x, y, value, np.full(300, phase, np.int8),
                         np.zeros(300, np.int16))
         return [FlightReport(0, log, 300.0, 0.0, [], float(x[-1]), float(y[-1]), 30.0)]
 

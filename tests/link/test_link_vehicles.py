@@ -57,6 +57,32 @@ def test_a_companions_heartbeat_never_replaces_the_autopilots():
     assert link.source == A and link.sample_compid == COMPANION
 
 
+def _position(ms, lat=47.4, lon=8.5):
+    return rx(mavlink.MAVLink_global_position_int_message(ms, int(lat * 1e7), int(lon * 1e7),
+                                                          518000, 30000, 0, 0, 0, 9000))
+
+
+def test_the_table_keeps_mission_state_and_clock_rate_no_other_record_does():
+    """The vehicle's MISSION_CURRENT state and its clock against ours are the link's: the
+    station's own record of a vehicle reads them here (issue 35)."""
+    from econdor_gcs.station.telemetry import VehicleState
+
+    t = VehicleTable(heartbeat_timeout_s=5.0)
+    link, _ = t.receive(hb(), A, 0.0)
+    t.receive(rx(mavlink.MAVLink_mission_current_message(3, 5, mavlink.MISSION_STATE_ACTIVE,
+                                                         1)), A, 1.5)
+    assert (link.mission_current, link.mission_state, link.mission_state_at) == \
+        (3, mavlink.MISSION_STATE_ACTIVE, 1.5)
+    t.receive(_position(10_000), A, 2.0)
+    t.receive(_position(30_000), A, 6.0)  # 20 s of its time in 4 s of ours ...
+    assert link.clock_rate is None  # ... too short a span to say
+    t.receive(_position(25_000), A, 6.5)  # a resent, older position: no news
+    t.receive(_position(60_000), A, 12.0)
+    assert link.clock_rate == 5.0
+    assert {"mission_state", "mission_state_at", "clock_first", "clock_last"}.isdisjoint(
+        VehicleState.__dataclass_fields__)
+
+
 def test_a_companion_before_its_autopilot_is_no_vehicle():
     t = VehicleTable()
     link, events = t.receive(hb(compid=COMPANION, mav_type=mavlink.MAV_TYPE_ONBOARD_CONTROLLER),

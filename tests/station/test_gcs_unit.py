@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import time
 from types import SimpleNamespace
 from typing import Any
 
@@ -16,6 +17,7 @@ from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import (
     OutcomeStatus,
     Phase,
+    SampleLog,
     TaskOutcome,
     TaskStyle,
     TraceReport,
@@ -155,7 +157,7 @@ def test_sample_batches_convert_when_full_and_continue_the_path() -> None:
         lat, lon, _ = ex.origin.to_global(float(k), 0.0)
         on_sample(Sample(1, k, lat, lon, 30.0, 0.0))
     v = ex.vehicles[1]
-    assert len(v.raw) == 10 and len(v.stray) == SAMPLE_BATCH
+    assert len(v.raw) == 10 and sum(len(b) for b in v.stray) == SAMPLE_BATCH
     # the path length runs across batch boundaries without a gap or a double count
     assert ex.status_rows()[0].flown_m == pytest.approx(n - 1, abs=1e-3)
     assert len(ex.pending_samples()) == n
@@ -175,8 +177,9 @@ def test_build_report_from_a_flight() -> None:
     tr = TraceTask(level=50.0, x_m=10.0, y_m=10.0, search_radius_m=10.0, max_length_m=0.0,
                    piece_id=1001)
     f = Flight(index=2, sysid=3, tasks=[wp, tr], start_xy=(0.0, 0.0), start_ms=1000)
-    f.rows = [(1.1, 3.0, 4.0, 1.0, Phase.TRANSIT), (1.2, 6.0, 8.0, 2.0, Phase.TRANSIT),
-              (1.3, 6.0, 9.0, 3.0, Phase.TRACE)]
+    f.samples = SampleLog.from_rows([(1.1, 3.0, 4.0, 1.0, Phase.TRANSIT),
+                                     (1.2, 6.0, 8.0, 2.0, Phase.TRANSIT),
+                                     (1.3, 6.0, 9.0, 3.0, Phase.TRACE)], vehicle=2)
     f.last_ms = 3500
     f.item_flown_m = {2: 10.0, 3: 1.0}
     f.pieces[1001] = TraceReport(3, 1001, OutcomeStatus.CLOSED, 42.0, 50.0)
@@ -215,19 +218,23 @@ def test_mission_json_round_trip() -> None:
 
 class FakeRouter:
     def __init__(self) -> None:
-        import time
-
         # vehicles heard just now (a silent one's item time limits are not watched)
         self.vehicles = {s: VehicleLink(s, ("127.0.0.1", 1),
                                         last_heartbeat=time.monotonic()) for s in (1, 2)}
         self.handlers: dict[str, Any] = {}
+
+    def received(self, sysid: int, msg: Any) -> Received:
+        """``msg`` taken in by the vehicle's link first, as the router's table does."""
+        if msg.get_type() != "HEARTBEAT":
+            self.vehicles[sysid].account(msg, time.monotonic())
+        return Received(sysid, msg)
 
     def subscribe(self, kinds: Any, h: Any) -> None:
         kinds = kinds if isinstance(kinds, tuple) else (kinds,)
         if Sample in kinds:
             self.handlers["sample"] = h
         elif Received in kinds:
-            self.handlers["message"] = lambda sysid, msg: h(Received(sysid, msg))
+            self.handlers["message"] = lambda sysid, msg: h(self.received(sysid, msg))
         else:
             self.handlers["event"] = h
 
@@ -305,7 +312,7 @@ def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
                         end="none")
     assert plan.task_seqs == [(2, 2), (3, 5)]
     v = ex.vehicles[1]
-    v.items, v.item_phases = plan.items, dict(plan.item_phases)
+    v.items = plan.items
     f = ex.telemetry.begin(v, tasks, plan)
     v.status = "flying"
     on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
@@ -322,6 +329,111 @@ def test_a_vehicle_without_phase_reports_gets_the_phase_of_its_item() -> None:
     assert r.outcomes[1].traced_m == pytest.approx(20.0, abs=0.05)
     assert r.outcomes[1].flown_m == pytest.approx(25.0, abs=0.05)
     assert r.traced_m == pytest.approx(20.0, abs=0.05)
+
+
+def _flying(ex: Any, v: Any, tasks: list[Any], survey: bool = False) -> Any:
+    plan = plan_mission(ex.origin, tasks, 30.0, end="none")
+    v.items = plan.items
+    f = ex.telemetry.begin(v, tasks, plan, survey=survey)
+    v.status = "flying"
+    return f
+
+
+def test_a_survey_flights_samples_are_survey_whatever_the_vehicle_reports() -> None:
+    """The vehicle flies waypoints and says TRANSIT; the station flies them as its survey:
+    every sample of the flight is SURVEY when it is handed over (report or error path)."""
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1, 2])  # type: ignore[arg-type]
+    on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
+    flights = {s: _flying(ex, ex.vehicles[s], [Waypoint(5.0, 0.0), Waypoint(5.0, 5.0)],
+                          survey=True) for s in (1, 2)}
+    assert all(f.survey for f in flights.values())
+    for sysid in (1, 2):
+        on_msg(sysid, rx(mavlink.MAVLink_named_value_int_message(900, b"PHASE",
+                                                                 int(Phase.TRANSIT)), sysid))
+        for k in range(5):
+            on_sample(_sample(m.origin, sysid, 1000 + 100 * k, float(k), 0.0, 1.0))
+    r = ex.telemetry.end(ex.vehicles[1])
+    assert len(r.samples) == 5 and set(r.samples.phase.tolist()) == {int(Phase.SURVEY)}
+    pending = ex.pending_samples()  # vehicle 2's flight is still in progress
+    assert len(pending) == 5 and set(pending.phase.tolist()) == {int(Phase.SURVEY)}
+    # the next flight is no survey: the vehicle's phases again
+    _flying(ex, ex.vehicles[1], [Waypoint(9.0, 0.0)])
+    on_sample(_sample(m.origin, 1, 2000, 9.0, 0.0, 1.0))
+    assert ex.telemetry.end(ex.vehicles[1]).samples.phase.tolist() == [int(Phase.TRANSIT)]
+
+
+def test_a_sample_phase_is_decided_once_when_its_flight_ends(monkeypatch: Any) -> None:
+    """Nothing is guessed on arrival: each sample's phase is decided once, at the end, with
+    everything the vehicle said, a PHASE report that came after its samples included."""
+    from econdor_gcs.station import flight as flight_module
+
+    decided: list[int] = []
+    real = flight_module.decide_phases
+
+    def counting(t_ms: Any, *args: Any, **kwargs: Any) -> Any:
+        decided.append(len(t_ms))
+        return real(t_ms, *args, **kwargs)
+
+    monkeypatch.setattr(flight_module, "decide_phases", counting)
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
+    on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
+    journal: list[Any] = []
+    ex.telemetry.on_rows = lambda v, rows: journal.extend(rows)
+    v = ex.vehicles[1]
+    _flying(ex, v, [TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000)])
+    on_msg(1, mavlink.MAVLink_mission_current_message(2, 3, 2, 1))
+    on_msg(1, rx(mavlink.MAVLink_named_value_int_message(900, b"PHASE", int(Phase.SEARCH)), 1))
+    for k in range(6):
+        on_sample(_sample(m.origin, 1, 1000 + 100 * k, float(k), 0.0, 1.0))
+    ex.status_rows()  # converts the batch (the journal shows it), decides nothing
+    assert len(journal) == 6 and decided == []
+    # the change at 1300 ms comes after the samples it covers (reordered on the link)
+    on_msg(1, rx(mavlink.MAVLink_named_value_int_message(1300, b"PHASE", int(Phase.TRACE)), 1))
+    r = ex.telemetry.end(v)
+    assert decided == [6]
+    assert r.samples.phase.tolist() == [int(Phase.SEARCH)] * 3 + [int(Phase.TRACE)] * 3
+
+
+def test_a_late_sample_of_a_vehicle_without_phases_is_in_the_item_it_was_taken_in() -> None:
+    """A stock vehicle reports no phases: a sample that arrives after later ones is in the
+    mission item of the sample before it by time, whatever item is current on arrival."""
+    m = _mission()
+    router = FakeRouter()
+    ex = MavlinkExecutor(SimpleNamespace(router=router), m, [1])  # type: ignore[arg-type]
+    route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
+    tasks = [TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route)]
+    plan = plan_mission(m.origin, tasks, 30.0, style=TaskStyle.WAYPOINTS, tolerance_m=0.1,
+                        end="none")
+    v = ex.vehicles[1]
+    v.items = plan.items
+    ex.telemetry.begin(v, tasks, plan)
+    v.status = "flying"
+    on_msg, on_sample = router.handlers["message"], router.handlers["sample"]
+    on_msg(1, mavlink.MAVLink_mission_current_message(2, 5, 2, 1))  # to the contour's start
+    on_sample(_sample(m.origin, 1, 1000, 2.0, 0.0, 1.0))
+    on_sample(_sample(m.origin, 1, 1200, 8.0, 0.0, 1.0))
+    on_msg(1, mavlink.MAVLink_mission_current_message(3, 5, 2, 1))  # along the contour
+    on_sample(_sample(m.origin, 1, 1400, 14.0, 0.0, 1.0))
+    on_sample(_sample(m.origin, 1, 1100, 5.0, 0.0, 1.0))  # late: taken in transit
+    r = ex.telemetry.end(v)
+    np.testing.assert_allclose(r.samples.x_m, [2.0, 5.0, 8.0, 14.0], atol=0.02)
+    assert r.samples.phase.tolist() == [int(Phase.TRANSIT)] * 3 + [int(Phase.TRACE)]
+
+
+def test_the_survey_flag_reaches_the_flight_through_the_upload() -> None:
+    m = _mission()
+    ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
+    _scripted_uploads(ex, [None, None])
+    v = ex.vehicles[1]
+    asyncio.run(ex.vehicle_missions.plan_and_upload(v, [Waypoint(5.0, 0.0)], 0, 0,
+                                                    survey=True))
+    assert v.flight is not None and v.flight.survey
+    asyncio.run(ex.vehicle_missions.plan_and_upload(v, [Waypoint(5.0, 0.0)], 1, 0))
+    assert v.flight is not None and not v.flight.survey
 
 
 def test_returning_vehicle_has_landed_when_its_state_says_so() -> None:
