@@ -9,7 +9,10 @@ places a sample at its ``time_boot_ms`` (:class:`SamplePairer`):
 
 * a position with the sample's very stamp: that position (``exact``);
 * positions before and after it, at most :data:`MAX_GAP_MS` apart: linear interpolation in
-  time between the two (``interpolated``);
+  time between the two (``interpolated``); farther apart (up to :data:`STILL_GAP_MS`) only
+  when the two are within :data:`STILL_M` of each other: the vehicle held its place across
+  the gap (ArduCopter pauses its position stream for seconds while it takes a mission
+  upload, hovering, and its Lua script samples on);
 * otherwise the sample waits (a later position, or a late or resent one, may come) up to
   :data:`HOLD_S` of wall time, then is dropped and counted by reason: ``gap`` (the positions
   around it are too far apart), ``no_position_before`` or ``no_position_after``.
@@ -21,6 +24,7 @@ clock); positions and samples may arrive in any order, resent ones included.
 from __future__ import annotations
 
 import bisect
+import math
 from array import array
 from collections import Counter
 from dataclasses import dataclass
@@ -28,15 +32,23 @@ from enum import StrEnum
 
 from .codec import MAVLinkMessage
 
-__all__ = ["HOLD_S", "MAX_GAP_MS", "DropReason", "Placement", "PositionTrack", "Sample",
-           "SamplePairer"]
+__all__ = ["HOLD_S", "MAX_GAP_MS", "STILL_GAP_MS", "STILL_M", "DropReason", "Placement",
+           "PositionTrack", "Sample", "SamplePairer"]
 
 SAMPLE_NAME = "FIELD"
+EARTH_RADIUS_M = 6_371_000.0
+"""A sphere is close enough to tell a metre from a few."""
 MAX_GAP_MS = 1000
 """Widest span of vehicle time between two positions that a sample is interpolated in: at
 8 m/s, 8 m of straight flight (linear interpolation is exact there; in a turn of 10 m radius
 the chord is at most 0.8 m off the arc). Positions at the sensor's rate lose ten in a row
 before a sample is dropped."""
+STILL_GAP_MS = 10_000
+"""Widest gap a sample is interpolated in when the vehicle kept its place across it."""
+STILL_M = 1.0
+"""Positions this close (horizontally and vertically) on either side of a gap of up to
+:data:`STILL_GAP_MS`: the vehicle held its place, and a sample in the gap is placed to
+about this much."""
 HOLD_S = 2.0
 """Wall time a sample waits for the positions that would place it."""
 REBOOT_MS = 10_000
@@ -146,13 +158,20 @@ class PositionTrack:
         if k == 0 or k == n:
             return None
         t0, t1 = self._ms[k - 1], self._ms[k]
-        if t1 - t0 > max_gap_ms:
+        if t1 - t0 > max_gap_ms and not (t1 - t0 <= STILL_GAP_MS and self._still(k - 1, k)):
             return None
         w = (ms - t0) / (t1 - t0)
         lat = self._lat[k - 1] + w * (self._lat[k] - self._lat[k - 1])
         lon = self._lon[k - 1] + w * (self._lon[k] - self._lon[k - 1])
         alt = self._alt[k - 1] + w * (self._alt[k] - self._alt[k - 1])
         return lat, lon, alt, False
+
+    def _still(self, i: int, j: int) -> bool:
+        """Whether positions ``i`` and ``j`` are within :data:`STILL_M` of each other."""
+        north = math.radians(self._lat[j] - self._lat[i]) * EARTH_RADIUS_M
+        east = (math.radians(self._lon[j] - self._lon[i]) * EARTH_RADIUS_M
+                * math.cos(math.radians(self._lat[i])))
+        return math.hypot(north, east) <= STILL_M and abs(self._alt[j] - self._alt[i]) <= STILL_M
 
     def why_not(self, ms: int) -> DropReason:
         """Why :meth:`at` found nothing for ``ms``."""

@@ -12,7 +12,7 @@ from econdor_gcs.core.tasks import TraceTask
 from econdor_gcs.errors import LinkError, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
 from econdor_gcs.link.items import build_mission
-from econdor_gcs.link.pairing import DropReason, Placement
+from econdor_gcs.link.pairing import STILL_GAP_MS, DropReason, Placement
 from econdor_gcs.link.router import (
     MissionItemReached,
     Received,
@@ -342,7 +342,7 @@ def test_pairer_drops_what_it_cannot_place_with_a_reason():
     p = SamplePairer(max_gap_ms=500, hold_s=1.0)
     p.add(1, _val(500, 1.0), 0.0)               # before any position
     p.add(1, _pos(1000), 0.0)
-    p.add(1, _pos(1800), 0.0)
+    p.add(1, _pos(1800, lon=8.0001), 0.0)       # 7.6 m on
     p.add(1, _val(1500, 2.0), 0.1)              # between positions 0.8 s apart: a gap
     p.add(1, _val(2500, 3.0), 0.2)              # after the newest, and none comes
     assert p.pending == 3 and p.expire(0.9) == 0
@@ -350,6 +350,22 @@ def test_pairer_drops_what_it_cannot_place_with_a_reason():
     assert [s.value for s in p.add(1, _pos(1400), 0.95)] == [2.0]
     assert p.expire(5.0) == 2 and p.pending == 0
     assert p.dropped == {DropReason.NO_POSITION_BEFORE: 1, DropReason.NO_POSITION_AFTER: 1}
+
+
+def test_pairer_bridges_a_gap_the_vehicle_held_its_place_across():
+    """ArduCopter pauses its positions for seconds while it takes a mission upload,
+    hovering, and its Lua script samples on: a gap of up to STILL_GAP_MS whose two ends are
+    within STILL_M of each other places its samples; one the vehicle moved across does not."""
+    p = SamplePairer(max_gap_ms=500, hold_s=1.0)
+    p.add(1, _pos(1000), 0.0)
+    p.add(1, _pos(4000, lat=47.000005), 0.0)     # 3 s later, 0.56 m away: hovering
+    [s] = p.add(1, _val(2500, 1.0), 0.1)
+    assert s.placement == Placement.INTERPOLATED and s.lat_deg == pytest.approx(47.0000025)
+    p.add(1, _pos(6000, lat=47.0001), 0.2)       # 2 s later, 10.5 m away: it flew
+    assert p.add(1, _val(5000, 2.0), 0.3) == []
+    p.add(1, _pos(6000 + STILL_GAP_MS + 1, lat=47.0001), 0.4)  # still, but too long
+    assert p.add(1, _val(10_000, 3.0), 0.5) == []
+    assert p.expire(5.0) == 2 and p.dropped == {DropReason.GAP: 2}
 
 
 def test_position_track_restarts_with_a_rebooted_autopilot():
