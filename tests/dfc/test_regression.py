@@ -59,8 +59,7 @@ MAE0_DB = 0.01
 MAE1_DB = 1.5
 LATER_MEAN_DB = 5.0
 
-# every test reads the module's runs: one pytest-xdist worker builds them once
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("dfc_regression_runs")]
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")

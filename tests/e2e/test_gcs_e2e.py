@@ -41,10 +41,6 @@ def csv_rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-SHARES_FULL_RUN = pytest.mark.xdist_group("gcs_e2e_full_run")
-"""The tests reading :func:`full_run` run on one pytest-xdist worker: one run for them all."""
-
-
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, int, str]:
     tmp = tmp_path_factory.mktemp("e2e")
@@ -54,7 +50,6 @@ def full_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, int,
     return mission, out, code, ""
 
 
-@SHARES_FULL_RUN
 def test_run_three_vehicles_end_to_end(full_run: tuple[Path, Path, int, str]) -> None:
     mission_path, out, code, _ = full_run
     assert code == 0
@@ -113,7 +108,6 @@ def test_run_three_vehicles_end_to_end(full_run: tuple[Path, Path, int, str]) ->
         assert reached, sysid
 
 
-@SHARES_FULL_RUN
 def test_report_redraws_the_figures(full_run: tuple[Path, Path, int, str],
                                     capsys: pytest.CaptureFixture[str]) -> None:
     """``econdor report`` draws every run figure again, from the run directory alone."""
@@ -134,7 +128,6 @@ def test_report_redraws_the_figures(full_run: tuple[Path, Path, int, str],
         assert image.ndim == 3 and np.ptp(image[..., :3]) > 0.5, p
 
 
-@SHARES_FULL_RUN
 def test_transport_parity(full_run: tuple[Path, Path, int, str]) -> None:
     """Same seed and planner: the MAVLink run and the in-process run agree.
 

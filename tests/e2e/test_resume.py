@@ -46,10 +46,6 @@ def mission_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-SHARES_REFERENCE = pytest.mark.xdist_group("resume_reference")
-"""The tests reading :func:`reference` run on one pytest-xdist worker: one reference run."""
-
-
 @pytest.fixture(scope="module")
 def reference(mission_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("ref") / "run"
@@ -79,7 +75,6 @@ class _Interrupt(KeyboardInterrupt):
     pass
 
 
-@SHARES_REFERENCE
 def test_resume_after_an_interrupt_ends_with_the_uninterrupted_result(
         mission_path: Path, reference: Path, tmp_path: Path) -> None:
     mission = load_mission(mission_path)
@@ -109,7 +104,6 @@ run_inprocess(load_mission(sys.argv[1]), sys.argv[2])
 """
 
 
-@SHARES_REFERENCE
 def test_resume_after_sigkill_ends_with_the_uninterrupted_result(
         mission_path: Path, reference: Path, tmp_path: Path) -> None:
     """SIGKILL wherever it lands after the second flight: the resume ends the same."""
@@ -130,7 +124,6 @@ def test_resume_after_sigkill_ends_with_the_uninterrupted_result(
     assert_same_result(out, reference)
 
 
-@SHARES_REFERENCE
 def test_resume_refuses_a_changed_mission(mission_path: Path, reference: Path,
                                           tmp_path: Path) -> None:
     import shutil

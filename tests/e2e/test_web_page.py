@@ -70,10 +70,6 @@ def _watch(page: Any, proc: EcondorProcess, timeout_s: float) -> dict[str, Any]:
     return seen
 
 
-SHARES_LIVE_RUN = pytest.mark.xdist_group("web_page_live_run")
-"""The tests reading :func:`live_run` run on one pytest-xdist worker: one live run for them."""
-
-
 @pytest.fixture(scope="module")
 def live_run(tmp_path_factory: pytest.TempPathFactory, browser: Browser) -> dict[str, Any]:
     tmp = tmp_path_factory.mktemp("web")
@@ -96,7 +92,6 @@ def live_run(tmp_path_factory: pytest.TempPathFactory, browser: Browser) -> dict
     return seen
 
 
-@SHARES_LIVE_RUN
 def test_live_page_shows_the_vehicles_moving(live_run: dict[str, Any]) -> None:
     assert live_run["returncode"] == 0, live_run["output"]
     track: dict[int, list[tuple[float, float]]] = {}
@@ -116,7 +111,6 @@ def test_live_page_shows_the_vehicles_moving(live_run: dict[str, Any]) -> None:
         assert int(minutes) * 60 + int(seconds) > 60, (sysid, text)
 
 
-@SHARES_LIVE_RUN
 def test_live_page_shows_the_estimate_changing_between_iterations(
         live_run: dict[str, Any]) -> None:
     estimates = live_run["estimates"]
@@ -127,7 +121,6 @@ def test_live_page_shows_the_estimate_changing_between_iterations(
         assert painted > 0.5, (it, painted)  # a colour map, not an empty canvas
 
 
-@SHARES_LIVE_RUN
 def test_live_page_lists_the_planned_pieces_with_their_vehicles(live_run: dict[str, Any]) -> None:
     assert live_run["pieces"], "the page never showed an iteration in flight"
     title, rows, vehicles = live_run["pieces"][-1]
@@ -141,7 +134,6 @@ def test_live_page_lists_the_planned_pieces_with_their_vehicles(live_run: dict[s
         assert int(piece) in listed[int(sysid_text)]
 
 
-@SHARES_LIVE_RUN
 def test_live_page_has_curves_log_and_final_state(live_run: dict[str, Any]) -> None:
     assert live_run["charts"] == 4  # MAE, learning error, kappa and delta, distance
     log = live_run["log"]
@@ -151,14 +143,12 @@ def test_live_page_has_curves_log_and_final_state(live_run: dict[str, Any]) -> N
     assert "running" in live_run["states"]
 
 
-@SHARES_LIVE_RUN
 def test_live_page_loads_nothing_from_outside(live_run: dict[str, Any],
                                               browser: Browser) -> None:
     assert browser.external == []
     assert browser.errors == []
 
 
-@SHARES_LIVE_RUN
 def test_view_replays_a_finished_run(live_run: dict[str, Any], browser: Browser) -> None:
     out: Path = live_run["out"]
     proc = EcondorProcess("view", str(out), "--web", "127.0.0.1:0")
