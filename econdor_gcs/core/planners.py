@@ -24,11 +24,6 @@ The planners:
   iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
   iteration's error then reads as a rise, which triples delta (eq. 7) and the method
   stalls for good (it happens on the paper's field).
-  The learning error of a *starved* iteration (one that flew less than a fair share of
-  the run's largest, :func:`~econdor_gcs.core.stopping.sampled_enough`: delta left a level
-  or two) is small because little was flown, not because the map converged; eqs. (6)-(7)
-  skip it and take the last two informative iterations' step again, so delta keeps
-  shrinking instead of starving every later iteration too.
   With noisy samples (``PlanContext.noise_std``) the levels are those of the smoothed
   estimate and a level within the noise of a traced one is redundant whatever
   ``delta_n`` is. Every piece is still traced, however flat the field under it: the
@@ -55,7 +50,6 @@ from .contours import ContourPiece, contour_pieces
 from .geometry import FloatArray, Grid, Region
 from .levels import lloyd_max
 from .sg import drop_redundant, initial_delta, update_delta, update_kappa
-from .stopping import sampled_enough
 from .tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
 from .waypoints import piece_route
 
@@ -264,7 +258,6 @@ class ContourPlanner:
         self.kappa = 1
         self.delta = 0.0
         self.errors: list[float] = []
-        self.flown_m: list[float | None] = []
         self.traced: list[float] = []
         self.batches = 0
 
@@ -272,22 +265,9 @@ class ContourPlanner:
         """``None``: E-CONDOR starts from the mission's initiation pattern (the diagonals)."""
         return None
 
-    def observe(self, learning_error: float,
-                reports: Sequence[FlightReport] | None = None) -> None:
-        """Record the learning error of the iteration just finished (eq. 3) and what its
-        flights flew (``None``: not known, the iteration counts as one that sampled enough)."""
+    def observe(self, learning_error: float, reports: Sequence[FlightReport] = ()) -> None:
+        """Record the learning error of the iteration just finished (eq. 3)."""
         self.errors.append(float(learning_error))
-        self.flown_m.append(None if reports is None else float(sum(r.flown_m for r in reports)))
-
-    def _informative_errors(self) -> list[float]:
-        """The learning errors of the iterations that sampled enough to have one
-        (:func:`~econdor_gcs.core.stopping.sampled_enough`): a starved iteration's error is
-        small because little was flown, not because the map converged, so eqs. (6)-(7)
-        take the step of the last two informative iterations again."""
-        known = [f for f in self.flown_m if f is not None]
-        ok = iter(sampled_enough(known))
-        return [e for e, f in zip(self.errors, self.flown_m, strict=True)
-                if f is None or next(ok)]
 
     def _levels(self, estimate: FloatArray) -> FloatArray:
         bins = self.lloyd_bins
@@ -325,9 +305,8 @@ class ContourPlanner:
             keep, dropped = levels, np.zeros(0)
             pieces = pieces_at(keep)
         else:
-            errors = self._informative_errors()
-            e2 = errors[-2] if len(errors) >= 2 else None
-            e1 = errors[-1] if errors else None
+            e2 = self.errors[-2] if len(self.errors) >= 2 else None
+            e1 = self.errors[-1] if self.errors else None
             self.kappa = update_kappa(self.kappa, e2, e1)
             self.delta = update_delta(self.delta, e2, e1)
             self.m += self.kappa

@@ -196,32 +196,3 @@ def test_a_level_within_the_noise_of_a_traced_one_is_redundant():
     exact, noisy = third_batch(0.0), third_batch(12.0)
     assert exact.delta == noisy.delta < 12.0
     assert len(noisy.dropped) > len(exact.dropped)
-
-
-class _Flown:
-    """A flight report as far as the planner reads it."""
-
-    def __init__(self, flown_m: float) -> None:
-        self.flown_m = flown_m
-
-
-def test_a_starved_iteration_does_not_drive_the_schedule():
-    """A starved iteration's tiny learning error reads as convergence to eqs. (6)-(7):
-    they must take the last two informative iterations' step again instead."""
-    def schedule(third_flown_m: float):
-        p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
-        p.next_batch(ctx(ramp()))
-        p.observe(4.0, [_Flown(800.0)])
-        p.next_batch(ctx(ramp()))
-        p.observe(1.6, [_Flown(900.0)])
-        b3 = p.next_batch(ctx(ramp()))
-        p.observe(0.01, [_Flown(third_flown_m)])
-        return b3, p.next_batch(ctx(ramp()))
-
-    b3, starved = schedule(60.0)  # under a fair share of 900 m
-    assert starved.kappa == b3.kappa + update_kappa(0, 4.0, 1.6)
-    assert starved.delta == pytest.approx(update_delta(b3.delta, 4.0, 1.6))
-    b3, fed = schedule(500.0)  # the same error from a real flight drives the step
-    assert fed.kappa == b3.kappa + update_kappa(0, 1.6, 0.01)
-    assert fed.delta == pytest.approx(update_delta(b3.delta, 1.6, 0.01))
-    assert starved.delta < fed.delta
