@@ -107,7 +107,7 @@ def write_markdown(path: Path, args: argparse.Namespace, results: list[dict[str,
                          f"{r['placed_of_sent']:.3f} | {r['flown_m']:.0f} | {r['wall_s']:.0f} |")
         else:
             lines.append(f"| {k} | failed | — | — | — | {r['wall_s']:.0f} |")
-    lines += ["", summary.capitalize() + ".", ""]
+    lines += ["", summary[:1].upper() + summary[1:] + ".", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines), encoding="utf-8")
 
