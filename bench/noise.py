@@ -67,6 +67,7 @@ from runs import (  # noqa: E402
     mission_for,
     mission_raw,
     row_of,
+    run_survey,
     split_planners,
     split_variant,
 )
@@ -187,22 +188,7 @@ def noisy_survey_key(field: str, sensor: dict[str, Any]) -> str:
 
 def fly_survey(field: str, seed: int, lines: int, sensor: dict[str, Any]) -> dict[str, Any]:
     """One survey of ``lines`` north-south lines with ``sensor``: its one estimate."""
-    from econdor_gcs.dfc.loop import Dfc
-    from econdor_lab.inprocess import InProcessExecutor
-
-    mission = mission_for(field, 0.0, "lawnmower", "auto", survey_lines=lines)
-    mission = mission.with_vehicles(sensor=sensor)
-    truth = mission.build_field(seed)
-    t0 = time.perf_counter()
-    res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner="lawnmower",
-              truth=truth, seed=seed).run()
-    if res.stop_reason != "planner_done" or len(res.records) != 1:
-        raise RuntimeError(f"survey {field} seed {seed}, {lines} lines: ended "
-                           f"{res.stop_reason!r} after {len(res.records)} rows")
-    row = row_of(res.records[0])
-    row.update(lines=lines, mae=res.records[0].mae, noise_std=res.records[0].noise_std,
-               wall_s=time.perf_counter() - t0)
-    return row
+    return run_survey(field, seed, lines, "auto", sensor)
 
 
 def scan_one(args: tuple[str, int, float, str, str | None]) -> dict[str, Any]:

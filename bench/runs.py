@@ -184,10 +184,14 @@ def run_planner(args: tuple[str, int, str, float, str, bool, dict[str, Any]]
             "target": targets[0] if targets else math.nan, "return_m": res.return_m}
 
 
-def run_survey(field: str, seed: int, lines: int, recon: str) -> dict[str, Any]:
-    """One survey of ``lines`` north-south lines (``lawnmower.lines``): its one estimate,
-    at its end, and the plume sources it missed."""
+def run_survey(field: str, seed: int, lines: int, recon: str,
+               sensor: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One survey of ``lines`` north-south lines (``lawnmower.lines``), with ``sensor``
+    (``vehicles.sensor``; default the mission's): its one estimate, at its end, its MAE and
+    the noise the reconstruction found, and the plume sources it missed."""
     mission = mission_for(field, 0.0, "lawnmower", recon, survey_lines=lines)
+    if sensor is not None:
+        mission = mission.with_vehicles(sensor=sensor)
     truth = mission.build_field(seed)
     t0 = time.perf_counter()
     res = Dfc(mission, InProcessExecutor(mission, truth, seed=seed), planner="lawnmower",
@@ -198,6 +202,6 @@ def run_survey(field: str, seed: int, lines: int, recon: str) -> dict[str, Any]:
     row = row_of(res.records[0])
     n = row["samples"]
     row["missed"] = sources_missed(truth, res.samples.x_m[:n], res.samples.y_m[:n])
-    row["lines"] = lines
-    row["wall_s"] = time.perf_counter() - t0
+    row.update(lines=lines, mae=res.records[0].mae, noise_std=res.records[0].noise_std,
+               wall_s=time.perf_counter() - t0)
     return row
