@@ -30,14 +30,13 @@ from collections import Counter
 from dataclasses import dataclass
 from enum import StrEnum
 
+from ..core.geodesy import Origin
 from .codec import MAVLinkMessage
 
 __all__ = ["HOLD_S", "MAX_GAP_MS", "STILL_GAP_MS", "STILL_M", "DropReason", "Placement",
            "PositionTrack", "Sample", "SamplePairer"]
 
 SAMPLE_NAME = "FIELD"
-EARTH_RADIUS_M = 6_371_000.0
-"""A sphere is close enough to tell a metre from a few."""
 MAX_GAP_MS = 1000
 """Widest span of vehicle time between two positions that a sample is interpolated in: at
 8 m/s, 8 m of straight flight (linear interpolation is exact there; in a turn of 10 m radius
@@ -168,10 +167,9 @@ class PositionTrack:
 
     def _still(self, i: int, j: int) -> bool:
         """Whether positions ``i`` and ``j`` are within :data:`STILL_M` of each other."""
-        north = math.radians(self._lat[j] - self._lat[i]) * EARTH_RADIUS_M
-        east = (math.radians(self._lon[j] - self._lon[i]) * EARTH_RADIUS_M
-                * math.cos(math.radians(self._lat[i])))
-        return math.hypot(north, east) <= STILL_M and abs(self._alt[j] - self._alt[i]) <= STILL_M
+        east, north, up = Origin(self._lat[i], self._lon[i]).to_local(
+            self._lat[j], self._lon[j], self._alt[j] - self._alt[i])
+        return math.hypot(east, north) <= STILL_M and abs(up) <= STILL_M
 
     def why_not(self, ms: int) -> DropReason:
         """Why :meth:`at` found nothing for ``ms``."""
