@@ -113,8 +113,7 @@ def block() -> str:
 
         def get(row: str, col: str, key: str = heading, f: str = field) -> str:
             return read(Cell(noise, key, row, col, after=(f"Field: {f}",)))
-        label = f"{field}, " + (condition.replace("noise 0", "perfect", 1)
-                                if condition == "noise 0" else condition) + f", {seeds}"
+        label = f"{field}, {'perfect' if condition == 'noise 0' else condition}, {seeds}"
         try:
             cells = [get("adaptive", "MAE dB @2 km"), get("adaptive", "MAE dB @4 km"),
                      get("best survey", "MAE dB @2 km"), get("best survey", "MAE dB @4 km"),
