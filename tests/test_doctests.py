@@ -12,7 +12,7 @@ MODULES = ["econdor_gcs.core.gp", "econdor_gcs.core.uncertainty", "econdor_gcs.c
            "econdor_gcs.core.adaptive.threshold", "econdor_gcs.core.candidates",
            "econdor_gcs.core.tasks", "econdor_gcs.core.greens", "econdor_gcs.core.exact_spline",
            "econdor_gcs.core.fast_spline", "econdor_gcs.core.samples", "econdor_gcs.core.noise",
-           "econdor_gcs.core.smoothing", "econdor_gcs.core.spline"]
+           "econdor_gcs.core.smoothing", "econdor_gcs.core.spline", "econdor_gcs.core.local_scale"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -59,6 +59,7 @@ import scipy.linalg
 from numpy.typing import NDArray
 
 from econdor_gcs.core.greens import _G_PER_H, FloatArray, _Blocks, _one_blas_thread
+from econdor_gcs.core.local_scale import ScaleParams, widen_on_plateaus
 from econdor_gcs.core.noise import NoiseEstimate, estimate_noise
 from econdor_gcs.core.samples import _block_mean_counts, _bump, _RectIndex
 
@@ -95,6 +96,7 @@ class SmoothingParams:
     damping_range_m2: tuple[float, float] = (1e-2, 1e6)
     n_damping: int = 65
     df_penalty: float = 1.4
+    local_scale: ScaleParams | None = ScaleParams()
 
     def __post_init__(self) -> None:
         if not (self.tile_m > 0 and 0 < self.overlap_m <= self.margin_m):
@@ -183,7 +185,11 @@ def denoise(x: FloatArray, y: FloatArray, v: FloatArray, noise_std: float | None
     p = params or SmoothingParams()
     xm, ym, vm, counts = _block_mean_counts(x, y, v, p.thin_cell_m)
     smoothed = smooth_samples(xm, ym, vm, noise.noise_std, p, counts)
-    return Denoised(xm, ym, smoothed.values, noise, smoothed.damping_m2)
+    values = smoothed.values
+    if p.local_scale is not None:
+        values = widen_on_plateaus(xm, ym, vm, counts, values, noise.noise_std,
+                                  p.local_scale).values
+    return Denoised(xm, ym, values, noise, smoothed.damping_m2)
 
 
 def smooth_samples(x: FloatArray, y: FloatArray, v: FloatArray, noise_std: float,
