@@ -38,13 +38,13 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   longitude = 0.
 * While it asks a GCS for mission items (of any type) its periodic streams go out at four times
   their interval (``GCS_MAVLINK::get_reschedule_interval_ms``; seen on SITL: positions asked
-  for every 25 ms came every 100 ms during an upload). Besides, for
-  :attr:`ArduCopterAutopilot.upload_pause_s` of its time after an upload begins it sends no
-  GLOBAL_POSITION_INT at all, while the Lua script samples on: ArduCopter SITL in the lossy
-  link test went ~3 s of its time without a position during uploads between iterations (a
-  sample in such a gap is placed only because the copter held its place across it:
-  :mod:`econdor_gcs.link.pairing`). A position asked for with REQUEST_MESSAGE is still
-  answered.
+  for every 25 ms came every 100 ms during an upload). Besides, while an upload runs, for at
+  most :attr:`ArduCopterAutopilot.upload_pause_s` of its time from its MISSION_COUNT, it sends
+  no GLOBAL_POSITION_INT at all, while the Lua script samples on: ArduCopter SITL in the
+  lossy link test went ~3 s of its time without a position while it took uploads between
+  iterations, hovering (a sample in such a gap is placed only because the copter held its
+  place across it: :mod:`econdor_gcs.link.pairing`). A position asked for with
+  REQUEST_MESSAGE is still answered.
 * Without a companion computer it is a stock autopilot whose payload is a Lua script: the
   sample commands (MAV_CMD_USER_1..3) are unknown (MAV_RESULT_UNSUPPORTED), and each sample
   is a ``FIELD`` stamped with the autopilot's clock when the script sends it
@@ -103,8 +103,9 @@ UPLOAD_TIMEOUT_S = 8.0
 UPLOAD_STREAM_SLOWDOWN = 4.0
 """Factor on the stream intervals while it asks a GCS for mission items."""
 UPLOAD_PAUSE_S = 3.0
-"""Seconds of its time after an upload begins without GLOBAL_POSITION_INT (the gaps seen on
-SITL during uploads between iterations: about 3 s)."""
+"""Seconds of its time from an upload's MISSION_COUNT during which, while the upload runs, it
+sends no GLOBAL_POSITION_INT (the gaps seen on SITL during uploads between iterations: about
+3 s)."""
 NO_SPACE_AFTER_BOOT_S = 3.0
 """Seconds of its time after boot during which it answers every upload NO_SPACE (seen on
 ArduCopter SITL: about 2.8 s)."""
@@ -226,8 +227,8 @@ class ArduCopterAutopilot(Autopilot):
     no_fix_until_prearm = True
     prearm_s = PREARM_S
     upload_pause_s = UPLOAD_PAUSE_S
-    """Seconds of its time after an upload begins without GLOBAL_POSITION_INT
-    (``VehicleSettings.upload_pause_s`` overrides it; 0: none)."""
+    """Seconds of its time from an upload's MISSION_COUNT without GLOBAL_POSITION_INT while
+    the upload runs (``VehicleSettings.upload_pause_s`` overrides it; 0: none)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -241,7 +242,9 @@ class ArduCopterAutopilot(Autopilot):
 
     def _positions_paused(self) -> bool:
         server = self.server
-        began = server.upload_began_s if isinstance(server, ArduPilotMissionServer) else None
+        if server.upload is None or not isinstance(server, ArduPilotMissionServer):
+            return False
+        began = server.upload_began_s
         return began is not None and self.state.body.t_s - began < self.upload_pause_s - 1e-9
 
     def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:

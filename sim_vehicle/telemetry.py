@@ -475,15 +475,19 @@ class Telemetry:
         self.positions_at_sensor_rate()
         return True
 
-    def positions_at_sensor_rate(self) -> None:
-        """A Lua payload's vehicle sends its positions with the samples only when they are
-        asked for at the sensor's rate (else at the rate asked, as the periodic stream)."""
+    def positions_at_sensor_rate(self, slowdown: float = 1.0) -> bool:
+        """Whether the positions are asked for at least at the sensor's rate (their interval
+        times ``slowdown``); a Lua payload's vehicle then sends them with the samples (else at
+        the rate asked, as the periodic stream). The unslowed answer is kept in
+        :attr:`Outbox.positions_with_samples`."""
         gpi = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
         rate = self.state.params["TEL_RATE_HZ"]
         period = self.intervals.get(gpi, 1.0 / rate if rate > 0 else -1.0)
         sample_hz = self.state.params["SAMPLE_HZ"]
-        self.outbox.positions_with_samples = self.streaming(gpi) and 0 < period <= \
-            1.0 / sample_hz + 1e-9
+        fast = self.streaming(gpi) and 0 < period * slowdown <= 1.0 / sample_hz + 1e-9
+        if slowdown == 1.0:
+            self.outbox.positions_with_samples = fast
+        return fast
 
     def streaming(self, message_id: int) -> bool:
         """Whether ``message_id`` goes out on its own (not only on request)."""
@@ -546,11 +550,14 @@ class Telemetry:
 
     def _positions_with_samples(self, slowdown: float) -> bool:
         """Each sample's position goes out with it: always for our own payload (the exact
-        stamps of :mod:`sim_vehicle`), for a Lua payload only while the positions are asked
-        for at the sensor's rate and not slowed down (else the position stream, at its own
-        rate, carries them)."""
+        stamps of :mod:`sim_vehicle`), for a Lua payload only while the positions, slowed
+        down by ``slowdown``, still come at least at the sensor's rate (else the position
+        stream, at its own rate, carries them)."""
         out = self.outbox
-        return not out.lua_payload or (out.positions_with_samples and slowdown <= 1.0)
+        if not out.lua_payload:
+            return True
+        return out.positions_with_samples if slowdown == 1.0 else \
+            self.positions_at_sensor_rate(slowdown)
 
     def sample(self, sample: Sample) -> None:
         """Queue one sample at the vehicle's current position and velocity (after a PHASE
