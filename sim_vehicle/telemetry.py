@@ -13,15 +13,18 @@ SET_MESSAGE_INTERVAL.
 
 Samples: every sensor reading taken while the vehicle executes a horizontal motion task goes
 out as ``GLOBAL_POSITION_INT`` immediately followed by ``NAMED_VALUE_FLOAT("FIELD")`` with the
-same ``time_boot_ms``, regardless of the stream rates. Samples wait in the outbox as local
-positions; :meth:`Outbox.drain` converts all of them to latitude/longitude in one vectorised
-pymap3d call and keeps the order of everything queued. With the companion computer (the
-tracer on board), whenever the phase of the sampled ticks changes (transit, search, trace),
-``NAMED_VALUE_INT("PHASE")`` goes out just before the first sample of the new phase, with that
-sample's ``time_boot_ms`` (a stock autopilot's payload knows no phases); the end of a trace item
-is a
-``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
-:mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
+same ``time_boot_ms``, regardless of the stream rates. A stock ArduPilot's Lua payload instead
+samples every tick in the air, stamps ``FIELD`` when it sends it, and its positions come at
+the rate asked for (with the samples when that is at least the sensor's) and pause as the
+personality says (:attr:`Telemetry.stream_slowdown`, :attr:`Telemetry.positions_paused`).
+Samples wait in the outbox as local positions; :meth:`Outbox.drain` converts all of them to
+latitude/longitude in one vectorised pymap3d call and keeps the order of everything queued.
+With the companion computer (the tracer on board), whenever the phase of the sampled ticks
+changes (transit, search, trace), ``NAMED_VALUE_INT("PHASE")`` goes out just before the first
+sample of the new phase, with that sample's ``time_boot_ms`` (a stock autopilot's payload knows
+no phases); the end of a trace item is a ``DEBUG_FLOAT_ARRAY("TRACE")``
+(:func:`trace_report_message`). Both are defined in :mod:`econdor_gcs.core.tasks`; STATUSTEXT
+is for people only.
 
 Geofence: with a fence loaded, ``FENCE_STATUS`` (:class:`~sim_vehicle.fence.FenceMonitor`) goes
 out at 1 Hz and at once whenever the vehicle braked before the fence or got outside it (with
