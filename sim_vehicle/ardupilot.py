@@ -36,11 +36,22 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   and LAND land and disarm and keep their mode.
 * Until its position estimate is ready (the pre-arm time) GLOBAL_POSITION_INT says latitude =
   longitude = 0.
+* While it asks a GCS for mission items (of any type) its periodic streams go out at four times
+  their interval (``GCS_MAVLINK::get_reschedule_interval_ms``; seen on SITL: positions asked
+  for every 25 ms came every 100 ms during an upload). Besides, while an upload runs, for at
+  most :attr:`ArduCopterAutopilot.upload_pause_s` of its time from its MISSION_COUNT, it sends
+  no GLOBAL_POSITION_INT at all, while the Lua script samples on: ArduCopter SITL in the
+  lossy link test went ~3 s of its time without a position while it took uploads between
+  iterations, hovering (a sample in such a gap is placed only because the copter held its
+  place across it: :mod:`econdor_gcs.link.pairing`). A position asked for with
+  REQUEST_MESSAGE is still answered.
 * Without a companion computer it is a stock autopilot whose payload is a Lua script: the
   sample commands (MAV_CMD_USER_1..3) are unknown (MAV_RESULT_UNSUPPORTED), and each sample
   is a ``FIELD`` stamped with the autopilot's clock when the script sends it
   (:data:`~sim_vehicle.telemetry.LUA_SEND_DELAY_MS` after the position it was taken at), not
-  the stamp of any position; the positions go out at the rate the station asked for.
+  the stamp of any position; the positions go out at the rate the station asked for. The
+  script samples whenever the copter is armed and in the air (hovering and climbing too), as
+  the shipped one does (``arming:is_armed() and vehicle:get_likely_flying()``).
 
 Not imitated: the RC throttle that real ArduCopter wants before AUTO takes off (``auto_armed``;
 there is no pilot here), failsafes, fences, parameters other than ours.
@@ -89,6 +100,12 @@ UPLOAD_RETRY_S = 1.0
 """ArduPilot re-requests a missing item after a second of its own time ..."""
 UPLOAD_TIMEOUT_S = 8.0
 """... and cancels a transfer after 8 s of its time without an item (``upload_timeout_ms``)."""
+UPLOAD_STREAM_SLOWDOWN = 4.0
+"""Factor on the stream intervals while it asks a GCS for mission items."""
+UPLOAD_PAUSE_S = 3.0
+"""Seconds of its time from an upload's MISSION_COUNT during which, while the upload runs, it
+sends no GLOBAL_POSITION_INT (the gaps seen on SITL during uploads between iterations: about
+3 s)."""
 NO_SPACE_AFTER_BOOT_S = 3.0
 """Seconds of its time after boot during which it answers every upload NO_SPACE (seen on
 ArduCopter SITL: about 2.8 s)."""
@@ -127,6 +144,8 @@ class ArduPilotMissionServer(MissionServer):
         self.sim_time = sim_time
         self.speedup = speedup
         self._last_item_wall = 0.0
+        self.upload_began_s: float | None = None
+        """Its time (s) when the latest upload began (None: none yet)."""
 
     def mission_current_msg(self, active: bool, complete: bool = False,
                             paused: bool = False) -> Any:
@@ -145,7 +164,10 @@ class ArduPilotMissionServer(MissionServer):
             return [self._ack(peer, mavlink.MAV_MISSION_NO_SPACE, self._mtype(msg))]
         self.timeout_s = self._wall(UPLOAD_RETRY_S)
         self._last_item_wall = now
-        return super()._on_count(msg, peer, now)
+        replies = super()._on_count(msg, peer, now)
+        if self.upload is not None:
+            self.upload_began_s = self.sim_time()
+        return replies
 
     def _on_item(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
         up = self.upload
@@ -204,6 +226,26 @@ class ArduCopterAutopilot(Autopilot):
     lua_payload = True
     no_fix_until_prearm = True
     prearm_s = PREARM_S
+    upload_pause_s = UPLOAD_PAUSE_S
+    """Seconds of its time from an upload's MISSION_COUNT without GLOBAL_POSITION_INT while
+    the upload runs (``VehicleSettings.upload_pause_s`` overrides it; 0: none)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if self.state.settings.upload_pause_s is not None:
+            self.upload_pause_s = self.state.settings.upload_pause_s
+        self.telemetry.stream_slowdown = self._stream_slowdown
+        self.telemetry.positions_paused = self._positions_paused
+
+    def _stream_slowdown(self) -> float:
+        return UPLOAD_STREAM_SLOWDOWN if self.server.upload is not None else 1.0
+
+    def _positions_paused(self) -> bool:
+        server = self.server
+        if server.upload is None or not isinstance(server, ArduPilotMissionServer):
+            return False
+        began = server.upload_began_s
+        return began is not None and self.state.body.t_s - began < self.upload_pause_s - 1e-9
 
     def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:
         return ArduPilotMissionServer(

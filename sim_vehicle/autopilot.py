@@ -207,7 +207,10 @@ class Autopilot:
         self.counters["ticks"] += n_ticks
 
     def tick(self) -> None:
-        """One sim tick: step the activity (or hover); queue its sample if it is reported."""
+        """One sim tick: step the activity (or hover); queue its sample if it is reported:
+        our payload reports the ticks of horizontal tasks (``state.sampling``), a Lua
+        script every tick in the air, hovering and climbing too (the shipped script sends
+        while the autopilot is armed and likely flying)."""
         st = self.state
         self.counters["ticks"] += 1
         # the velocity an autopilot reports is good (GNSS Doppler, IMU) even where its
@@ -219,13 +222,15 @@ class Autopilot:
                 sample = next(self.activity)
             except StopIteration:
                 self.activity = None
+        lua_sends = self.outbox.lua_payload and st.armed and st.in_air
         if self.activity is None and sample is None:
             st.apply_pending_body()
-            st.body.hold(Phase.TRANSIT)
+            idle = st.body.hold(Phase.TRANSIT)
+            sample = idle if lua_sends else None
         dt = st.body.dt_s
         st.vel_enu_mps = ((st.body.true_x_m - x0) / dt, (st.body.true_y_m - y0) / dt,
                           (st.alt_rel_m - a0) / dt)
-        if sample is not None and st.sampling:
+        if sample is not None and (st.sampling or lua_sends):
             self.telemetry.sample(sample)
         self.telemetry.watch_fence()
 

@@ -1,11 +1,13 @@
 """Mission execution of a simulated vehicle: mission items -> flight activities.
 
 No I/O. An *activity* is a generator that advances the body by exactly one tick per step and
-yields the tick's :class:`~sim_vehicle.body.Sample` (or None while holding, climbing or
-descending); the autopilot keeps one activity running and steps it once per sim tick.
+yields the tick's :class:`~sim_vehicle.body.Sample` (holding, climbing and descending
+included); the autopilot keeps one activity running and steps it once per sim tick.
 Horizontal flight is delegated to the onboard tracer's generators (``run_task``, ``fly_to``);
 climbs and descents happen at :data:`CLIMB_RATE_MPS` / :data:`DESCENT_RATE_MPS` while the body
-hovers. Only ticks of horizontal tasks are reported as samples (``state.sampling``).
+hovers. Our own payload reports only the ticks of horizontal tasks (``state.sampling``); a Lua
+script on a stock ArduPilot reports every tick in the air (:meth:`Autopilot.tick
+<sim_vehicle.autopilot.Autopilot.tick>`).
 
 Mission items (see :func:`sim_vehicle.mission_server.check_item` for what is accepted):
 NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_UNLIM / LOITER_TIME, DO_CHANGE_SPEED (from the next
@@ -37,7 +39,7 @@ CLIMB_RATE_MPS = 3.0
 DESCENT_RATE_MPS = 1.5
 
 Activity = Generator[Sample | None, None, Any]
-"""One body tick per step; yields the tick's sample when it is to be reported."""
+"""One body tick per step; yields the tick's sample (None: no tick was taken)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,8 +101,7 @@ class Navigator:
         st = self.state
         st.sampling = False
         while True:
-            st.body.hold(Phase.TRANSIT)
-            yield None
+            yield st.body.hold(Phase.TRANSIT)
 
     def climb_to(self, target_alt_m: float) -> Activity:
         st = self.state
@@ -110,8 +111,7 @@ class Navigator:
         while abs(st.alt_rel_m - target_alt_m) > 1e-3:
             step = CLIMB_RATE_MPS * st.body.dt_s
             st.alt_rel_m += max(-step, min(step, target_alt_m - st.alt_rel_m))
-            st.body.hold(Phase.TRANSIT)
-            yield None
+            yield st.body.hold(Phase.TRANSIT)
         if st.alt_rel_m > 0.1:
             st.landed_state = mavlink.MAV_LANDED_STATE_IN_AIR
 
@@ -121,8 +121,7 @@ class Navigator:
         st.landed_state = mavlink.MAV_LANDED_STATE_LANDING
         while st.alt_rel_m > 0.0:
             st.alt_rel_m = max(0.0, st.alt_rel_m - DESCENT_RATE_MPS * st.body.dt_s)
-            st.body.hold(Phase.TRANSIT)
-            yield None
+            yield st.body.hold(Phase.TRANSIT)
         st.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
         st.armed = False
         st.mission_active = False
@@ -252,8 +251,7 @@ class Navigator:
                 yield from self.ensure_airborne(alt)
                 t_end = st.body.t_s + max(0.0, it.param1)
                 while st.body.t_s < t_end - 1e-9:
-                    st.body.hold(Phase.TRANSIT)
-                    yield None
+                    yield st.body.hold(Phase.TRANSIT)
             return "ok"
         if cmd == MAV_CMD_WAYPOINT_USER_1:
             if xy is None:

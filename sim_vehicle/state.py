@@ -65,6 +65,9 @@ class VehicleSettings:
     """A companion computer runs the tracer: contour items are accepted (else refused)."""
     prearm_s: float | None = None
     """Wall seconds after boot during which arming is refused (None: the personality's)."""
+    upload_pause_s: float | None = None
+    """Seconds of its time from a mission upload's start during which, while the upload runs,
+    it sends no GLOBAL_POSITION_INT (None: the personality's; :mod:`sim_vehicle.ardupilot`)."""
     gcs_failsafe: str = "rtl"
     """What to do when the GCS heartbeat is lost in flight (:data:`GCS_FAILSAFE_ACTIONS`)."""
     gcs_failsafe_s: float = 5.0

@@ -13,15 +13,18 @@ SET_MESSAGE_INTERVAL.
 
 Samples: every sensor reading taken while the vehicle executes a horizontal motion task goes
 out as ``GLOBAL_POSITION_INT`` immediately followed by ``NAMED_VALUE_FLOAT("FIELD")`` with the
-same ``time_boot_ms``, regardless of the stream rates. Samples wait in the outbox as local
-positions; :meth:`Outbox.drain` converts all of them to latitude/longitude in one vectorised
-pymap3d call and keeps the order of everything queued. With the companion computer (the
-tracer on board), whenever the phase of the sampled ticks changes (transit, search, trace),
-``NAMED_VALUE_INT("PHASE")`` goes out just before the first sample of the new phase, with that
-sample's ``time_boot_ms`` (a stock autopilot's payload knows no phases); the end of a trace item
-is a
-``DEBUG_FLOAT_ARRAY("TRACE")`` (:func:`trace_report_message`). Both are defined in
-:mod:`econdor_gcs.core.tasks`; STATUSTEXT is for people only.
+same ``time_boot_ms``, regardless of the stream rates. A stock ArduPilot's Lua payload instead
+samples every tick in the air, stamps ``FIELD`` when it sends it, and its positions come at
+the rate asked for (with the samples when that is at least the sensor's) and pause as the
+personality says (:attr:`Telemetry.stream_slowdown`, :attr:`Telemetry.positions_paused`).
+Samples wait in the outbox as local positions; :meth:`Outbox.drain` converts all of them to
+latitude/longitude in one vectorised pymap3d call and keeps the order of everything queued.
+With the companion computer (the tracer on board), whenever the phase of the sampled ticks
+changes (transit, search, trace), ``NAMED_VALUE_INT("PHASE")`` goes out just before the first
+sample of the new phase, with that sample's ``time_boot_ms`` (a stock autopilot's payload knows
+no phases); the end of a trace item is a ``DEBUG_FLOAT_ARRAY("TRACE")``
+(:func:`trace_report_message`). Both are defined in :mod:`econdor_gcs.core.tasks`; STATUSTEXT
+is for people only.
 
 Geofence: with a fence loaded, ``FENCE_STATUS`` (:class:`~sim_vehicle.fence.FenceMonitor`) goes
 out at 1 Hz and at once whenever the vehicle braked before the fence or got outside it (with
@@ -91,6 +94,8 @@ class _QueuedSample(NamedTuple):
     alt_rel_m: float
     vel_enu_mps: tuple[float, float, float]
     value: float
+    with_position: bool = True
+    """Its GLOBAL_POSITION_INT goes out with it (decided when it is taken)."""
 
 
 def gpi_message(home_alt_amsl_m: float, ms: int, lat_deg: float, lon_deg: float,
@@ -201,21 +206,23 @@ class Outbox:
         self.last_sample_wall = -1.0
         """Wall time of the last drain that carried samples."""
         self.lua_payload = False
-        """The samples are a Lua script's (a stock ArduPilot): ``FIELD`` alone, stamped
-        :data:`LUA_SEND_DELAY_MS` after the position; positions only with
-        :attr:`positions_with_samples`."""
+        """The samples are a Lua script's (a stock ArduPilot): ``FIELD`` stamped
+        :data:`LUA_SEND_DELAY_MS` after the position it was taken at."""
         self.positions_with_samples = True
         """A Lua payload's vehicle: whether the station asked for positions at least at the
-        sensor's rate (then each sample tick's position goes out)."""
+        sensor's rate (then each sample tick's position goes out, unless the telemetry says
+        otherwise: :meth:`Telemetry.sample`)."""
 
     def put(self, msg: Any) -> None:
         self._queue.append(msg)
 
     def put_sample(self, sample: Sample, x_m: float, y_m: float, alt_rel_m: float,
-                   vel_enu_mps: tuple[float, float, float]) -> None:
-        """Queue one sample taken at ``(x_m, y_m, alt_rel_m)``."""
+                   vel_enu_mps: tuple[float, float, float], with_position: bool = True) -> None:
+        """Queue one sample taken at ``(x_m, y_m, alt_rel_m)``, after its position
+        (GLOBAL_POSITION_INT with its stamp) if ``with_position``."""
         ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
-        queued = _QueuedSample(ms, x_m, y_m, alt_rel_m, vel_enu_mps, float(sample.value))
+        queued = _QueuedSample(ms, x_m, y_m, alt_rel_m, vel_enu_mps, float(sample.value),
+                               with_position)
         self.archive.add(queued)
         self._queue.append(queued)
         self._n_samples += 1
@@ -225,7 +232,8 @@ class Outbox:
         many."""
         for ms, phase in self.archive.phases_between(first_ms, last_ms):
             self._queue.append(phase_message(ms, phase))
-        again = self.archive.between(first_ms, last_ms)
+        # a resend answers the station's recovery: each sample with its position
+        again = [q._replace(with_position=True) for q in self.archive.between(first_ms, last_ms)]
         self._queue.extend(again)
         self._n_samples += len(again)
         self.samples_resent += len(again)
@@ -270,7 +278,7 @@ class Outbox:
                 out.append(q)
                 continue
             la, lo = next(places)
-            if self.positions_with_samples or not self.lua_payload:
+            if q.with_position:
                 out.append(gpi_message(self.home_alt_amsl_m, q.time_boot_ms, la, lo,
                                        q.alt_rel_m, q.vel_enu_mps))
             ms = q.time_boot_ms
@@ -340,6 +348,12 @@ class Telemetry:
         """Phase of the last sample sent (None before the first)."""
         self.no_fix_until_prearm = False
         """Positions say latitude = longitude = 0 until the pre-arm checks pass."""
+        self.stream_slowdown: Callable[[], float] = lambda: 1.0
+        """The factor on the periodic streams' intervals now (a personality's: ArduPilot
+        sends its streams four times slower while it asks a GCS for mission items)."""
+        self.positions_paused: Callable[[], bool] = lambda: False
+        """Whether no GLOBAL_POSITION_INT goes out now, neither on its stream nor with a
+        sample (a personality's: :mod:`sim_vehicle.ardupilot`, after an upload begins)."""
         self.fence = FenceMonitor()
         self._builders: dict[str, Callable[[], Any]] = {
             "GLOBAL_POSITION_INT": self.global_position_int,
@@ -464,15 +478,19 @@ class Telemetry:
         self.positions_at_sensor_rate()
         return True
 
-    def positions_at_sensor_rate(self) -> None:
-        """A Lua payload's vehicle sends its positions with the samples only when they are
-        asked for at the sensor's rate (else at the rate asked, as the periodic stream)."""
+    def positions_at_sensor_rate(self, slowdown: float = 1.0) -> bool:
+        """Whether the positions are asked for at least at the sensor's rate (their interval
+        times ``slowdown``); a Lua payload's vehicle then sends them with the samples (else at
+        the rate asked, as the periodic stream). The unslowed answer is kept in
+        :attr:`Outbox.positions_with_samples`."""
         gpi = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
         rate = self.state.params["TEL_RATE_HZ"]
         period = self.intervals.get(gpi, 1.0 / rate if rate > 0 else -1.0)
         sample_hz = self.state.params["SAMPLE_HZ"]
-        self.outbox.positions_with_samples = self.streaming(gpi) and 0 < period <= \
-            1.0 / sample_hz + 1e-9
+        fast = self.streaming(gpi) and 0 < period * slowdown <= 1.0 / sample_hz + 1e-9
+        if slowdown == 1.0:
+            self.outbox.positions_with_samples = fast
+        return fast
 
     def streaming(self, message_id: int) -> bool:
         """Whether ``message_id`` goes out on its own (not only on request)."""
@@ -514,20 +532,35 @@ class Telemetry:
         """Queue the periodic streams that are due at sim time now and wall time ``wall``."""
         sim = self.state.body.t_s
         rate = self.state.params["TEL_RATE_HZ"]
+        slowdown = self.stream_slowdown()
         for name, mid in self.STREAMS:
             period = self.intervals.get(mid, 1.0 / rate if rate > 0 else -1.0)
             if period < 0 or not self.streaming(mid):
                 continue
-            if sim - self._last_sent_sim.get(name, -1e9) < period - 1e-9:
+            if sim - self._last_sent_sim.get(name, -1e9) < period * slowdown - 1e-9:
                 continue
             if wall - self._last_sent_wall.get(name, -1e9) < 1.0 / MAX_STREAM_WALL_HZ:
                 continue
-            if name == "GLOBAL_POSITION_INT" and self.outbox.positions_with_samples and \
-                    wall - self.outbox.last_sample_wall < 0.5 / MAX_STREAM_WALL_HZ:
-                continue  # sample pairs are flowing; they carry the position already
+            if name == "GLOBAL_POSITION_INT":
+                if self.positions_paused():
+                    continue
+                if self._positions_with_samples(slowdown) and \
+                        wall - self.outbox.last_sample_wall < 0.5 / MAX_STREAM_WALL_HZ:
+                    continue  # sample pairs are flowing; they carry the position already
             self.outbox.put(self._builders[name]())
             self._last_sent_sim[name] = sim
             self._last_sent_wall[name] = wall
+
+    def _positions_with_samples(self, slowdown: float) -> bool:
+        """Each sample's position goes out with it: always for our own payload (the exact
+        stamps of :mod:`sim_vehicle`), for a Lua payload only while the positions, slowed
+        down by ``slowdown``, still come at least at the sensor's rate (else the position
+        stream, at its own rate, carries them)."""
+        out = self.outbox
+        if not out.lua_payload:
+            return True
+        return out.positions_with_samples if slowdown == 1.0 else \
+            self.positions_at_sensor_rate(slowdown)
 
     def sample(self, sample: Sample) -> None:
         """Queue one sample at the vehicle's current position and velocity (after a PHASE
@@ -538,4 +571,7 @@ class Telemetry:
             ms = int(round(sample.t_s * 1000.0)) & 0xFFFFFFFF
             self.outbox.archive.add_phase(ms, sample.phase)
             self.outbox.put(phase_message(ms, sample.phase))
-        self.outbox.put_sample(sample, st.body.x_m, st.body.y_m, st.alt_rel_m, st.vel_enu_mps)
+        with_position = (self._positions_with_samples(self.stream_slowdown())
+                         and not self.positions_paused())
+        self.outbox.put_sample(sample, st.body.x_m, st.body.y_m, st.alt_rel_m, st.vel_enu_mps,
+                               with_position)

@@ -12,8 +12,18 @@ from econdor_gcs.errors import MissionRejected
 from econdor_gcs.link.items import change_speed_item, rtl_item
 from econdor_gcs.link.transfer import MissionUploader
 from sim_vehicle.ardupilot import NO_SPACE_AFTER_BOOT_S, ArduCopterAutopilot
+from sim_vehicle.px4 import Px4Autopilot
 from sim_vehicle.state import VehicleSettings
-from tests.helpers.autopilot import command, copter_mission, download, make, rx, upload
+from tests.helpers.autopilot import (
+    DECODER,
+    command,
+    copter_mission,
+    download,
+    ll,
+    make,
+    rx,
+    upload,
+)
 from tests.helpers.vehicles import item_int
 
 
@@ -197,3 +207,161 @@ def test_with_a_companion_samples_keep_their_exact_stamps():
     fields = [m.time_boot_ms for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"]
     positions = {m.time_boot_ms for m in msgs if m.get_type() == "GLOBAL_POSITION_INT"}
     assert fields and set(fields) <= positions
+
+
+VEHICLE = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+
+
+def _from_vehicle(msg):
+    """What the station would see of a vehicle's message (packed, decoded: source ids set)."""
+    return DECODER.decode(bytearray(msg.pack(VEHICLE)))
+
+
+class _Flight:
+    """An ArduCopter driven tick by tick as the I/O loop drives it (streams included: wall
+    time 0.1 s per tick, speed-up 1), every message it sends kept."""
+
+    def __init__(self, ap) -> None:
+        self.ap = ap
+        self.wall = 0.0
+        self.sent: list = []
+
+    def tick(self) -> list:
+        ap = self.ap
+        ap.tick()
+        self.wall += ap.state.body.dt_s
+        out = ap.outbox.drain(self.wall)
+        ap.telemetry.periodic(self.wall)
+        out += ap.outbox.drain(self.wall)
+        self.sent.extend(out)
+        return out
+
+    def until(self, cond, max_ticks: int = 5000) -> None:
+        for _ in range(max_ticks):
+            self.tick()
+            if cond():
+                return
+        raise AssertionError("condition not reached")
+
+    def stamps(self, kind: str, first_s: float, end_s: float) -> list[int]:
+        return [m.time_boot_ms for m in self.sent if m.get_type() == kind
+                and first_s * 1000 <= m.time_boot_ms < end_s * 1000]
+
+
+def _hovering(gpi_interval_s: float, **settings):
+    ap = make(ArduCopterAutopilot, prearm_s=0.0, sample_rate_hz=10.0, speedup=1.0, **settings)
+    command(ap, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+            gpi_interval_s * 1e6)
+    ap.do_set_mode(1, 4, 0)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    command(ap, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10.0)
+    flight = _Flight(ap)
+    flight.until(lambda: ap.state.alt_rel_m >= 10.0)
+    for _ in range(10):
+        flight.tick()
+    return ap, flight
+
+
+def test_no_positions_for_a_pause_after_an_upload_begins_while_the_lua_script_samples_on():
+    """ArduCopter SITL sent no GLOBAL_POSITION_INT for ~3 s of its time after a mission
+    upload began while its Lua script kept sending FIELD; while it asks for items its
+    streams go four times slower (positions asked every 0.1 s came every 0.4 s)."""
+    ap, flight = _hovering(gpi_interval_s=0.1)
+    assert ap.upload_pause_s == 3.0
+    ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, 3, 0)), flight.wall)
+    began = ap.server.upload_began_s
+    assert began == pytest.approx(ap.state.body.t_s)
+    flight.until(lambda: ap.state.body.t_s >= began + 5.0)  # the upload still runs
+    for it in copter_mission():
+        ap.receive(rx(it), flight.wall)
+    assert [m.type for m in flight.tick() if m.get_type() == "MISSION_ACK"] == [
+        mavlink.MAV_MISSION_ACCEPTED]
+    done = ap.state.body.t_s
+    flight.until(lambda: ap.state.body.t_s >= done + 2.0)
+
+    pause = (began + 0.05, began + ap.upload_pause_s)  # the ticks after the COUNT came in
+    assert flight.stamps("GLOBAL_POSITION_INT", *pause) == []
+    assert len(flight.stamps("NAMED_VALUE_FLOAT", *pause)) == 29  # one per tick, at 10 Hz
+    # before: one position a sample; after the pause, while it asks for items: one in four
+    assert len(flight.stamps("GLOBAL_POSITION_INT", began - 1.0, began)) == 10
+    assert len(flight.stamps("GLOBAL_POSITION_INT", pause[1], began + 5.0)) in (5, 6)
+    assert len(flight.stamps("GLOBAL_POSITION_INT", done, done + 2.0)) >= 19
+    assert len(flight.stamps("NAMED_VALUE_FLOAT", pause[1], done + 2.0)) >= 39
+
+
+def test_positions_go_on_through_an_upload_on_px4_and_with_the_pause_off():
+    """The pause is ArduPilot's (a parameter of the personality: 0 turns it off), not every
+    autopilot's: PX4 keeps its positions coming while it takes a mission."""
+    for ap in (make(ArduCopterAutopilot, prearm_s=0.0, sample_rate_hz=10.0, speedup=1.0,
+                    upload_pause_s=0.0),
+               make(Px4Autopilot, prearm_s=0.0, sample_rate_hz=10.0, speedup=1.0)):
+        flight = _Flight(ap)
+        command(ap, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 0.1e6)
+        ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, 3, 0)), flight.wall)
+        t0 = ap.state.body.t_s
+        flight.until(lambda ap=ap, t0=t0: ap.state.body.t_s >= t0 + 3.0)
+        assert flight.stamps("GLOBAL_POSITION_INT", t0, t0 + 3.0)
+
+
+@pytest.mark.parametrize("still_gap", [True, False])
+def test_the_station_places_the_samples_of_the_pause_because_the_copter_held_its_place(
+        monkeypatch, still_gap):
+    """The station's answer to the pause: between iterations the copter hovers at the end of
+    its mission while the station uploads the next one (its own uploader, answering each
+    request 0.3 s of the vehicle's time later: 6 ms of wall time at 50x); every FIELD the Lua
+    script sent in the pause is placed by the pairing's still-gap rule. Without that rule
+    (STILL_GAP_MS 0) they are dropped: the gap is too long to interpolate across."""
+    from econdor_gcs.link import pairing
+    from econdor_gcs.link.items import MissionItemSpec
+
+    if not still_gap:
+        monkeypatch.setattr(pairing, "STILL_GAP_MS", 0)
+    ap = make(ArduCopterAutopilot, prearm_s=0.0, sample_rate_hz=10.0, speedup=1.0)
+    command(ap, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+            0.025e6)  # the station's: four positions a sample
+    mission = copter_mission()
+    upload(ap, mission, request="MISSION_REQUEST")
+    flight = _Flight(ap)
+    for _ in range(40):
+        flight.tick()  # on the ground, positions streaming again after the first pause
+    ap.do_set_mode(1, 4, 0)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    command(ap, mavlink.MAV_CMD_MISSION_START, 0, 0)
+    flight.until(lambda: ap.state.mission_complete)
+    for _ in range(20):
+        flight.tick()  # hovering at the end of the mission, in AUTO
+    more = [item_int(seq, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(20 + seq, 5), 10.0)
+            for seq in range(3, 10)]
+    uploader = MissionUploader(1, 1, [MissionItemSpec.from_message(rx(it))
+                                      for it in [*mission, *more]], timeout_s=10.0)
+    replies: list = []
+    while not uploader.done:
+        for msg in uploader.poll(flight.wall):
+            ap.receive(rx(msg), flight.wall)
+        for _ in range(3):  # the station's answer is 0.3 s of the vehicle's time away
+            replies += [r for r in flight.tick() if r.get_type().startswith("MISSION_")]
+        for reply in replies:
+            uploader.receive(_from_vehicle(reply), flight.wall)
+        replies.clear()
+    assert uploader.error is None
+    began = ap.server.upload_began_s
+    flight.until(lambda: ap.state.body.t_s >= began + ap.upload_pause_s + 1.0)
+
+    pairer = pairing.SamplePairer()
+    placed = [s for m in flight.sent for s in pairer.add(1, _from_vehicle(m), flight.wall)]
+    pairer.expire(flight.wall + 10.0)
+    # the samples between the last position before the pause and the first after it
+    in_pause = flight.stamps("NAMED_VALUE_FLOAT", began + 0.0005, began + ap.upload_pause_s)
+    assert len(in_pause) == 30
+    assert flight.stamps("GLOBAL_POSITION_INT", began + 0.0005, began + ap.upload_pause_s) == []
+    placed_ms = {s.time_boot_ms for s in placed}
+    newest_ms = max(flight.stamps("GLOBAL_POSITION_INT", 0.0, 1e9))
+    sent = flight.stamps("NAMED_VALUE_FLOAT", 0.0, newest_ms / 1000)
+    assert len(sent) > 100  # the climb, the mission, the hover before and after the upload
+    after = {pairing.DropReason.NO_POSITION_AFTER: 1}  # the last one, sent after the newest
+    if still_gap:
+        assert set(sent) == placed_ms and pairer.dropped == after
+    else:
+        assert set(sent) - placed_ms == set(in_pause)
+        assert pairer.dropped == {pairing.DropReason.GAP: len(in_pause), **after}
