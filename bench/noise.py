@@ -353,8 +353,12 @@ def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool,
                     continue
                 seeds = sorted(sv)
                 sensor = condition_sensor(field, noise, variant)
+                # records carried over from an earlier code (``measured_at``) say so
+                older = sorted({str(r["measured_at"]) for r in [*rs, *sv.values()]
+                                if r.get("measured_at")})
+                note = f"; measured at {', '.join(older)}" if older else ""
                 out += ["", f"### {condition_name(noise, variant)} (sensor {sensor}; "
-                        f"{group} seeds {fmt_seeds(seeds)}, {len(seeds)})", ""]
+                        f"{group} seeds {fmt_seeds(seeds)}, {len(seeds)}{note})", ""]
                 text, _ = map_table(rs, sv, planners, md)
                 out += text
                 if mappers:
