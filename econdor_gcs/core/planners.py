@@ -24,15 +24,6 @@ The planners:
   iteration would feed a learning error of exactly 0 into eqs. (6)-(7): the next real
   iteration's error then reads as a rise, which triples delta (eq. 7) and the method
   stalls for good (it happens on the paper's field).
-  When the kept levels' pieces are *too little* to fly — shorter in total than
-  ``top_up_share`` of the longest batch so far — the least redundant dropped levels are
-  added, one at a time, until they are not (at most ``kappa_n`` levels in the batch;
-  also counted in ``Batch.forced``). Such a *starved* iteration (one level's few pieces,
-  tens of metres) samples almost nothing, and its learning error is small because of
-  that, not because the map converged: eq. (7) then keeps delta where it was, and the
-  next iteration starves too. A run of a fixed number of iterations loses them.
-  Topping up only a starved batch leaves delta's pruning, on which E-CONDOR's
-  efficiency per metre rests, to every other one.
   With noisy samples (``PlanContext.noise_std``) the levels are those of the smoothed
   estimate and a level within the noise of a traced one is redundant whatever
   ``delta_n`` is. Every piece is still traced, however flat the field under it: the
@@ -49,7 +40,7 @@ The planners:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -59,7 +50,6 @@ from .contours import ContourPiece, contour_pieces
 from .geometry import FloatArray, Grid, Region
 from .levels import lloyd_max
 from .sg import drop_redundant, initial_delta, update_delta, update_kappa
-from .stopping import FAIR_SHARE
 from .tasks import FlightReport, SampleLog, Task, TraceTask, Waypoint
 from .waypoints import piece_route
 
@@ -252,13 +242,9 @@ class ContourPlanner:
         search_radius_m: float = 10.0,
         max_trace_length_m: float = 0.0,
         lloyd_variant: str = "textbook",
-        top_up_share: float = FAIR_SHARE,
     ) -> None:
         if lloyd_variant not in ("textbook", "authors"):
             raise ValueError(f"lloyd_variant: must be 'textbook' or 'authors', got {lloyd_variant!r}")
-        if not 0.0 <= top_up_share <= 1.0:
-            raise ValueError(f"top_up_share: must be within 0..1, got {top_up_share!r}")
-        self.top_up_share = top_up_share
         self.lloyd_variant = lloyd_variant
         self.m0 = m0
         self.sg = sg
@@ -274,9 +260,6 @@ class ContourPlanner:
         self.errors: list[float] = []
         self.traced: list[float] = []
         self.batches = 0
-        self.longest_batch_m = 0.0
-        """The longest total of pieces any batch so far flew (what an iteration of this
-        field and mission holds: the measure of a starved one)."""
 
     def initiation(self, context: PlanContext) -> Batch | None:
         """``None``: E-CONDOR starts from the mission's initiation pattern (the diagonals)."""
@@ -332,21 +315,15 @@ class ContourPlanner:
             # within what the noise moves either by
             keep, dropped = drop_redundant(levels, self.traced, max(self.delta, noise))
             pieces = pieces_at(keep)
-            if len(dropped):
-                # farthest from any traced level first: the least redundant
+            if not pieces and len(dropped):
+                # Every new level is redundant: fly the kappa least redundant ones
+                # rather than an empty iteration (see the module docstring).
                 gap = np.min(np.abs(dropped[:, None] - np.asarray(self.traced)[None, :]), axis=1)
-                order = np.argsort(-gap, kind="stable")
-                if not pieces:
-                    # Every new level is redundant: fly the kappa least redundant ones
-                    # rather than an empty iteration (see the module docstring).
-                    chosen = np.zeros(len(dropped), dtype=bool)
-                    chosen[order[: self.kappa]] = True
-                    keep, dropped = dropped[chosen], dropped[~chosen]
-                    pieces = pieces_at(keep)
-                    forced = len(keep)
-                elif _total_m(pieces) < self.top_up_share * self.longest_batch_m:
-                    keep, dropped, pieces, forced = self._top_up(keep, dropped[order], pieces,
-                                                                 pieces_at)
+                chosen = np.zeros(len(dropped), dtype=bool)
+                chosen[np.argsort(-gap, kind="stable")[: self.kappa]] = True
+                keep, dropped = dropped[chosen], dropped[~chosen]
+                pieces = pieces_at(keep)
+                forced = len(keep)
         jobs = []
         for p in pieces:
             max_len = self.max_trace_length_m or max(4.0 * p.length_m, 100.0)
@@ -354,28 +331,8 @@ class ContourPlanner:
             job.retarget(*p.midpoint(), self.search_radius_m, max_len, 0)
             jobs.append(job)
         self.traced.extend(float(v) for v in keep)
-        self.longest_batch_m = max(self.longest_batch_m, _total_m(pieces))
         return Batch(jobs, levels_planned=len(levels), levels=keep, dropped=dropped,
                      kappa=self.kappa, delta=self.delta, forced=forced)
-
-    def _top_up(self, keep: FloatArray, candidates: FloatArray, pieces: list[ContourPiece],
-                pieces_at: Callable[[FloatArray], list[ContourPiece]],
-                ) -> tuple[FloatArray, FloatArray, list[ContourPiece], int]:
-        """A starved batch (module docstring) with the ``candidates`` (dropped levels,
-        least redundant first) added one at a time until its pieces are not starved or
-        it holds ``kappa`` levels: (kept, dropped, pieces, how many were added)."""
-        need_m = self.top_up_share * self.longest_batch_m
-        added = 0
-        while (_total_m(pieces) < need_m and added < len(candidates)
-               and len(keep) + added < self.kappa):
-            added += 1
-            pieces = pieces_at(np.sort(np.r_[keep, candidates[:added]]))
-        return (np.sort(np.r_[keep, candidates[:added]]), np.sort(candidates[added:]), pieces,
-                added)
-
-
-def _total_m(pieces: Sequence[ContourPiece]) -> float:
-    return float(sum(p.length_m for p in pieces))
 
 
 class LawnmowerPlanner:

@@ -67,57 +67,6 @@ def test_all_levels_redundant_flies_the_kappa_least_redundant():
     assert len(b.jobs) > 0
 
 
-def _third_batch_over_a_narrow_peak(peak_value, learning_error_2=1.0):
-    """Batches 1 and 2 over the ramp (four 100 m lines: the longest batch, 400 m), batch
-    3 over the ramp with a narrow cone of ``peak_value`` at the centre (radius 5 m): only
-    a level on the cone is far enough from the traced ones, and its circle is short."""
-    xx, yy = GRID.mesh
-    peak = np.maximum(ramp(), peak_value - (peak_value - 100.0) * np.hypot(xx - 50, yy - 50) / 5)
-    p = ContourPlanner(m0=3, sg=True, lloyd_bins=None)
-    p.next_batch(ctx(ramp()))
-    p.observe(4.0)
-    p.next_batch(ctx(ramp()))
-    p.observe(learning_error_2)
-    return p, p.next_batch(ctx(peak))
-
-
-def test_a_starved_batch_is_topped_up_with_the_least_redundant_dropped_levels():
-    p, b = _third_batch_over_a_narrow_peak(120.0)
-    # delta kept only the cone's level: its 19 m circle is under FAIR_SHARE of 400 m
-    on_cone = [lv for lv in b.levels if lv > 100]
-    assert len(on_cone) == 1 and sum(j.length_m for j in b.jobs if j.piece.level > 100) < 0.15 * 400
-    traced = np.asarray(p.traced[: -len(b.levels)])
-    gap = lambda lv: np.min(np.abs(traced - lv))  # noqa: E731
-    # one dropped level added: the one farthest from every traced level
-    assert b.forced == 1 and len(b.levels) == 2
-    added = next(lv for lv in b.levels if lv <= 100)
-    assert all(gap(added) >= gap(d) for d in b.dropped)
-    assert sum(j.length_m for j in b.jobs) >= 0.15 * 400
-    assert p.longest_batch_m == pytest.approx(400.0, rel=0.01)
-    assert b.kappa == 4 and len(b.levels) <= b.kappa
-
-
-def test_a_starved_top_up_never_flies_more_than_kappa_levels():
-    p, b = _third_batch_over_a_narrow_peak(200.0, learning_error_2=2.0)
-    # three levels on the cone, 49 m in all: starved, but already kappa levels
-    assert b.kappa == len(b.levels) == 3 and all(lv > 100 for lv in b.levels)
-    assert sum(j.length_m for j in b.jobs) < 0.15 * 400
-    assert b.forced == 0
-
-
-def test_no_top_up_at_share_zero():
-    p = ContourPlanner(m0=3, sg=True, lloyd_bins=None, top_up_share=0.0)
-    xx, yy = GRID.mesh
-    p.next_batch(ctx(ramp()))
-    p.observe(4.0)
-    p.next_batch(ctx(ramp()))
-    p.observe(1.0)
-    b = p.next_batch(ctx(np.maximum(ramp(), 120.0 - 20.0 * np.hypot(xx - 50, yy - 50) / 5)))
-    assert b.forced == 0 and len(b.levels) == 1 and b.levels[0] > 100
-    with pytest.raises(ValueError, match="top_up_share"):
-        ContourPlanner(top_up_share=1.5)
-
-
 def test_no_sg_adds_one_level_and_retraces_all():
     p = ContourPlanner(m0=3, sg=False, lloyd_bins=None)
     ms = []
