@@ -182,6 +182,7 @@ class AlgorithmConfig:
     reconstruction: str
     min_piece_length_m: float
     keep_diagonals: bool
+    max_starved_iterations: int
     max_idle_iterations: int
     target_levels: tuple[float, ...]
 

@@ -20,6 +20,7 @@ from typing import Any
 
 from econdor_gcs.core.adaptive import AdaptiveParams
 from econdor_gcs.core.planners import PLANNER_NAMES
+from econdor_gcs.core.stopping import FAIR_SHARE
 
 REQUIRED: Any = object()
 """The default of a key a mission must give."""
@@ -279,6 +280,12 @@ SCHEMA: dict[str, Section] = {
         "keep_diagonals": Key(bool, True, None,
                               "Keep the initiation's samples in every reconstruction "
                               "(false: drop them once the traces begin)."),
+        "max_starved_iterations": Key(int, 0, within(0, 1000),
+                                      "An iteration that sampled too little (flew under "
+                                      f"{FAIR_SHARE * 100:g} % of the run's largest "
+                                      "iteration) does not count "
+                                      "against max_iterations, at most this many times; 0: "
+                                      "every iteration counts (the paper's iteration n)."),
         "max_idle_iterations": Key(int, 2, within(0, 1000),
                                    "Stop after this many + 1 iterations in a row with "
                                    "nothing to fly."),

@@ -11,7 +11,12 @@ scores are in :mod:`.records`; they are re-exported here.
 
 Stop rule (all configurable in the mission's ``algorithm`` section):
 
-* ``max_iterations`` reached;
+* ``max_iterations`` reached; an iteration that sampled too little (flew under
+  ``FAIR_SHARE`` of the run's largest iteration: E-CONDOR's delta may leave one level's
+  few pieces, tens of metres) does not count, at most ``max_starved_iterations`` times.
+  A run of a fixed number of iterations would otherwise spend its iterations on next to
+  no samples: the real flight code's contours are shorter than the onboard tracer's,
+  and two of a five-iteration run's iterations starve over ArduCopter SITL;
 * ``flight_budget_m`` (> 0) spent;
 * after ``min_iterations``: ``gamma_n = 3 E_n / (E_n + E_{n-1} + E_{n-2})`` within
   ``1 +- stop_lambda`` (``stop_lambda`` > 0; the learning error has levelled off) and the
@@ -65,7 +70,7 @@ from econdor_gcs.core.planners import (
     survey_turn_m,
 )
 from econdor_gcs.core.spline import fit_field
-from econdor_gcs.core.stopping import gamma_converged, noise_floor
+from econdor_gcs.core.stopping import gamma_converged, noise_floor, sampled_enough
 from econdor_gcs.core.tasks import FlightReport, Phase, SampleLog, Task, TraceTask
 from econdor_gcs.dfc.records import (
     FINISH,
@@ -421,8 +426,10 @@ class Dfc:
         self._record(0, first, estimate, None, reports)
         converged, reason = False, "max_iterations"
         span_prev = metrics.span(estimate)
-        idle = 0
-        for it in range(1, a.max_iterations + 1):
+        idle = starved = 0
+        it = 0
+        while it < a.max_iterations + starved:
+            it += 1
             if not self.checkpoint(it):
                 reason = "stopped"
                 break
@@ -455,6 +462,8 @@ class Dfc:
                 converged, reason = True, "learning_error_converged"
                 break
             span_prev = span_now
+            if starved < a.max_starved_iterations and not sampled_enough(self._flown_m())[-1]:
+                starved += 1
         home_rec = self._replay.pop(FINISH, None)
         if self._replay:
             raise RunError(f"cannot resume: {len(self._replay)} recorded flights were never "
@@ -475,11 +484,15 @@ class Dfc:
         self.progress(RunDone(result.summary()))
         return result
 
+    def _flown_m(self) -> list[float]:
+        """What each iteration after the initiation flew (m), in order."""
+        return [r.flight_distance_m - p.flight_distance_m
+                for p, r in zip(self.records, self.records[1:], strict=False)]
+
     def _gamma_converged(self, span_prev: float, span_now: float) -> bool:
         """The learning-error rule, each error net of the noise floor
         (:mod:`econdor_gcs.core.stopping`)."""
-        flown = {r.iteration: r.flight_distance_m - p.flight_distance_m
-                 for p, r in zip(self.records, self.records[1:], strict=False)}
+        flown = dict(zip((r.iteration for r in self.records[1:]), self._flown_m(), strict=True))
         rows = [r for r in self.records if not math.isnan(r.learning_error)]
         return gamma_converged([r.learning_error for r in rows], [r.noise_floor for r in rows],
                                self.mission.algorithm.stop_lambda, span_prev, span_now,

@@ -129,8 +129,10 @@ class FieldExecutor:
 
     n_vehicles = 1
 
-    def __init__(self, seed: int = 0) -> None:
+    def __init__(self, seed: int = 0, flown_m: dict[int, float] | None = None) -> None:
         self.rng = np.random.default_rng(seed)
+        self.flown_m = flown_m or {}
+        """What iteration n flew (m; 300 when not given)."""
 
     def positions(self):
         return [(0.0, 0.0)]
@@ -145,7 +147,8 @@ class FieldExecutor:
         phase = Phase.SURVEY if survey else Phase.TRANSIT
         log = SampleLog(np.arange(300) / 10.0, x, y, value, np.full(300, phase, np.int8),
                         np.zeros(300, np.int16))
-        return [FlightReport(0, log, 300.0, 0.0, [], float(x[-1]), float(y[-1]), 30.0)]
+        flown = self.flown_m.get(iteration, 300.0)
+        return [FlightReport(0, log, flown, 0.0, [], float(x[-1]), float(y[-1]), 30.0)]
 
     def finish(self):
         return []
@@ -186,6 +189,28 @@ def test_gamma_rule_skips_starved_iterations():
     dfc.records[-1].flight_distance_m = 2100.0  # the last one flew its share again
     dfc.records[-1].learning_error = 0.0099
     assert not dfc._gamma_converged(50.0, 50.1)  # 1.0, 0.01, 0.0099: still falling
+
+
+def test_starved_iterations_do_not_count_against_max_iterations():
+    """Iterations that flew under FAIR_SHARE of the largest one (here 20 m after 500 m
+    ones) are not counted against ``max_iterations``, at most ``max_starved_iterations``
+    of them; 0 counts every iteration."""
+    from econdor_gcs.dfc.loop import Dfc
+
+    flown = {1: 500.0, 2: 500.0, 3: 20.0, 4: 20.0, 5: 500.0, 6: 20.0, 7: 500.0, 8: 500.0}
+
+    def iterations(**algorithm):
+        result = Dfc(_small(max_iterations=5, min_iterations=1, **algorithm),
+                     FieldExecutor(flown_m=flown), planner="no-sg").run()
+        assert result.stop_reason == "max_iterations"
+        return [r.iteration for r in result.records[1:]]
+
+    assert iterations(max_starved_iterations=0) == [1, 2, 3, 4, 5]
+    assert iterations(max_starved_iterations=2) == [1, 2, 3, 4, 5, 6, 7]  # 3 and 4 free
+    assert iterations(max_starved_iterations=5) == [1, 2, 3, 4, 5, 6, 7, 8]  # and 6
+    # off unless the mission asks (the paper's iteration n); the demo asks for 2
+    assert load_mission(ROOT / "missions" / "paper.yaml").algorithm.max_starved_iterations == 0
+    assert iterations() == [1, 2, 3, 4, 5, 6, 7]
 
 
 def test_run_stops_on_the_gamma_rule():
