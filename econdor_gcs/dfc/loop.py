@@ -481,6 +481,7 @@ class Dfc:
             self._account(home)
             self.return_m = self.flight_m - flown_before
         result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
+        result.starved_iterations = starved
         self.progress(RunDone(result.summary()))
         return result
 

@@ -127,6 +127,9 @@ class RunResult:
     return_m: float = 0.0
     """Flight home after the last iteration: flown, but behind no estimate, so neither in
     ``flight_distance_m`` nor in any record's (``total_flown_m`` has it)."""
+    starved_iterations: int = 0
+    """Iterations that sampled too little and so did not count against ``max_iterations``
+    (``algorithm.max_starved_iterations``)."""
 
     @property
     def total_flown_m(self) -> float:
@@ -139,6 +142,7 @@ class RunResult:
             "planner": self.planner,
             "seed": self.seed,
             "iterations": max(0, len(self.records) - 1),  # after the initiation (row 0)
+            "starved_iterations": self.starved_iterations,
             "final_mae": last.mae if last else math.nan,
             "final_mae_db": last.mae_db if last else math.nan,
             "final_mae_rel": last.mae_rel if last else math.nan,

@@ -203,6 +203,8 @@ def test_starved_iterations_do_not_count_against_max_iterations():
         result = Dfc(_small(max_iterations=5, min_iterations=1, **algorithm),
                      FieldExecutor(flown_m=flown), planner="no-sg").run()
         assert result.stop_reason == "max_iterations"
+        # the summary says how many were not counted
+        assert result.summary()["starved_iterations"] == len(result.records) - 1 - 5
         return [r.iteration for r in result.records[1:]]
 
     assert iterations(max_starved_iterations=0) == [1, 2, 3, 4, 5]
