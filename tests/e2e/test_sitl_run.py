@@ -56,12 +56,12 @@ def test_three_sitl_copters_with_the_lua_sensor_map_the_demo(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     print(f"\nSITL x3 demo: {summary['final_mae_db']:.1f} dB, {summary['samples']} samples, "
           f"{summary['timings']['total_wall_s']:.0f} s wall, pairing {summary['sample_pairing']}")
-    # the goal is -40 dB, but one run lands anywhere from -22 to -42 dB (SITL's timing makes
-    # each run's samples differ a little, and E-CONDOR's levels, and its stop, follow them:
-    # docs/experiments/2026-12-04-sitl.md); bench/sitl.py measures the goal over many runs.
-    # The suite holds the chain to what must hold in every run: a map, every sample the
-    # scripts sent placed, at their rate, and sensed where it was placed (below)
-    assert summary["final_mae_db"] <= -15.0
+    # the goal is -40 dB; bench/sitl.py measures it over several runs (docs/results/sitl.md).
+    # One run's samples differ a little with SITL's timing on a loaded machine, and
+    # E-CONDOR's levels follow them, so the suite holds a margin below the goal
+    # (docs/experiments/2026-12-05-starved-sg.md), plus what must hold in every run: every
+    # sample the scripts sent placed, at their rate, and sensed where it was placed (below)
+    assert summary["final_mae_db"] <= -35.0
     assert [v["autopilot"] for v in summary["fleet"]] == ["ardupilot"] * 3
     assert summary["link_conflicts"] == []
     # a stock autopilot's Lua script does not answer the sample count: said, not fatal
