@@ -13,8 +13,9 @@ by place.
 At each sample ``i``, for square windows of growing half-width ``h_1 < h_2 < ...``, the
 estimate at scale ``h`` is the mean of the samples in the square whose smoothed value
 (the spline's, :mod:`.smoothing`) is within ``delta = similar_sd * sigma`` of sample
-``i``'s (the "range" weight of a bilateral filter; Tomasi & Manduchi 1998), with standard
-deviation ``sigma / sqrt(n_h)``. Two rules keep it off the field's slopes and peaks:
+``i``'s, to the value bins of ``delta / 2`` the sums are kept in (the "range" weight of
+a bilateral filter; Tomasi & Manduchi 1998), with standard deviation ``sigma / sqrt(n_h)``.
+Two rules keep it off the field's slopes and peaks:
 
 * **plateau**: a scale counts only while those similar samples are at least
   ``plateau_share`` of the square's. On a slope the samples within ``delta`` of a value
