@@ -480,8 +480,8 @@ class Dfc:
             flown_before = self.flight_m
             self._account(home)
             self.return_m = self.flight_m - flown_before
-        result = self._result(estimate, converged, reason, time.perf_counter() - wall0)
-        result.starved_iterations = starved
+        result = self._result(estimate, converged, reason, time.perf_counter() - wall0,
+                              starved)
         self.progress(RunDone(result.summary()))
         return result
 
@@ -500,8 +500,8 @@ class Dfc:
                                self.records[-1].span_noise,
                                flown_m=[flown.get(r.iteration, 0.0) for r in rows])
 
-    def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float
-                ) -> RunResult:
+    def _result(self, estimate: FloatArray, converged: bool, reason: str, wall_s: float,
+                starved_iterations: int = 0) -> RunResult:
         iso = self.records[-1].isoline_error_m if self.records else {}
         return RunResult(
             planner=self.planner_name, seed=self.seed, records=self.records,
@@ -512,6 +512,7 @@ class Dfc:
             contour_distance_m=self.contour_m,
             isoline_error_m=iso,
             return_m=self.return_m,
+            starved_iterations=starved_iterations,
             mission={
                 "mission": self.mission.name,
                 "origin": asdict(self.mission.origin),
