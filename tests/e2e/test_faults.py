@@ -89,7 +89,10 @@ def test_demo_through_a_lossy_signed_link_keeps_every_sample(tmp_path: Path, cap
     assert all(r["missing"] == 0 and r["vehicle_count"] == counts[int(s)]
                for s, r in recovery.items())
     assert sum(r["recovered"] for r in recovery.values()) > 0.05 * sum(counts.values())
-    assert summary["iterations"] == 5 and summary["signed"] is True
+    # the demo's 5 iterations, and those that flew too little to count
+    # (``algorithm.max_starved_iterations``: how many depends on the link's timing)
+    assert summary["iterations"] == 5 + summary["starved_iterations"]
+    assert summary["signed"] is True
     m = re.search(r"in (\d+) out \d+ dropped (\d+).*back: in (\d+) out \d+ dropped (\d+)",
                   relay.stats)
     assert m, relay.stats
