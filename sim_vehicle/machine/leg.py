@@ -45,6 +45,21 @@ GOOD_OFFSET_M = 1.0
 """A trace sample within this lateral offset of the level is where a lost trace resumes
 (searched for where the vehicle is when it is already within this distance of it)."""
 
+ORBIT_NOISE_M = 0.1
+"""Readings whose noise moves the offset by more than this (m; the noise over the
+tracer's gradient) can drive the lateral loop round in circles a metre or two across, on
+the spot (seen at 0.4-1.3 m: the paper field's middle iso-line at noise 1, a circle at
+noise 1-3; the threshold sits well below, as the tracer's gradient can start several
+times too steep): then no turn is tighter than an orbit of ``min_loop_radius_m``, and a
+trace comes back onto its own track only after going ``closure_min_away_m`` from it (as
+it must from its start). A contour that tight is not traced through such noise anyway."""
+
+
+@njit(cache=True)
+def _orbit_prone(b, tr) -> bool:
+    """Whether the readings' noise is large beside the gradient (``ORBIT_NOISE_M``)."""
+    return noise_std(b) > ORBIT_NOISE_M * tr.grad_mag
+
 
 @njit(inline="always")
 def call(ctl, tr, lg, heading_rad: float, side: float) -> None:
@@ -124,6 +139,11 @@ def _steer(ctl, params, tr, lg, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarra
     d_clip = 1.5 * params.lost_offset_m
     d_c = max(-d_clip, min(d_clip, lg.d_f + params.sensor_lag_s * lg.dd_f))
     w_max = min(turn_max, lat_accel / v)
+    if _orbit_prone(b, tr):
+        # no turn tighter than an orbit of min_loop_radius_m: slowed in a bend, the
+        # loop's turn rate could otherwise grow as the speed falls, and a run of noise
+        # drives the curvature's integral round into circles a metre across
+        w_max = min(w_max, v / params.min_loop_radius_m)
     omega = v * lg.curvature_1pm - kp * d_c - kd * lg.dd_f
     curv_need = max(abs(lg.curvature_1pm), abs(omega) / v)  # the curvature asked for
     omega = max(-w_max, min(w_max, omega))
@@ -262,7 +282,10 @@ def post(ctl, params, task, tr, lg, tk, b, fv: np.ndarray, fr: np.ndarray, fc: n
         _end(ctl, lg, CLOSED)
         return
     lg.has_prev_dist, lg.prev_dist = 1, dist
-    if params.rejoin_min_m > 0.0 and track_push(ctl, params, tr, tk, track, prior, x, y):
+    away_m = max(params.closure_min_away_m, params.closure_radius_m) if _orbit_prone(b, tr) \
+        else 0.0
+    if params.rejoin_min_m > 0.0 and track_push(ctl, params, tr, tk, track, prior, x, y,
+                                                 away_m):
         _end(ctl, lg, CLOSED)
         return
     if not contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y) or (

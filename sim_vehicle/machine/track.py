@@ -18,13 +18,15 @@ it is the trace's other sense, or the far side of a thin tongue)."""
 
 
 @njit(cache=True)
-def track_push(ctl, params, tr, tk, track: np.ndarray, prior: np.ndarray, x: float, y: float
-               ) -> bool:
+def track_push(ctl, params, tr, tk, track: np.ndarray, prior: np.ndarray, x: float, y: float,
+               away_m: float = 0.0) -> bool:
     """Keep a point of the trace's track every ``TRACK_STEP_M`` traced; True when the new
     one comes onto ``prior`` (an earlier trace of the level flew there, either way), or
     rejoins the trace's own track flown at least ``rejoin_min_m`` before, the same way,
-    away from its start (that closure is the start's own test): the trace has gone round
-    a loop that does not pass its start (past a saddle, or after a loss)."""
+    away from its start (that closure is the start's own test), and farther than ``away_m``
+    from that point since (a trace whose noise could circle it on the spot must have left
+    a point to come back to it): the trace has gone round a loop that does not pass its
+    start (past a saddle, or after a loss)."""
     if tk.has and ctl.traced_m - tk.m < TRACK_STEP_M:
         return False
     if tk.len >= track.shape[0]:
@@ -52,6 +54,18 @@ def track_push(ctl, params, tr, tk, track: np.ndarray, prior: np.ndarray, x: flo
             break
         if (math.hypot(track[i, 0] - x, track[i, 1] - y) <= r
                 and track[i, 3] * ux + track[i, 4] * uy >= REJOIN_MIN_COS
-                and math.hypot(track[i, 0] - tr.start_x, track[i, 1] - tr.start_y) > r):
+                and math.hypot(track[i, 0] - tr.start_x, track[i, 1] - tr.start_y) > r
+                and (away_m <= 0.0 or _went_away(track, i, k, away_m))):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _went_away(track: np.ndarray, i: int, k: int, away_m: float) -> bool:
+    """Whether the track went farther than ``away_m`` from its point ``i`` between it and
+    point ``k`` (a trace circling on the spot passes its own track again and again
+    without going round anything)."""
+    for j in range(i + 1, k):
+        if math.hypot(track[j, 0] - track[i, 0], track[j, 1] - track[i, 1]) > away_m:
             return True
     return False

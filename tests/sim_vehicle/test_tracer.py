@@ -97,6 +97,22 @@ def test_trace_circle_with_noise(seed: int) -> None:
     assert outcome.traced_m == pytest.approx(2.0 * math.pi * 20.0, rel=0.05)
 
 
+@pytest.mark.parametrize("noise_std", [2.0, 3.0])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_noisy_trace_goes_round_once_without_orbiting(noise_std: float, seed: int) -> None:
+    """Readings whose noise is about a metre of offset (the gradient at the circle is
+    2.3 per metre): the trace goes once round the circle and closes at its start. It
+    neither circles on the spot (slowed in a bend, the turn rate grew as the speed fell,
+    and a run of noise drove the curvature's integral round into circles a metre
+    across) nor takes such a circle's passes over its own track for the loop's closure
+    (it closed after 34 m, or went 1.8 times round)."""
+    _, outcome, _, _ = trace_circle(noise_std=noise_std, seed=seed)
+    circle = 2.0 * math.pi * 20.0
+    assert outcome.status == "closed"
+    # measured: 1.05-1.21 x the circle (before: 0.27-1.84 x, one lost)
+    assert 0.95 * circle <= outcome.traced_m <= 1.25 * circle
+
+
 def test_contour_leaving_area_traces_both_arcs() -> None:
     # circle of radius 20 centred 5 m inside the east edge: the inside arc spans
     # angles 75.5 deg .. 284.5 deg (through 180 deg), 72.9 m long
