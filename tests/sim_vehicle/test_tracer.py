@@ -102,14 +102,13 @@ def test_trace_circle_with_noise(seed: int) -> None:
 def test_a_noisy_trace_goes_round_once_without_orbiting(noise_std: float, seed: int) -> None:
     """Readings whose noise is about a metre of offset (the gradient at the circle is
     2.3 per metre): the trace goes once round the circle and closes at its start. It
-    neither circles on the spot (slowed in a bend, the turn rate grew as the speed fell,
-    and a run of noise drove the curvature's integral round into circles a metre
-    across) nor takes such a circle's passes over its own track for the loop's closure
-    (it closed after 34 m, or went 1.8 times round)."""
+    must neither circle on the spot (a run of noise can drive the curvature's integral
+    round into circles a metre across when the trace slows in a bend) nor take such a
+    circle's passes over its own track for the loop's closure."""
     _, outcome, _, _ = trace_circle(noise_std=noise_std, seed=seed)
     circle = 2.0 * math.pi * 20.0
     assert outcome.status == "closed"
-    # measured: 1.05-1.21 x the circle (before: 0.27-1.84 x, one lost)
+    # measured: 1.05-1.21 x the circle
     assert 0.95 * circle <= outcome.traced_m <= 1.25 * circle
 
 
