@@ -19,7 +19,7 @@ it is the trace's other sense, or the far side of a thin tongue)."""
 
 @njit(cache=True)
 def track_push(ctl, params, tr, tk, track: np.ndarray, prior: np.ndarray, x: float, y: float,
-               away_m: float = 0.0) -> bool:
+               away_m: float) -> bool:
     """Keep a point of the trace's track every ``TRACK_STEP_M`` traced; True when the new
     one comes onto ``prior`` (an earlier trace of the level flew there, either way), or
     rejoins the trace's own track flown at least ``rejoin_min_m`` before, the same way,

@@ -64,7 +64,9 @@ class RelayThread:
     def __exit__(self, *exc: object) -> None:
         async def close() -> None:
             self.relay.close()
-            await asyncio.sleep(0.05)  # the transports close on the loop's next turns
+            # a closed transport's connection_lost is queued with call_soon: one turn of
+            # the loop (queued behind it) runs it
+            await asyncio.sleep(0)
 
         asyncio.run_coroutine_threadsafe(close(), self.loop).result(5)
         self.loop.call_soon_threadsafe(self.loop.stop)
