@@ -54,6 +54,7 @@ from scipy.interpolate import RectBivariateSpline
 from econdor_gcs.core.exact_spline import BiharmonicSpline
 from econdor_gcs.core.fast_spline import DEFAULT_LEVELS, FastBiharmonicSpline, Tile, TileLevel
 from econdor_gcs.core.geometry import Grid
+from econdor_gcs.core.local_scale import clip_to_plateaus
 from econdor_gcs.core.gp import Kriging
 from econdor_gcs.core.greens import FloatArray, greens_function
 from econdor_gcs.core.noise import NoiseEstimate
@@ -235,9 +236,13 @@ def fit_field(
         xx, yy = coarse.mesh
         zc = est.predict(xx, yy)
         values = RectBivariateSpline(coarse.y, coarse.x, zc, kx=3, ky=3)(grid.y, grid.x)
-        return Reconstruction(values, d.noise, used)
-    xx, yy = grid.mesh
-    return Reconstruction(est.predict(xx, yy), d.noise, used)
+    else:
+        values = est.predict(*grid.mesh)
+    if d.on_plateau.any():
+        # the spline between tracks rings beside plumes and extrapolates beyond the last
+        # track: where the nearest samples all lie on a plateau, the map stays within them
+        values = clip_to_plateaus(d.x, d.y, d.v, d.on_plateau, *grid.mesh, values)
+    return Reconstruction(values, d.noise, used)
 
 
 def _krige(x: FloatArray, y: FloatArray, v: FloatArray, grid: Grid, noise_std: float | None,
