@@ -390,7 +390,7 @@ def _survey(xs: list[float], field) -> SampleLog:
 def test_threshold_coverage_floor_is_measured_in_metres_not_through_the_model():
     """A smooth plane far below the level: the GP fits a length of ~100 m, so its variance
     is small everywhere; still, with lines 30 m apart, places 15 m from every sample are
-    farther than ``explore_m`` (14 m) and the planner flies there before it is done. Lines
+    farther than ``explore_m`` (10 m) and the planner flies there before it is done. Lines
     8 m apart leave nothing farther than 4 m: done."""
     def plane(x, y):
         return 10.0 + 0.1 * np.asarray(x) + 0.0 * np.asarray(y)
@@ -406,7 +406,8 @@ def test_threshold_coverage_floor_is_measured_in_metres_not_through_the_model():
         assert batch.done is done and (planner.open_cells == 0) is done
         if not done:  # the first leg goes through a gap between two lines
             (x0, _), (x1, _) = batch.jobs[0].start_m, batch.jobs[0].end_m
-            assert min(abs(x0 - x) for x in xs) > 14.0 or min(abs(x1 - x) for x in xs) > 14.0
+            far = planner.params.explore_m
+            assert min(abs(x0 - x) for x in xs) > far or min(abs(x1 - x) for x in xs) > far
 
 
 def test_threshold_planner_is_done_when_no_flight_would_lower_what_is_left(monkeypatch):

@@ -262,7 +262,7 @@ class AdaptiveParams:
     search_radius_m: float = 3.0
     trace_overhead_m: float = 5.0
     resolve_m: float = 1.5
-    explore_m: float = 14.0
+    explore_m: float = 10.0
     band_m: float = 3.0
     level_tol: float = 0.01
     threshold_batch_m: float = 80.0

@@ -102,7 +102,7 @@ def sweep_spacing_m(params: AdaptiveParams) -> float:
     just over ``explore_m`` from every leg, open for ever.
 
     >>> sweep_spacing_m(AdaptiveParams())
-    26.0
+    18.0
     """
     return 2.0 * params.explore_m - params.plan_spacing_m
 
