@@ -116,12 +116,24 @@ class Reconstruction:
     std : ndarray or None
         Kriging only, when asked for: the posterior standard deviation of the field on the
         grid under the fitted noise.
+    unclipped : ndarray or None
+        Noisy samples with plateaus: the spline's map before
+        :func:`~econdor_gcs.core.local_scale.clip_to_plateaus` (``None``: nothing was
+        clipped). The planners read this one (:attr:`for_planning`): the faint bumps the
+        clip takes off a plateau beside a plume not yet found are what a threshold
+        planner's probes look for.
     """
 
     values: FloatArray
     noise: NoiseEstimate
     method: str
     std: FloatArray | None = None
+    unclipped: FloatArray | None = None
+
+    @property
+    def for_planning(self) -> FloatArray:
+        """The map the planners plan on: :attr:`unclipped` where there is one."""
+        return self.values if self.unclipped is None else self.unclipped
 
     @property
     def noise_std(self) -> float:
@@ -238,11 +250,12 @@ def fit_field(
         values = RectBivariateSpline(coarse.y, coarse.x, zc, kx=3, ky=3)(grid.y, grid.x)
     else:
         values = est.predict(*grid.mesh)
-    if d.on_plateau.any():
-        # the spline between tracks rings beside plumes and extrapolates beyond the last
-        # track: where the nearest samples all lie on a plateau, the map stays within them
-        values = clip_to_plateaus(d.x, d.y, d.v, d.on_plateau, *grid.mesh, values)
-    return Reconstruction(values, d.noise, used)
+    if not d.on_plateau.any():
+        return Reconstruction(values, d.noise, used)
+    # the spline between tracks rings beside plumes and extrapolates beyond the last track:
+    # where the nearest samples all lie on a plateau, the map stays within them
+    clipped = clip_to_plateaus(d.x, d.y, d.v, d.on_plateau, *grid.mesh, values)
+    return Reconstruction(clipped, d.noise, used, unclipped=values)
 
 
 def _krige(x: FloatArray, y: FloatArray, v: FloatArray, grid: Grid, noise_std: float | None,

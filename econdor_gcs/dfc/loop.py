@@ -233,6 +233,8 @@ class Dfc:
         """The samples' noise as the last reconstruction estimated it (field units)."""
         self._samples_before = 0
         """Samples behind the last estimate recorded (the noise floor's 'before')."""
+        self._planning_estimate: FloatArray | None = None
+        """The last reconstruction's map for the planners (before the plateau clip)."""
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -251,6 +253,7 @@ class Dfc:
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         self.noise_std = rec.noise_std
+        self._planning_estimate = rec.for_planning
         return rec.values
 
     def _account(self, reports: list[FlightReport], batch: Batch | None = None) -> None:
@@ -317,7 +320,11 @@ class Dfc:
         return self._as_sensed(reports)
 
     def _context(self, iteration: int, estimate: FloatArray | None) -> PlanContext:
+        """What the planner sees: ``estimate`` is the station's map; the planner is given
+        the reconstruction's map for planning (:attr:`Reconstruction.for_planning`)."""
         budget = self.mission.algorithm.flight_budget_m
+        if estimate is not None and self._planning_estimate is not None:
+            estimate = self._planning_estimate
         return PlanContext(
             iteration=iteration, region=self.mission.region, n_vehicles=self.executor.n_vehicles,
             grid=self.grid, estimate=estimate, samples=self._samples(),
