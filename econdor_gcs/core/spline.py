@@ -54,9 +54,9 @@ from scipy.interpolate import RectBivariateSpline
 from econdor_gcs.core.exact_spline import BiharmonicSpline
 from econdor_gcs.core.fast_spline import DEFAULT_LEVELS, FastBiharmonicSpline, Tile, TileLevel
 from econdor_gcs.core.geometry import Grid
-from econdor_gcs.core.local_scale import clip_to_plateaus
 from econdor_gcs.core.gp import Kriging
 from econdor_gcs.core.greens import FloatArray, greens_function
+from econdor_gcs.core.local_scale import clip_to_plateaus
 from econdor_gcs.core.noise import NoiseEstimate
 from econdor_gcs.core.samples import _check_samples, _merge_duplicates, _thin_pick
 from econdor_gcs.core.smoothing import denoise
