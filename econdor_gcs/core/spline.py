@@ -119,9 +119,8 @@ class Reconstruction:
     unclipped : ndarray or None
         Noisy samples with plateaus: the spline's map before
         :func:`~econdor_gcs.core.local_scale.clip_to_plateaus` (``None``: nothing was
-        clipped). The planners read this one (:attr:`for_planning`): the faint bumps the
-        clip takes off a plateau beside a plume not yet found are what a threshold
-        planner's probes look for.
+        clipped). Threshold mode looks for a plume beside a track in it
+        (:attr:`~econdor_gcs.core.planners.PlanContext.unclipped`).
     """
 
     values: FloatArray
@@ -129,11 +128,6 @@ class Reconstruction:
     method: str
     std: FloatArray | None = None
     unclipped: FloatArray | None = None
-
-    @property
-    def for_planning(self) -> FloatArray:
-        """The map the planners plan on: :attr:`unclipped` where there is one."""
-        return self.values if self.unclipped is None else self.unclipped
 
     @property
     def noise_std(self) -> float:

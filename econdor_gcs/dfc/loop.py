@@ -233,8 +233,8 @@ class Dfc:
         """The samples' noise as the last reconstruction estimated it (field units)."""
         self._samples_before = 0
         """Samples behind the last estimate recorded (the noise floor's 'before')."""
-        self._planning_estimate: FloatArray | None = None
-        """The last reconstruction's map for the planners (before the plateau clip)."""
+        self._unclipped: FloatArray | None = None
+        """The last reconstruction's map before the plateau clip (None: not clipped)."""
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -253,7 +253,7 @@ class Dfc:
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         self.noise_std = rec.noise_std
-        self._planning_estimate = rec.for_planning
+        self._unclipped = rec.unclipped
         return rec.values
 
     def _account(self, reports: list[FlightReport], batch: Batch | None = None) -> None:
@@ -320,18 +320,15 @@ class Dfc:
         return self._as_sensed(reports)
 
     def _context(self, iteration: int, estimate: FloatArray | None) -> PlanContext:
-        """What the planner sees: ``estimate`` is the station's map; the planner is given
-        the reconstruction's map for planning (:attr:`Reconstruction.for_planning`)."""
         budget = self.mission.algorithm.flight_budget_m
-        if estimate is not None and self._planning_estimate is not None:
-            estimate = self._planning_estimate
         return PlanContext(
             iteration=iteration, region=self.mission.region, n_vehicles=self.executor.n_vehicles,
             grid=self.grid, estimate=estimate, samples=self._samples(),
             positions_m=self._positions(iteration),
             budget_left_m=budget - self.flight_m if budget > 0 else math.inf,
             flown_m=self.flight_m,
-            noise_std=self.noise_std if math.isfinite(self.noise_std) else 0.0)
+            noise_std=self.noise_std if math.isfinite(self.noise_std) else 0.0,
+            unclipped=self._unclipped if estimate is not None else None)
 
     def _pattern(self) -> tuple[Batch, list[list[Task]]]:
         """The mission's initiation pattern (the two diagonals or a survey) and its plans."""

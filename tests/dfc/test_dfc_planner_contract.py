@@ -71,12 +71,10 @@ def test_every_named_planner_has_a_factory_and_unknown_names_are_refused():
         dfc.build_planner("nope", mission)
 
 
-def test_the_planner_plans_on_the_unclipped_map_and_the_station_reports_the_clipped_one(
-        monkeypatch):
+def test_the_planner_is_given_the_station_s_map_and_the_one_before_the_clip(monkeypatch):
     """With a noisy sensor over plumes the station's map is clipped on the plateaus
-    (:func:`~econdor_gcs.core.local_scale.clip_to_plateaus`); the planner is given the
-    spline's map before the clip, whose faint bumps beside a plume not yet found its
-    probes look for."""
+    (:func:`~econdor_gcs.core.local_scale.clip_to_plateaus`); the planner is given that map
+    and, beside it, the spline's map before the clip (threshold mode reads the latter)."""
     mission = load_mission(ROOT / "missions" / "plume.yaml").with_overrides(
         max_iterations=2, min_iterations=2).with_vehicles(count=1, sensor={"noise_std": 1.0})
     planner = TwoLines()
@@ -98,4 +96,5 @@ def test_the_planner_plans_on_the_unclipped_map_and_the_station_reports_the_clip
     first = fitted[0]
     assert first.unclipped is not None and not np.array_equal(first.values, first.unclipped)
     np.testing.assert_array_equal(maps[0], first.values)  # reported: clipped
-    np.testing.assert_array_equal(planner.contexts[0].estimate, first.unclipped)  # planned on
+    np.testing.assert_array_equal(planner.contexts[0].estimate, first.values)
+    np.testing.assert_array_equal(planner.contexts[0].unclipped, first.unclipped)
