@@ -32,11 +32,6 @@ follows what a mean cannot); elsewhere the plateau's mean replaces it. The sums 
 summed-area tables over (x, y, value) bins, a bilateral grid (Paris & Durand 2009), so
 every width costs the same whatever the number of samples.
 
-Between the samples the map is the spline through these values, and a spline does not stay
-flat between tracks: beside a plume it rings, and beyond the last track it extrapolates a
-slope. :func:`clip_to_plateaus` holds the map, where the nearest samples all lie on a
-plateau, within the range of their values.
-
 References
 ----------
 Goldenshluger, A. & Nemirovski, A. (1997). On spatially adaptive estimation of
@@ -55,21 +50,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 FloatArray = NDArray[np.float64]
 
-PLATEAU_NEIGHBOURS = 32
-""":func:`clip_to_plateaus` looks at most at this many nearest samples of a place."""
-
-PLATEAU_REACH = (1.5, 1.0)
-""":func:`clip_to_plateaus`: of those, the samples within ``a d + b`` metres (``a, b`` these,
-``d`` the distance to the nearest sample) are the place's neighbours: a place between two
-tracks has both among them, and a slope between the tracks is not cut into terraces
-(docs/experiments/2026-12-05-plateau-clip.md)."""
-
-__all__ = ["PLATEAU_NEIGHBOURS", "PLATEAU_REACH", "ScaleChoice", "ScaleParams", "clip_to_plateaus",
-           "widen_on_plateaus"]
+__all__ = ["ScaleChoice", "ScaleParams", "widen_on_plateaus"]
 
 
 @dataclass(frozen=True)
@@ -216,58 +200,6 @@ def widen_on_plateaus(x: FloatArray, y: FloatArray, v: FloatArray, counts: Float
         wide = alive & (h > p.keep_m)
         values[wide] = mean[wide]
     return ScaleChoice(values, chosen)
-
-
-def clip_to_plateaus(x: FloatArray, y: FloatArray, values: FloatArray,
-                     on_plateau: NDArray[np.bool_], qx: FloatArray, qy: FloatArray,
-                     estimate: FloatArray) -> FloatArray:
-    """The ``estimate`` at the places ``qx, qy``, held within the range of the values of
-    the place's neighbouring samples (``PLATEAU_NEIGHBOURS``, ``PLATEAU_REACH``) wherever
-    those all lie on a plateau (module docstring).
-
-    Parameters
-    ----------
-    x, y, values : ndarray
-        The samples (positions in m) and their values after :func:`widen_on_plateaus`.
-    on_plateau : ndarray of bool
-        The samples whose value is a plateau's mean (chosen half-width above ``keep_m``).
-    qx, qy, estimate : ndarray
-        Places and the interpolated estimate there (any one shape).
-
-    Returns
-    -------
-    ndarray
-        The estimate, clipped where the rule applies; the input where it does not, or where
-        no sample lies on a plateau.
-
-    Examples
-    --------
-    A spline that overshoots a plateau at 10 between two tracks is brought back to it; a
-    place beside a sample off the plateau keeps its value.
-
-    >>> x = np.array([0.0, 0.0, 0.0, 10.0, 10.0, 10.0, 20.0])
-    >>> y = np.array([0.0, 5.0, 10.0, 0.0, 5.0, 10.0, 5.0])
-    >>> v = np.array([10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 40.0])
-    >>> flat = v < 20.0
-    >>> clip_to_plateaus(x, y, v, flat, np.array([5.0, 19.0]), np.array([5.0, 5.0]),
-    ...                  np.array([11.5, 38.0])).tolist()
-    [10.0, 38.0]
-    """
-    est = np.asarray(estimate, dtype=np.float64)
-    k = min(PLATEAU_NEIGHBOURS, x.size)
-    if k < 1 or not np.any(on_plateau):
-        return est
-    q = np.column_stack((np.ravel(qx), np.ravel(qy)))
-    dist, nn = cKDTree(np.column_stack((x, y))).query(q, k=k)
-    dist, nn = dist.reshape(len(q), k), nn.reshape(len(q), k)
-    a, b = PLATEAU_REACH
-    near = dist <= a * dist[:, :1] + b
-    ok = (on_plateau[nn] | ~near).all(axis=1)
-    vals = values[nn]
-    lo = np.where(near, vals, np.inf).min(axis=1)
-    hi = np.where(near, vals, -np.inf).max(axis=1)
-    flat = est.ravel()
-    return np.where(ok, np.clip(flat, lo, hi), flat).reshape(est.shape)
 
 
 def _box(tables: FloatArray, j0: NDArray[np.intp], j1: NDArray[np.intp],

@@ -130,10 +130,6 @@ class PlanContext:
     """The samples' noise as the station's reconstruction estimated it from the samples
     themselves (field units; :func:`~econdor_gcs.core.spline.fit_field`), never the
     simulation's: 0 when they read as exact (or before any estimate)."""
-    unclipped: FloatArray | None = None
-    """The estimate before the plateau clip (:attr:`~econdor_gcs.core.spline.Reconstruction.
-    unclipped`), where the clip changed it: the faint bumps a plume beside a track leaves on
-    a plateau, which the clip takes off the station's map, are still in it."""
 
     @property
     def positions_or_home_m(self) -> list[tuple[float, float]]:

@@ -143,10 +143,6 @@ class Denoised:
         The noise (estimated, or the one given).
     damping_m2 : ndarray
         Each tile's damping (m^2); empty when nothing was smoothed.
-    on_plateau : ndarray of bool
-        The values that are a plateau's mean
-        (:func:`~econdor_gcs.core.local_scale.widen_on_plateaus`); all false when nothing
-        was smoothed or no plateau rule was applied.
     """
 
     x: FloatArray
@@ -154,7 +150,6 @@ class Denoised:
     v: FloatArray
     noise: NoiseEstimate
     damping_m2: FloatArray
-    on_plateau: NDArray[np.bool_]
 
     @property
     def smoothed(self) -> bool:
@@ -186,17 +181,15 @@ def denoise(x: FloatArray, y: FloatArray, v: FloatArray, noise_std: float | None
     else:
         raise ValueError(f"noise_std must be None or a finite number >= 0, got {noise_std}")
     if not noise.detected:
-        return Denoised(x, y, v, noise, np.zeros(0), np.zeros(x.size, dtype=bool))
+        return Denoised(x, y, v, noise, np.zeros(0))
     p = params or SmoothingParams()
     xm, ym, vm, counts = _block_mean_counts(x, y, v, p.thin_cell_m)
     smoothed = smooth_samples(xm, ym, vm, noise.noise_std, p, counts)
     values = smoothed.values
-    on_plateau = np.zeros(xm.size, dtype=bool)
     if p.local_scale is not None:
-        wide = widen_on_plateaus(xm, ym, vm, counts, values, noise.noise_std, p.local_scale)
-        values = wide.values
-        on_plateau = wide.half_width_m > p.local_scale.keep_m
-    return Denoised(xm, ym, values, noise, smoothed.damping_m2, on_plateau)
+        values = widen_on_plateaus(xm, ym, vm, counts, values, noise.noise_std,
+                                  p.local_scale).values
+    return Denoised(xm, ym, values, noise, smoothed.damping_m2)
 
 
 def smooth_samples(x: FloatArray, y: FloatArray, v: FloatArray, noise_std: float,

@@ -56,7 +56,6 @@ from econdor_gcs.core.fast_spline import DEFAULT_LEVELS, FastBiharmonicSpline, T
 from econdor_gcs.core.geometry import Grid
 from econdor_gcs.core.gp import Kriging
 from econdor_gcs.core.greens import FloatArray, greens_function
-from econdor_gcs.core.local_scale import clip_to_plateaus
 from econdor_gcs.core.noise import NoiseEstimate
 from econdor_gcs.core.samples import _check_samples, _merge_duplicates, _thin_pick
 from econdor_gcs.core.smoothing import denoise
@@ -116,18 +115,12 @@ class Reconstruction:
     std : ndarray or None
         Kriging only, when asked for: the posterior standard deviation of the field on the
         grid under the fitted noise.
-    unclipped : ndarray or None
-        Noisy samples with plateaus: the spline's map before
-        :func:`~econdor_gcs.core.local_scale.clip_to_plateaus` (``None``: nothing was
-        clipped). Threshold mode looks for a plume beside a track in it
-        (:attr:`~econdor_gcs.core.planners.PlanContext.unclipped`).
     """
 
     values: FloatArray
     noise: NoiseEstimate
     method: str
     std: FloatArray | None = None
-    unclipped: FloatArray | None = None
 
     @property
     def noise_std(self) -> float:
@@ -242,14 +235,9 @@ def fit_field(
         xx, yy = coarse.mesh
         zc = est.predict(xx, yy)
         values = RectBivariateSpline(coarse.y, coarse.x, zc, kx=3, ky=3)(grid.y, grid.x)
-    else:
-        values = est.predict(*grid.mesh)
-    if not d.on_plateau.any():
         return Reconstruction(values, d.noise, used)
-    # the spline between tracks rings beside plumes and extrapolates beyond the last track:
-    # where the nearest samples all lie on a plateau, the map stays within them
-    clipped = clip_to_plateaus(d.x, d.y, d.v, d.on_plateau, *grid.mesh, values)
-    return Reconstruction(clipped, d.noise, used, unclipped=values)
+    xx, yy = grid.mesh
+    return Reconstruction(est.predict(xx, yy), d.noise, used)
 
 
 def _krige(x: FloatArray, y: FloatArray, v: FloatArray, grid: Grid, noise_std: float | None,

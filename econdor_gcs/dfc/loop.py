@@ -233,8 +233,6 @@ class Dfc:
         """The samples' noise as the last reconstruction estimated it (field units)."""
         self._samples_before = 0
         """Samples behind the last estimate recorded (the noise floor's 'before')."""
-        self._unclipped: FloatArray | None = None
-        """The last reconstruction's map before the plateau clip (None: not clipped)."""
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
@@ -253,7 +251,6 @@ class Dfc:
         self._last_recon_s = time.perf_counter() - t0
         self.recon_s += self._last_recon_s
         self.noise_std = rec.noise_std
-        self._unclipped = rec.unclipped
         return rec.values
 
     def _account(self, reports: list[FlightReport], batch: Batch | None = None) -> None:
@@ -327,8 +324,7 @@ class Dfc:
             positions_m=self._positions(iteration),
             budget_left_m=budget - self.flight_m if budget > 0 else math.inf,
             flown_m=self.flight_m,
-            noise_std=self.noise_std if math.isfinite(self.noise_std) else 0.0,
-            unclipped=self._unclipped if estimate is not None else None)
+            noise_std=self.noise_std if math.isfinite(self.noise_std) else 0.0)
 
     def _pattern(self) -> tuple[Batch, list[list[Task]]]:
         """The mission's initiation pattern (the two diagonals or a survey) and its plans."""

@@ -947,27 +947,3 @@ def test_threshold_not_done_on_noise_over_a_flat_background() -> None:
                       if isinstance(t, Waypoint)])
     far = cKDTree(np.column_stack([x, y])).query(flown)[0]
     assert far.max() > planner.params.explore_m
-
-
-def test_threshold_mode_plans_on_the_map_before_the_plateau_clip():
-    """Given the station's (clipped) map and the one before the clip, threshold mode plans
-    exactly as if the latter were the estimate: the probes look for the faint bumps the
-    clip takes off a plateau."""
-    def plane(x, y):
-        return 10.0 + 0.1 * np.asarray(x) + 0.0 * np.asarray(y)
-
-    xx, yy = GRID.mesh
-    samples = _survey([15.0, 45.0, 75.0], plane)
-    before = plane(xx, yy) + 30.0 * np.exp(-((xx - 60.0) ** 2 + (yy - 50.0) ** 2) / 50.0)
-    clipped = plane(xx, yy)
-
-    def plan(estimate, unclipped):
-        planner = adaptive_planner(AdaptiveParams(target_levels=(30.0,)))
-        return planner.next_batch(PlanContext(
-            iteration=1, region=REGION, n_vehicles=1, grid=GRID, estimate=estimate,
-            samples=samples, positions_m=[(50.0, 50.0)], noise_std=1.0,
-            unclipped=unclipped))
-
-    given_both = plan(clipped, before)
-    assert given_both.jobs == plan(before, None).jobs
-    assert given_both.jobs != plan(clipped, None).jobs

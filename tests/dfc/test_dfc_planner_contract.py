@@ -69,32 +69,3 @@ def test_every_named_planner_has_a_factory_and_unknown_names_are_refused():
     mission = load_mission(ROOT / "missions" / "demo.yaml")
     with pytest.raises(MissionError, match="unknown planner 'nope'"):
         dfc.build_planner("nope", mission)
-
-
-def test_the_planner_is_given_the_station_s_map_and_the_one_before_the_clip(monkeypatch):
-    """With a noisy sensor over plumes the station's map is clipped on the plateaus
-    (:func:`~econdor_gcs.core.local_scale.clip_to_plateaus`); the planner is given that map
-    and, beside it, the spline's map before the clip (threshold mode reads the latter)."""
-    mission = load_mission(ROOT / "missions" / "plume.yaml").with_overrides(
-        max_iterations=2, min_iterations=2).with_vehicles(count=1, sensor={"noise_std": 1.0})
-    planner = TwoLines()
-    monkeypatch.setitem(dfc.PLANNERS, "two-lines", lambda m: planner)
-    maps: list[np.ndarray] = []
-    field = mission.build_field(900)
-    run = dfc.Dfc(mission, InProcessExecutor(mission, field, seed=900), planner="two-lines",
-                  truth=field, progress=lambda e: maps.append(e.estimate)
-                  if isinstance(e, dfc.IterationDone) else None)
-    fitted = []
-    real_fit = dfc.fit_field
-
-    def spy(*args, **kwargs):
-        fitted.append(real_fit(*args, **kwargs))
-        return fitted[-1]
-
-    monkeypatch.setattr(dfc, "fit_field", spy)
-    run.run()
-    first = fitted[0]
-    assert first.unclipped is not None and not np.array_equal(first.values, first.unclipped)
-    np.testing.assert_array_equal(maps[0], first.values)  # reported: clipped
-    np.testing.assert_array_equal(planner.contexts[0].estimate, first.values)
-    np.testing.assert_array_equal(planner.contexts[0].unclipped, first.unclipped)

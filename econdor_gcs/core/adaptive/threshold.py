@@ -34,7 +34,6 @@ add): planning nothing would only stall the run.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -202,10 +201,6 @@ class ThresholdPlanner(AdaptivePlanner):
 
     def next_batch(self, context: PlanContext) -> Batch:
         p = self.params
-        if context.unclipped is not None:
-            # the faint bumps a plume beside a track leaves on a plateau, which the
-            # station's map has clipped off, are what the probes look for
-            context = dataclasses.replace(context, estimate=context.unclipped)
         umap, _ = self.uncertainty(context)
         s = estimated_samples(context)  # what the samples read, with any noise smoothed out
         region = context.region
