@@ -62,15 +62,15 @@ class RelayThread:
         return self.relay
 
     def __exit__(self, *exc: object) -> None:
-        async def close() -> None:
+        def close_then_stop() -> None:
             self.relay.close()
-            # a closed transport's connection_lost is queued with call_soon: one turn of
-            # the loop (queued behind it) runs it
-            await asyncio.sleep(0)
+            # the closed transports queue their connection_lost with call_soon: the stop
+            # queued after them runs once they have
+            self.loop.call_soon(self.loop.stop)
 
-        asyncio.run_coroutine_threadsafe(close(), self.loop).result(5)
-        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.loop.call_soon_threadsafe(close_then_stop)
         self.thread.join(5)
+        assert not self.thread.is_alive(), "the relay's loop did not stop"
         self.loop.close()
 
 
