@@ -84,11 +84,13 @@ SENSORS: dict[str, dict[str, Any]] = {
     "lag 0.5 s, unknown": {"lag_s": 0.5, "lag_correction": "none"},
     "lag 1 s": {"lag_s": 1.0},
     "lag 1 s, unknown": {"lag_s": 1.0, "lag_correction": "none"},
+    "lag 1 s, estimated": {"lag_s": 1.0, "lag_correction": "estimate"},
     "GNSS 1 m": {"position_std_m": 1.0, "position_tau_s": 10.0},
     "plume-noisy": {"lag_s": 0.5, "position_std_m": 1.0, "position_tau_s": 10.0},
 }
 """The sensor variants (``--sensors``), on top of the noise of ``--sensor-noise``; lag is
-known to the station (and corrected) unless said."""
+known to the station (and corrected) unless said: ``unknown`` left in, ``estimated`` from
+the samples' crossovers and corrected."""
 BUDGET_M = 4_000.0
 THRESHOLD_BUDGET_M = 10_000.0
 CURVE_KM = (1.0, 2.0, 3.0, 4.0)

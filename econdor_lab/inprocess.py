@@ -84,7 +84,7 @@ class InProcessExecutor:
         rng = np.random.default_rng(seed + 7919)
         # like the MAVLink vehicle: transits at the cruise speed (its SPEED_MPS), not max speed
         # and is told the sensor's lag when the station is (it corrects for it)
-        known_lag_s = v.sensor.lag_s if v.sensor.lag_correction != "none" else 0.0
+        known_lag_s = v.sensor.lag_s if v.sensor.lag_correction == "deconvolve" else 0.0
         self.params = TracerParams(speed_mps=v.speed_mps, transit_speed_mps=v.speed_mps,
                                    sensor_lag_s=known_lag_s)
         self.fence = Fence.from_items(

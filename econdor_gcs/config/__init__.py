@@ -122,7 +122,8 @@ class SensorConfig:
     process per axis) are what the simulated vehicles sense with
     (:mod:`sim_vehicle.sensor`); all zero: a perfect sensor. ``lag_s`` is also what the
     station knows of the real sensor: it corrects each sample for it
-    (``lag_correction``, :mod:`econdor_gcs.core.lag`; ``none`` leaves the lag in).
+    (``lag_correction``, :mod:`econdor_gcs.core.lag`; ``estimate``: the station estimates
+    the lag from the samples and corrects for that instead; ``none`` leaves the lag in).
     """
 
     noise_std: float = 0.0

@@ -358,9 +358,11 @@ SENSOR_SCHEMA: Section = {
                           "first-order Gauss-Markov process."),
     "position_tau_s": Key(float, 10.0, between(0, 86400, above=True),
                           "Correlation time of that position error (s)."),
-    "lag_correction": Key(str, "deconvolve", one_of("deconvolve", "none"),
+    "lag_correction": Key(str, "deconvolve", one_of("deconvolve", "estimate", "none"),
                           "deconvolve: the station undoes the sensor's lag (lag_s) before "
-                          "reconstructing; none: the lag is left in."),
+                          "reconstructing; estimate: it estimates the lag from where the "
+                          "vehicles crossed their own tracks and undoes that (lag_s then only "
+                          "sets the simulated sensor's); none: the lag is left in."),
 }
 """``vehicles.sensor``: the sensor the vehicles carry (:class:`SensorConfig`); all zero is a
 perfect sensor."""

@@ -25,6 +25,16 @@ The other classic correction, moving each reading to where the vehicle was ``tau
 spread is ``tau`` as well), and a flight shorter than ``tau`` -- threshold mode's first
 steps are 5 m -- piles all its samples onto the point it started from.
 
+When the lag is not known it is estimated from the samples (:func:`estimate_lag`) by
+crossover analysis, as airborne surveys calibrate a sensor's lag: where the vehicle passes
+the same place twice (within ``CROSSOVER_M``, at least ``CROSSOVER_GAP_S`` apart), the two
+readings must agree once corrected. As ``g = y + tau * dy/dt`` is linear in ``tau``, the
+``tau`` that makes them agree best in least squares is a closed form over all pairs:
+``tau = -sum(dy * dd) / sum(dd * dd)``, ``dy`` and ``dd`` the pair's differences of reading
+and of its rate of change. A lag shifts a feature along the track, so passes in different
+directions over a slope say the most; passes over flat ground, or the same way over it,
+say nothing, and a flight without crossovers over a slope gives no estimate.
+
 Samples are corrected per vehicle, in time order, within stretches of continuous sampling
 (a pause longer than ``GAP_S`` -- a hover between flights -- starts a new stretch; the
 sensor settles while the vehicle hovers, so a stretch starts from a settled reading).
@@ -35,9 +45,11 @@ when and on what.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .geometry import FloatArray
 from .tasks import SampleLog
@@ -54,9 +66,12 @@ LADDER = (1, 2, 3, 4, 6, 8, 11, 16, 22, 32)
 
 
 class LagCorrection(StrEnum):
-    """How the station undoes a known sensor lag (see the module docstring)."""
+    """How the station undoes the sensor's lag (see the module docstring): ``deconvolve``
+    with the lag it is told, ``estimate`` with the lag it estimates from its samples
+    (:func:`estimate_lag`), ``none`` not at all."""
 
     DECONVOLVE = "deconvolve"
+    ESTIMATE = "estimate"
     NONE = "none"
 
 
@@ -244,3 +259,132 @@ def correct_lag(samples: SampleLog, lag_s: float,
             d = track_derivative(t[s], samples.value[k], sigma)
             out.value[k] = samples.value[k] + lag_s * d
     return out
+
+
+CROSSOVER_M = 1.0
+""":func:`estimate_lag`: two samples this close (m) are a crossover ..."""
+CROSSOVER_GAP_S = 3.0
+"""... when taken at least this long apart (or by different vehicles)."""
+RATE_HALF_WINDOW_S = 0.5
+""":func:`estimate_lag` reads each sample's value and rate of change off a straight line
+fitted to the readings within this long of it along the track: one window for all, so
+that every pair compares alike (the ICI window of :func:`track_derivative` is chosen per
+sample, and a noisy rate attenuates the estimate)."""
+MIN_CROSSOVERS = 30
+"""Fewer crossovers than this give no estimate."""
+SIGNAL_SHARE = 0.5
+"""Nor do crossovers whose differences of rate are less than this share signal (the rest
+being the read-out noise's)."""
+
+
+@dataclass(frozen=True)
+class LagEstimate:
+    """What :func:`estimate_lag` returns.
+
+    Attributes
+    ----------
+    lag_s : float
+        The estimated time constant (s, >= 0); NaN when the samples cannot tell.
+    stderr_s : float
+        Its standard error (s; from the pairs' residuals, which are not all independent:
+        a lower bound); NaN with no estimate.
+    crossovers : int
+        The pairs of samples it rests on.
+    """
+
+    lag_s: float
+    stderr_s: float
+    crossovers: int
+
+    @property
+    def usable(self) -> bool:
+        """Whether the estimate is firm enough to correct with: within 0.05 s + 10 %."""
+        return bool(math.isfinite(self.lag_s) and self.stderr_s <= 0.05 + 0.1 * self.lag_s)
+
+
+def _line_fits(t: FloatArray, y: FloatArray, half_s: float
+               ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Value and slope at each sample of the straight line fitted to the readings within
+    ``half_s`` of it in time (one stretch, sorted by time), and the slope's variance per
+    unit of read-out noise variance (``1 / sum (t - mean t)^2``; inf where none)."""
+    n = len(t)
+    if n < 3:
+        return y.copy(), np.zeros(n), np.full(n, np.inf)
+    tc = t - t[0]
+    lo = np.searchsorted(tc, tc - half_s, side="left")
+    hi = np.searchsorted(tc, tc + half_s, side="right")
+    c = [np.concatenate(([0.0], np.cumsum(a))) for a in (np.ones(n), tc, tc * tc, y, tc * y)]
+    s0, s1, s2, sy, sty = (a[hi] - a[lo] for a in c)
+    det = s0 * s2 - s1 * s1
+    ok = (hi - lo >= 3) & (det > 1e-9 * np.maximum(s0 * s2, 1e-300))
+    slope = np.divide(s0 * sty - s1 * sy, det, out=np.zeros(n), where=ok)
+    value = np.where(ok, (sy - slope * s1) / np.maximum(s0, 1.0) + slope * tc, y)
+    per_var = np.divide(s0, det, out=np.full(n, np.inf), where=ok)
+    return value, slope, per_var
+
+
+def estimate_lag(samples: SampleLog, crossover_m: float = CROSSOVER_M,
+                 gap_s: float = CROSSOVER_GAP_S, half_window_s: float = RATE_HALF_WINDOW_S
+                 ) -> LagEstimate:
+    """The sensor's first-order time constant estimated from the samples' crossovers
+    (module docstring).
+
+    Parameters
+    ----------
+    samples
+        Raw readings (not corrected) of one or more vehicles.
+    crossover_m, gap_s, half_window_s
+        ``CROSSOVER_M``, ``CROSSOVER_GAP_S``, ``RATE_HALF_WINDOW_S``.
+
+    Returns
+    -------
+    LagEstimate
+
+    Examples
+    --------
+    A sensor with a 0.8 s lag flown east, then back west 0.5 m to the north, over a field
+    rising 2 per metre eastward:
+
+    >>> t = np.arange(0.0, 12.5, 0.1)
+    >>> x = np.concatenate((8.0 * t, 100.0 - 8.0 * t))
+    >>> y = np.concatenate((np.zeros_like(t), np.full_like(t, 0.5)))
+    >>> read = np.concatenate((2.0 * x[:125] - 2.0 * 8.0 * 0.8, 2.0 * x[125:] + 2.0 * 8.0 * 0.8))
+    >>> log = SampleLog(np.concatenate((t, t + 13.0)), x, y, read,
+    ...                 np.zeros(250, dtype=np.int8), np.zeros(250, dtype=np.int16))
+    >>> round(estimate_lag(log).lag_s, 2)
+    0.8
+    """
+    n = len(samples)
+    value, rate, rate_var = np.zeros(n), np.zeros(n), np.zeros(n)
+    for v in np.unique(samples.vehicle):
+        idx = np.flatnonzero(samples.vehicle == v)
+        idx = idx[np.argsort(samples.t_s[idx], kind="stable")]
+        t = samples.t_s[idx]
+        stretches = _stretches(t)
+        sigma = noise_std(*(samples.value[idx[st]] for st in stretches))
+        for st in stretches:
+            k = idx[st]
+            value[k], rate[k], per_var = _line_fits(t[st], samples.value[k], half_window_s)
+            rate_var[k] = sigma * sigma * per_var
+    none = LagEstimate(math.nan, math.nan, 0)
+    if n < 2:
+        return none
+    pairs = cKDTree(np.column_stack((samples.x_m, samples.y_m))).query_pairs(
+        crossover_m, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    keep = ((np.abs(samples.t_s[i] - samples.t_s[j]) >= gap_s)
+            | (samples.vehicle[i] != samples.vehicle[j]))
+    i, j = i[keep], j[keep]
+    dy, dd = value[i] - value[j], rate[i] - rate[j]
+    sxx = float(np.sum(dd * dd))
+    # the rates' own noise inflates sum(dd^2) and would pull the estimate toward 0 (errors
+    # in variables): taken out; where it is most of it, the crossovers lie on flat ground
+    # or were flown the same way, and tell nothing
+    signal = sxx - float(np.sum(rate_var[i] + rate_var[j]))
+    if len(i) < MIN_CROSSOVERS or not signal >= SIGNAL_SHARE * sxx:
+        return LagEstimate(math.nan, math.nan, len(i))
+    sxx = signal
+    tau = -float(np.sum(dy * dd)) / sxx
+    resid = dy + tau * dd
+    se = math.sqrt(float(np.sum(dd * dd * resid * resid))) / sxx
+    return LagEstimate(max(tau, 0.0), se, len(i))

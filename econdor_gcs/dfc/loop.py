@@ -58,7 +58,7 @@ from econdor_gcs.core.adaptive import AdaptiveParams, adaptive_planner
 from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.fields import Field
 from econdor_gcs.core.geometry import FloatArray
-from econdor_gcs.core.lag import LagCorrection, correct_lag
+from econdor_gcs.core.lag import LagCorrection, correct_lag, estimate_lag
 from econdor_gcs.core.planners import (
     Batch,
     ContourPlanner,
@@ -233,10 +233,29 @@ class Dfc:
         """The samples' noise as the last reconstruction estimated it (field units)."""
         self._samples_before = 0
         """Samples behind the last estimate recorded (the noise floor's 'before')."""
+        sensor = self.mission.vehicles.sensor
+        self.lag_s = (sensor.lag_s if sensor.lag_correction == LagCorrection.DECONVOLVE
+                      else 0.0 if sensor.lag_correction == LagCorrection.NONE else math.nan)
+        """The sensor lag the station corrects the samples for (s): the mission's when it
+        is known, the last usable estimate when it is estimated (NaN before one)."""
+        self._sensed: tuple[int, SampleLog] | None = None
+        """With an estimated lag: the samples corrected for it, and how many there were."""
 
     # -- helpers --------------------------------------------------------------------------
     def _samples(self) -> SampleLog:
-        return SampleLog.concat(self.logs)
+        """Every sample so far as the station uses it (:meth:`_as_sensed`)."""
+        raw = SampleLog.concat(self.logs)
+        if self.mission.vehicles.sensor.lag_correction != LagCorrection.ESTIMATE:
+            return raw
+        if self._sensed is None or self._sensed[0] != len(raw):
+            # the lag estimated afresh from every sample's crossovers, and every sample
+            # corrected with it (an earlier flight's too: the estimate firms up with flight)
+            est = estimate_lag(raw)
+            if est.usable:
+                self.lag_s = est.lag_s
+            lag = self.lag_s if math.isfinite(self.lag_s) else 0.0
+            self._sensed = (len(raw), correct_lag(raw, lag) if lag > 0.0 else raw)
+        return self._sensed[1]
 
     def _reconstruct(self) -> FloatArray:
         s = self._samples()
@@ -272,9 +291,11 @@ class Dfc:
     def _as_sensed(self, reports: list[FlightReport]) -> list[FlightReport]:
         """The flights' samples as the station uses them: corrected for the sensor's known
         lag (``vehicles.sensor.lag_s``, :mod:`econdor_gcs.core.lag`), for every planner and
-        transport alike. The run directory keeps the samples as received."""
+        transport alike. The run directory keeps the samples as received. An estimated lag
+        is corrected for on all the samples at once (:meth:`_samples`): they come through
+        here as received."""
         sensor = self.mission.vehicles.sensor
-        if sensor.lag_s <= 0.0 or sensor.lag_correction == LagCorrection.NONE:
+        if sensor.lag_s <= 0.0 or sensor.lag_correction != LagCorrection.DECONVOLVE:
             return reports
         return [dataclasses.replace(r, samples=correct_lag(
             r.samples, sensor.lag_s, LagCorrection(sensor.lag_correction))) for r in reports]
@@ -398,6 +419,7 @@ class Dfc:
             isoline_error_m=iso,
             forced=batch.forced if batch else 0,
             noise_std=self.noise_std,
+            lag_s=self.lag_s,
             noise_floor=floor,
             span_noise=SPAN_NOISE_Z * 2.0 * sd_max,
         )

@@ -68,6 +68,10 @@ class IterationRecord:
     noise_std: float = math.nan
     """The samples' noise as this iteration's reconstruction estimated it (field units; 0:
     taken as exact and interpolated; the previous iteration's when nothing new was flown)."""
+    lag_s: float = math.nan
+    """The sensor lag (s) the station corrected this iteration's samples for: the mission's
+    when known (0 when none is corrected), its estimate from the samples when
+    ``lag_correction`` is ``estimate`` (NaN until the crossovers tell)."""
     noise_floor: float = 0.0
     """The learning error the samples' noise alone would make in this iteration (0 for
     exact samples; :func:`~econdor_gcs.core.stopping.noise_floor`)."""
@@ -158,6 +162,7 @@ class RunResult:
             "sim_s": self.sim_s,
             "reconstruction_s": self.reconstruction_s,
             "noise_std": last.noise_std if last else math.nan,
+            "lag_s": last.lag_s if last else math.nan,
             "vehicles": self.vehicles,
             "isoline_error_m": self.isoline_error_m,
             **self.mission,

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from econdor_gcs.config import parse_mission
-from econdor_gcs.core.lag import LagCorrection, correct_lag, noise_std, track_derivative
+from econdor_gcs.core.lag import (
+    LagCorrection,
+    correct_lag,
+    estimate_lag,
+    noise_std,
+    track_derivative,
+)
 from econdor_gcs.core.tasks import SampleLog
 from econdor_lab.inprocess import run_inprocess
 from sim_vehicle.sensor import SensorModel
@@ -153,3 +159,75 @@ def test_a_broad_field_is_not_mistaken_for_noise():
     fixed = correct_lag(s, 1.0)
     assert np.sqrt(np.mean((s.value - truth) ** 2)) > 5.0
     assert np.sqrt(np.mean((fixed.value - truth) ** 2)) < 0.02
+
+
+def _slope(x, y):
+    return 50.0 + 2.0 * np.asarray(x) + 0.5 * np.asarray(y)
+
+
+def _lawnmower(lag_s: float, noise: float, seed: int, field=_slope, cross: bool = True):
+    """Six legs 4 m apart flown east and west by turns; with ``cross``, a leg north across
+    all of them at the end (the crossovers an estimate needs)."""
+    legs = [(1100.0, 900.0 + 4.0 * k) if k % 2 == 0 else (900.0, 900.0 + 4.0 * k)
+            for k in range(6)]
+    if cross:
+        legs += [(1000.0, 920.0), (1000.0, 880.0)]
+    _, s = fly(SensorModel(lag_s=lag_s, noise_std=noise), field=field, seed=seed,
+               start=(900.0, 900.0), legs=legs)
+    return s
+
+
+@pytest.mark.parametrize("lag_s", [0.5, 1.0, 2.0])
+@pytest.mark.parametrize("noise", [0.0, 1.0, 3.0])
+def test_the_lag_is_estimated_from_the_crossovers(lag_s, noise):
+    """Legs flown both ways over a slope, crossed by one leg: over four seeds the estimate
+    is within 10 % of the sensor's time constant, noise or not (the rates' own noise taken
+    out, it is not pulled toward 0), and its standard error says so."""
+    got = [estimate_lag(_lawnmower(lag_s, noise, seed)) for seed in range(4)]
+    assert all(e.usable for e in got)
+    assert np.median([e.lag_s for e in got]) == pytest.approx(lag_s, rel=0.1)
+    assert max(abs(e.lag_s - lag_s) for e in got) < 0.15 * lag_s + 0.05
+
+
+def test_no_lag_is_estimated_as_none():
+    e = estimate_lag(_lawnmower(0.0, 1.0, 0))
+    assert e.usable and e.lag_s < 0.05
+
+
+def test_crossovers_on_flat_ground_or_none_at_all_give_no_estimate():
+    """A plume's background says nothing of the lag (the differences of rate there are
+    the noise's); neither does a flight that never comes back over its own track."""
+    flat = estimate_lag(_lawnmower(1.0, 1.0, 0, field=lambda x, y: 10.0 + 0.0 * np.asarray(x)))
+    assert not flat.usable and np.isnan(flat.lag_s) and flat.crossovers > 100
+    _, once = fly(SensorModel(lag_s=1.0, noise_std=1.0), field=_slope, seed=0,
+                  start=(900.0, 900.0), legs=((1100.0, 900.0), (1100.0, 1000.0)))
+    uncrossed = estimate_lag(once)
+    assert not uncrossed.usable and uncrossed.crossovers < 30
+
+
+def test_a_corrected_flight_with_the_estimate_is_as_good_as_with_the_known_lag():
+    s = _lawnmower(1.0, 1.0, 1)
+    truth = _slope(s.x_m, s.y_m)
+    est = estimate_lag(s)
+    rms = [float(np.sqrt(np.mean((correct_lag(s, lag).value - truth) ** 2)))
+           for lag in (0.0, est.lag_s, 1.0)]
+    assert rms[0] > 10.0  # 8 m late on a slope of 2 per metre
+    assert rms[1] < 1.1 * rms[2] + 0.05
+
+
+def test_the_station_estimates_the_lag_when_told_to(tmp_path):
+    """``lag_correction: estimate``: the station corrects every sample for the lag its
+    crossovers give (recorded per iteration as ``lag_s``), not for the mission's ``lag_s``,
+    and ``samples.csv`` still keeps the samples as received."""
+    result = run_inprocess(_lagging_mission("estimate"), tmp_path / "run")
+    lag = result.records[-1].lag_s
+    assert lag == pytest.approx(1.0, rel=0.15) and lag != 1.0
+    received = np.loadtxt(tmp_path / "run" / "samples.csv", delimiter=",", skiprows=1)
+    raw = SampleLog(received[:, 0], received[:, 1], received[:, 2], received[:, 3],
+                    received[:, 4].astype(np.int8), received[:, 5].astype(np.int16))
+    final = estimate_lag(raw)  # the flight home's samples too
+    assert final.usable and final.lag_s == pytest.approx(lag, abs=0.05)
+    np.testing.assert_array_equal(result.samples.value, correct_lag(raw, final.lag_s).value)
+    assert result.summary()["lag_s"] == lag
+    known = run_inprocess(_lagging_mission(), tmp_path / "known")
+    assert all(r.lag_s == 1.0 for r in known.records)

@@ -226,7 +226,7 @@ def test_mission_sensor_keys_and_the_noise_alias():
      r"^vehicles\.sensor\.lag_s: must be >= 0 \(a sensor.s response time\), got -1\.0$"),
     ({"sensor": {"position_tau_s": 0}}, r"^vehicles\.sensor\.position_tau_s: must be > 0"),
     ({"sensor": {"lag_correction": "wiener"}}, r"^vehicles\.sensor\.lag_correction: must be "
-                                               r"one of deconvolve, none"),
+                                               r"one of deconvolve, estimate, none"),
     ({"sensor": [1, 2]}, r"^vehicles\.sensor: expected a mapping, got list$"),
     ({"sensr": {}}, r"^vehicles\.sensr: unknown key \(allowed: .*sample_rate_hz, sensor, "),
 ])
