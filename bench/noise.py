@@ -337,7 +337,12 @@ def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool,
     (never looked at while the design was tuned)."""
     out: list[str] = []
     fields = list(dict.fromkeys(s["field"] for s in surveys))
-    conditions = list(dict.fromkeys((s["noise"], s["variant"]) for s in surveys))
+    order = ["", *SENSORS]
+    # noisy conditions first, by noise, then the sensor variants in SENSORS' order, and
+    # the perfect sensor last
+    conditions = sorted(dict.fromkeys((s["noise"], s["variant"]) for s in surveys),
+                        key=lambda c: (c[0] == 0.0, order.index(c[1]) if c[1] in order
+                                       else len(order), c[0]))
     planners = list(dict.fromkeys(r["planner"] for r in runs
                                   if not r["planner"].endswith(":threshold")))
     mappers = list(dict.fromkeys(r["planner"] for r in runs
