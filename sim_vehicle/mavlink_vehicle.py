@@ -199,9 +199,13 @@ class MavlinkVehicle:
         for k, val in overrides.items():
             setattr(settings, k, val)
         field = mission.build_field(settings.seed)
+        # the onboard tracer is told the sensor's lag when the station is (it corrects for
+        # it), as in the in-process mode
+        known_lag_s = v.sensor.lag_s if v.sensor.lag_correction == "deconvolve" else 0.0
         return cls(field, mission.region, mission.origin, settings,
-                   connect or "udpout:127.0.0.1:14550", home=home, autopilot=autopilot,
-                   signing=signing)
+                   connect or "udpout:127.0.0.1:14550",
+                   tracer_params=TracerParams(sensor_lag_s=known_lag_s), home=home,
+                   autopilot=autopilot, signing=signing)
 
     # ------------------------------------------------------------------ views
 

@@ -249,3 +249,21 @@ def test_a_noise_only_sensor_draws_what_it_always_drew():
     _, s = fly(SensorModel(noise_std=0.7), seed=11)
     want = np.random.default_rng(11).normal(0.0, 0.7, size=len(s))
     assert np.array_equal(s.value - s.x_m, (s.x_m + want) - s.x_m)
+
+
+@pytest.mark.parametrize(("correction", "known"), [("deconvolve", 0.5), ("estimate", 0.0),
+                                                   ("none", 0.0)])
+def test_the_mavlink_vehicles_tracer_knows_the_lag_when_the_station_does(correction, known):
+    """As in the in-process mode, the onboard tracer is told the sensor's lag when the
+    station corrects for the one it is told; estimated or left in, the tracer traces with
+    the lag in."""
+    from sim_vehicle.mavlink_vehicle import MavlinkVehicle
+
+    m = load_mission(ROOT / "missions" / "plume-noisy.yaml").with_vehicles(
+        sensor={"lag_correction": correction})
+    v = MavlinkVehicle.from_mission(m, connect="udpin:127.0.0.1:0")
+    try:
+        assert v.autopilot.navigator.tracer_params().sensor_lag_s == known
+    finally:
+        v.close()
+    assert InProcessExecutor(m, m.build_field(0), seed=0).params.sensor_lag_s == known
