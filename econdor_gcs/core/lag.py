@@ -30,10 +30,12 @@ crossover analysis, as airborne surveys calibrate a sensor's lag: where the vehi
 the same place twice (within ``CROSSOVER_M``, at least ``CROSSOVER_GAP_S`` apart), the two
 readings must agree once corrected. As ``g = y + tau * dy/dt`` is linear in ``tau``, the
 ``tau`` that makes them agree best in least squares is a closed form over all pairs:
-``tau = -sum(dy * dd) / sum(dd * dd)``, ``dy`` and ``dd`` the pair's differences of reading
-and of its rate of change. A lag shifts a feature along the track, so passes in different
-directions over a slope say the most; passes over flat ground, or the same way over it,
-say nothing, and a flight without crossovers over a slope gives no estimate.
+``tau = -sum(dy * dd) / (sum(dd * dd) - sum(var dd))``, ``dy`` and ``dd`` the pair's
+differences of reading and of its rate of change, ``var dd`` the part of the latter's
+square the read-out noise accounts for (left in, it would pull the estimate toward 0). A
+lag shifts a feature along the track, so passes in different directions over a slope say
+the most; passes over flat ground, or the same way over it, say nothing, and a flight
+without crossovers over a slope gives no estimate.
 
 Samples are corrected per vehicle, in time order, within stretches of continuous sampling
 (a pause longer than ``GAP_S`` -- a hover between flights -- starts a new stretch; the
