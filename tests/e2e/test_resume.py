@@ -96,6 +96,31 @@ def test_resume_after_an_interrupt_ends_with_the_uninterrupted_result(
     assert_same_result(out, reference)
 
 
+def test_a_resumed_run_estimating_the_lag_ends_with_the_uninterrupted_result(
+        tmp_path: Path) -> None:
+    """``lag_correction: estimate``: the replayed flights' samples are taken in as received
+    and the lag estimated again from all of them, so the resume ends where the uninterrupted
+    run does, with the same estimate."""
+    path = tmp_path / "estimate.yaml"
+    path.write_text(MISSION.replace("position_tau_s: 5}", "position_tau_s: 5, "
+                                    "lag_correction: estimate}"), encoding="utf-8")
+    mission = load_mission(path)
+    assert mission.vehicles.sensor.lag_correction == "estimate"
+    ref = tmp_path / "ref"
+    run_inprocess(mission, ref)
+    out = tmp_path / "run"
+
+    def stop_after_iteration_1(event: object) -> None:
+        if isinstance(event, IterationDone) and event.record.iteration == 1:
+            raise _Interrupt
+
+    with pytest.raises(_Interrupt):
+        run_inprocess(mission, out, progress=stop_after_iteration_1)
+    run_inprocess(mission, out, mode=RunDirMode.RESUME)
+    assert_same_result(out, ref)
+    assert summary(out)["lag_s"] == summary(ref)["lag_s"] > 0.0
+
+
 _KILLABLE = """\
 import sys
 from econdor_gcs.config import load_mission
