@@ -166,7 +166,7 @@ def _slope(x, y):
 
 
 def _lawnmower(lag_s: float, noise: float, seed: int, field=_slope, cross: bool = True):
-    """Six legs 4 m apart flown east and west by turns; with ``cross``, a leg north across
+    """Six legs 4 m apart flown east and west by turns; with ``cross``, a leg south across
     all of them at the end (the crossovers an estimate needs)."""
     legs = [(1100.0, 900.0 + 4.0 * k) if k % 2 == 0 else (900.0, 900.0 + 4.0 * k)
             for k in range(6)]
