@@ -47,10 +47,12 @@ when and on what.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from .geometry import FloatArray
@@ -211,6 +213,19 @@ def _stretches(t_s: FloatArray) -> list[slice]:
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
+def _track_stretches(samples: SampleLog) -> Iterator[tuple[NDArray[np.intp], float]]:
+    """Each vehicle's stretches of continuous sampling (:func:`_stretches`), as the indices
+    of their samples in time order, with that vehicle's read-out noise (:func:`noise_std`
+    over all its stretches)."""
+    for v in np.unique(samples.vehicle):
+        idx = np.flatnonzero(samples.vehicle == v)
+        idx = idx[np.argsort(samples.t_s[idx], kind="stable")]
+        stretches = [idx[s] for s in _stretches(samples.t_s[idx])]
+        sigma = noise_std(*(samples.value[k] for k in stretches))
+        for k in stretches:
+            yield k, sigma
+
+
 def correct_lag(samples: SampleLog, lag_s: float,
                 method: LagCorrection = LagCorrection.DECONVOLVE) -> SampleLog:
     """``samples`` with the sensor's lag ``lag_s`` undone (a new log, in the same order).
@@ -250,16 +265,9 @@ def correct_lag(samples: SampleLog, lag_s: float,
     out = samples.copy()
     if lag_s == 0.0 or method == LagCorrection.NONE or len(samples) == 0:
         return out
-    for v in np.unique(samples.vehicle):
-        idx = np.flatnonzero(samples.vehicle == v)
-        idx = idx[np.argsort(samples.t_s[idx], kind="stable")]
-        t = samples.t_s[idx]
-        stretches = _stretches(t)
-        sigma = noise_std(*(samples.value[idx[s]] for s in stretches))
-        for s in stretches:
-            k = idx[s]
-            d = track_derivative(t[s], samples.value[k], sigma)
-            out.value[k] = samples.value[k] + lag_s * d
+    for k, sigma in _track_stretches(samples):
+        d = track_derivative(samples.t_s[k], samples.value[k], sigma)
+        out.value[k] = samples.value[k] + lag_s * d
     return out
 
 
@@ -357,20 +365,13 @@ def estimate_lag(samples: SampleLog, crossover_m: float = CROSSOVER_M,
     0.8
     """
     n = len(samples)
-    value, rate, rate_var = np.zeros(n), np.zeros(n), np.zeros(n)
-    for v in np.unique(samples.vehicle):
-        idx = np.flatnonzero(samples.vehicle == v)
-        idx = idx[np.argsort(samples.t_s[idx], kind="stable")]
-        t = samples.t_s[idx]
-        stretches = _stretches(t)
-        sigma = noise_std(*(samples.value[idx[st]] for st in stretches))
-        for st in stretches:
-            k = idx[st]
-            value[k], rate[k], per_var = _line_fits(t[st], samples.value[k], half_window_s)
-            rate_var[k] = sigma * sigma * per_var
-    none = LagEstimate(math.nan, math.nan, 0)
     if n < 2:
-        return none
+        return LagEstimate(math.nan, math.nan, 0)
+    value, rate, rate_var = np.zeros(n), np.zeros(n), np.zeros(n)
+    for k, sigma in _track_stretches(samples):
+        value[k], rate[k], per_var = _line_fits(samples.t_s[k], samples.value[k],
+                                                half_window_s)
+        rate_var[k] = sigma * sigma * per_var
     pairs = cKDTree(np.column_stack((samples.x_m, samples.y_m))).query_pairs(
         crossover_m, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
