@@ -75,17 +75,18 @@ class _Interrupt(KeyboardInterrupt):
     pass
 
 
+def _stop_after_iteration_1(event: object) -> None:
+    if isinstance(event, IterationDone) and event.record.iteration == 1:
+        raise _Interrupt
+
+
 def test_resume_after_an_interrupt_ends_with_the_uninterrupted_result(
         mission_path: Path, reference: Path, tmp_path: Path) -> None:
     mission = load_mission(mission_path)
     out = tmp_path / "run"
 
-    def stop_after_iteration_1(event: object) -> None:
-        if isinstance(event, IterationDone) and event.record.iteration == 1:
-            raise _Interrupt
-
     with pytest.raises(_Interrupt):
-        run_inprocess(mission, out, progress=stop_after_iteration_1)
+        run_inprocess(mission, out, progress=_stop_after_iteration_1)
     assert [r.iteration for r in read_checkpoint(out)] == [0, 1]
     assert not (out / "summary.json").exists()
     run_inprocess(mission, out, mode=RunDirMode.RESUME)
@@ -110,12 +111,8 @@ def test_a_resumed_run_estimating_the_lag_ends_with_the_uninterrupted_result(
     run_inprocess(mission, ref)
     out = tmp_path / "run"
 
-    def stop_after_iteration_1(event: object) -> None:
-        if isinstance(event, IterationDone) and event.record.iteration == 1:
-            raise _Interrupt
-
     with pytest.raises(_Interrupt):
-        run_inprocess(mission, out, progress=stop_after_iteration_1)
+        run_inprocess(mission, out, progress=_stop_after_iteration_1)
     run_inprocess(mission, out, mode=RunDirMode.RESUME)
     assert_same_result(out, ref)
     assert summary(out)["lag_s"] == summary(ref)["lag_s"] > 0.0
