@@ -181,8 +181,9 @@ def _lawnmower(lag_s: float, noise: float, seed: int, field=_slope, cross: bool 
 @pytest.mark.parametrize("noise", [0.0, 1.0, 3.0])
 def test_the_lag_is_estimated_from_the_crossovers(lag_s, noise):
     """Legs flown both ways over a slope, crossed by one leg: over four seeds the estimate
-    is within 10 % of the sensor's time constant, noise or not (the rates' own noise taken
-    out, it is not pulled toward 0), and its standard error says so."""
+    is within 10 % of the sensor's time constant (median; each within 15 % + 0.05 s), noise
+    or not (the rates' own noise taken out, it is not pulled toward 0), and each is firm
+    enough to be used."""
     got = [estimate_lag(_lawnmower(lag_s, noise, seed)) for seed in range(4)]
     assert all(e.usable for e in got)
     assert np.median([e.lag_s for e in got]) == pytest.approx(lag_s, rel=0.1)
