@@ -38,7 +38,9 @@ class TraceTask:
     ``max_length_m = 0`` means "until the loop closes (or the boundary is hit on both sides)".
     ``route_m`` is the *estimated* contour piece as a vehicle without the onboard tracer
     would fly it from where it comes (:func:`econdor_gcs.core.waypoints.piece_route`; empty
-    when unknown); it takes no part in comparisons.
+    when unknown); it takes no part in comparisons. ``sensor_lag_s`` is the sensor lag (s)
+    the station corrects the samples for, which the onboard tracer uses for this trace
+    (``TracerParams.sensor_lag_s``); None: the tracer's own setting.
     """
 
     level: float
@@ -48,6 +50,7 @@ class TraceTask:
     max_length_m: float
     piece_id: int
     route_m: tuple[tuple[float, float], ...] = field(default=(), compare=False, repr=False)
+    sensor_lag_s: float | None = None
 
 
 Task = Waypoint | TraceTask

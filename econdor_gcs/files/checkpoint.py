@@ -5,31 +5,19 @@ from __future__ import annotations
 
 import io
 import json
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from econdor_gcs.core.tasks import FlightReport, SampleLog, Task, TaskOutcome, TraceTask, Waypoint
+from econdor_gcs.core.tasks import FlightReport, SampleLog, TaskOutcome
 from econdor_gcs.dfc.loop import FlightRecord
 from econdor_gcs.errors import RunError
+from econdor_gcs.files.plans import task_from_json, task_to_json
 
 __all__ = ["flight_to_json", "read_checkpoint", "read_flight_lines"]
 
 SAMPLE_COLUMNS = ("t_s", "x_m", "y_m", "value", "phase", "vehicle", "iteration")
-
-
-
-def _task_to_json(task: Task) -> dict[str, Any]:
-    kind = "trace" if isinstance(task, TraceTask) else "waypoint"
-    return {"kind": kind, **asdict(task)}
-
-
-def _task_from_json(d: dict[str, Any]) -> Task:
-    d = dict(d)
-    kind = d.pop("kind")
-    return TraceTask(**d) if kind == "trace" else Waypoint(**d)
 
 
 def flight_to_json(record: FlightRecord) -> dict[str, Any]:
@@ -40,14 +28,14 @@ def flight_to_json(record: FlightRecord) -> dict[str, Any]:
     """
     return {
         "iteration": record.iteration,
-        "plans": [[_task_to_json(t) for t in plan] for plan in record.plans],
+        "plans": [[task_to_json(t) for t in plan] for plan in record.plans],
         "positions_before_m": [list(p) for p in record.positions_before_m],
         "executor_state": record.executor_state,
         "reports": [{
             "vehicle": r.vehicle, "samples": len(r.samples), "flown_m": r.flown_m,
             "traced_m": r.traced_m, "end_x_m": r.end_x_m, "end_y_m": r.end_y_m,
             "sim_s": r.sim_s,
-            "outcomes": [{"task": _task_to_json(o.task), "status": o.status,
+            "outcomes": [{"task": task_to_json(o.task), "status": o.status,
                           "flown_m": o.flown_m, "traced_m": o.traced_m} for o in r.outcomes],
         } for r in record.reports],
     }
@@ -74,6 +62,7 @@ def read_checkpoint(run_dir: str | Path) -> list[FlightRecord]:
     records = []
     for d in lines:
         it = d["iteration"]
+        where = f"{run_dir / 'flights.jsonl'}: iteration {it}"
         mine = samples[samples[:, 6] == it] if len(samples) else samples
         reports = []
         for r in d["reports"]:
@@ -84,13 +73,16 @@ def read_checkpoint(run_dir: str | Path) -> list[FlightRecord]:
             log = SampleLog(rows[:, 0].copy(), rows[:, 1].copy(), rows[:, 2].copy(),
                             rows[:, 3].copy(), rows[:, 4].astype(np.int8),
                             rows[:, 5].astype(np.int16)) if len(rows) else SampleLog()
-            outcomes = [TaskOutcome(_task_from_json(o["task"]), o["status"], o["flown_m"],
-                                    o["traced_m"]) for o in r["outcomes"]]
+            at = f"{where}, vehicle {r['vehicle']}, outcomes"
+            outcomes = [TaskOutcome(task_from_json(o["task"], f"{at}[{k}].task"), o["status"],
+                                    o["flown_m"], o["traced_m"])
+                        for k, o in enumerate(r["outcomes"])]
             reports.append(FlightReport(r["vehicle"], log, r["flown_m"], r["traced_m"],
                                         outcomes, r["end_x_m"], r["end_y_m"], r["sim_s"]))
         records.append(FlightRecord(
             iteration=it,
-            plans=[[_task_from_json(t) for t in plan] for plan in d["plans"]],
+            plans=[[task_from_json(t, f"{where}, plans[{v}][{k}]") for k, t in enumerate(plan)]
+                   for v, plan in enumerate(d["plans"])],
             reports=reports,
             positions_before_m=[(float(p[0]), float(p[1])) for p in d["positions_before_m"]],
             executor_state=d.get("executor_state")))

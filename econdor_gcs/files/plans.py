@@ -42,11 +42,15 @@ FORMAT_VERSION = 1
 
 
 def task_to_json(task: Task) -> dict[str, Any]:
+    """One task as a JSON object (a trace task's ``sensor_lag_s`` only when it has one)."""
     if isinstance(task, Waypoint):
         return {"kind": "waypoint", "x_m": task.x_m, "y_m": task.y_m}
-    return {"kind": "trace", "level": task.level, "x_m": task.x_m, "y_m": task.y_m,
-            "search_radius_m": task.search_radius_m, "max_length_m": task.max_length_m,
-            "piece_id": task.piece_id, "route_m": [list(p) for p in task.route_m]}
+    d = {"kind": "trace", "level": task.level, "x_m": task.x_m, "y_m": task.y_m,
+         "search_radius_m": task.search_radius_m, "max_length_m": task.max_length_m,
+         "piece_id": task.piece_id, "route_m": [list(p) for p in task.route_m]}
+    if task.sensor_lag_s is not None:
+        d["sensor_lag_s"] = task.sensor_lag_s
+    return d
 
 
 def _num(d: dict[str, Any], key: str, where: str) -> float:
@@ -79,8 +83,17 @@ def task_from_json(d: Any, where: str) -> Task:
         level, x, y, radius, max_len, piece = (
             _num(d, key, where) for key in ("level", "x_m", "y_m", "search_radius_m",
                                             "max_length_m", "piece_id"))
+        lag = None
+        if "sensor_lag_s" in d:
+            v = d["sensor_lag_s"]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not v >= 0 \
+                    or not math.isfinite(v):
+                raise EcondorError(f"{where}.sensor_lag_s: expected a finite number >= 0 "
+                                   f"(seconds), got {v!r}")
+            lag = float(v)
         return TraceTask(level, x, y, radius, max_len, int(piece),
-                         route_m=tuple(_points(d.get("route_m", []), f"{where}.route_m")))
+                         route_m=tuple(_points(d.get("route_m", []), f"{where}.route_m")),
+                         sensor_lag_s=lag)
     raise EcondorError(f"{where}.kind: expected 'waypoint' or 'trace', got {kind!r}")
 
 
