@@ -2,11 +2,12 @@
 
 :func:`run_task` yields one sample per tick (the MAVLink vehicle); :func:`run_plan` runs
 a whole plan in compiled batches (the in-process executor). Both drive the same compiled
-tracer.
+tracer, with the tuning :func:`task_params` gives each task.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Generator, Sequence
 
 import numpy as np
@@ -25,6 +26,23 @@ from .body import Sample, SimBody
 from .tracer import EventCallback, TracerParams, fly_to, run_task_batch, trace_contour
 
 
+def task_params(task: Task, params: TracerParams) -> TracerParams:
+    """The tracer tuning ``task`` is flown with: ``params``, with the sensor lag a trace task
+    carries (``TraceTask.sensor_lag_s``, the station's) in place of theirs.
+
+    >>> told = TraceTask(5.0, 0.0, 0.0, 10.0, 0.0, 1, sensor_lag_s=0.8)
+    >>> task_params(told, TracerParams(sensor_lag_s=0.5)).sensor_lag_s
+    0.8
+    >>> task_params(dataclasses.replace(told, sensor_lag_s=None),
+    ...             TracerParams(sensor_lag_s=0.5)).sensor_lag_s
+    0.5
+    """
+    if isinstance(task, TraceTask) and task.sensor_lag_s is not None \
+            and task.sensor_lag_s != params.sensor_lag_s:
+        return dataclasses.replace(params, sensor_lag_s=task.sensor_lag_s)
+    return params
+
+
 def run_task(
     body: SimBody,
     task: Task,
@@ -40,7 +58,8 @@ def run_task(
     task
         A :class:`Waypoint` (fly there, status ``"reached"``) or a :class:`TraceTask`.
     params
-        Tracer tuning; ``transit_speed_mps`` also sets the waypoint speed.
+        Tracer tuning (:func:`task_params`); ``transit_speed_mps`` also sets the waypoint
+        speed.
     on_event
         Event callback forwarded to the tracer.
 
@@ -60,7 +79,7 @@ def run_task(
         outcome.task = task
         return outcome
     if isinstance(task, TraceTask):
-        return (yield from trace_contour(body, task, params, on_event))
+        return (yield from trace_contour(body, task, task_params(task, params), on_event))
     raise TypeError(f"unknown task type {type(task).__name__}")
 
 
@@ -83,7 +102,7 @@ def run_plan(
     vehicle
         Vehicle index stored in the sample log and the report.
     params
-        Tracer tuning.
+        Tracer tuning (each task's: :func:`task_params`).
     return_to
         If given, fly back to this point (TRANSIT samples) after the last task; this
         leg is counted in ``flown_m`` and ``sim_s`` but adds no outcome.
@@ -102,7 +121,7 @@ def run_plan(
     chunks: list[np.ndarray] = []
     outcomes: list[TaskOutcome] = []
     for task in tasks:
-        rows, outcome = run_task_batch(body, task, params)
+        rows, outcome = run_task_batch(body, task, task_params(task, params))
         chunks.append(rows)
         outcomes.append(outcome)
     if return_to is not None:

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from econdor_gcs.config import load_mission, parse_mission
-from econdor_gcs.core.tasks import Phase, SampleLog, Waypoint
+from econdor_gcs.core.tasks import Phase, SampleLog, TraceTask, Waypoint
 from econdor_gcs.errors import MissionError
 from econdor_lab.inprocess import InProcessExecutor, sensor_model
 from sim_vehicle.body import SimBody
@@ -254,9 +254,9 @@ def test_a_noise_only_sensor_draws_what_it_always_drew():
 @pytest.mark.parametrize(("correction", "known"), [("deconvolve", 0.5), ("estimate", 0.0),
                                                    ("none", 0.0)])
 def test_the_mavlink_vehicles_tracer_knows_the_lag_when_the_station_does(correction, known):
-    """As in the in-process mode, the onboard tracer is told the sensor's lag when the
-    station corrects for the one it is told; estimated or left in, the tracer traces with
-    the lag in."""
+    """As in the in-process mode, the onboard tracer is set up with the sensor's lag when
+    the station corrects for the one it is told; an estimated lag reaches it with the trace
+    tasks (``sensor_lag_s``, below), one left in never does."""
     from sim_vehicle.mavlink_vehicle import MavlinkVehicle
 
     m = load_mission(ROOT / "missions" / "plume-noisy.yaml").with_vehicles(
@@ -267,3 +267,29 @@ def test_the_mavlink_vehicles_tracer_knows_the_lag_when_the_station_does(correct
     finally:
         v.close()
     assert InProcessExecutor(m, m.build_field(0), seed=0).params.sensor_lag_s == known
+
+
+def test_a_trace_tasks_lag_overrides_the_executors():
+    """A trace task that carries the station's lag (``sensor_lag_s``) is traced with it,
+    whatever the executor was set up with: an executor that was told no lag flies it
+    exactly as one told that lag flies the task without it; without it, the same task is
+    flown otherwise."""
+    m = load_mission(ROOT / "missions" / "plume-noisy.yaml")
+    field = m.build_field(0)
+
+    def executor(correction: str) -> InProcessExecutor:
+        return InProcessExecutor(m.with_vehicles(sensor={"lag_correction": correction}),
+                                 field, seed=0)
+
+    task = TraceTask(54.9, 61.0, 11.0, 15.0, 80.0, 1)  # around the highest plume's top
+    told = dataclasses.replace(task, sensor_lag_s=0.5)
+    knew, = executor("deconvolve").fly([[task]], 1)
+    was_told, = executor("estimate").fly([[told]], 1)
+    untold, = executor("estimate").fly([[task]], 1)
+    assert knew.outcomes[0].traced_m > 20.0
+    for col in ("t_s", "x_m", "y_m", "value", "phase"):
+        assert np.array_equal(getattr(knew.samples, col), getattr(was_told.samples, col))
+    assert was_told.outcomes[0].task == told and was_told.outcomes[0].traced_m == \
+        knew.outcomes[0].traced_m
+    assert len(untold.samples) != len(knew.samples) or \
+        not np.array_equal(untold.samples.x_m, knew.samples.x_m)
