@@ -124,6 +124,8 @@ class SensorConfig:
     station knows of the real sensor: it corrects each sample for it
     (``lag_correction``, :mod:`econdor_gcs.core.lag`; ``estimate``: the station estimates
     the lag from the samples and corrects for that instead; ``none`` leaves the lag in).
+    The lag corrected for is also what the onboard tracer traces with: the DFC gives it to
+    each trace task (``TraceTask.sensor_lag_s``).
     """
 
     noise_std: float = 0.0

@@ -362,7 +362,9 @@ SENSOR_SCHEMA: Section = {
                           "deconvolve: the station undoes the sensor's lag (lag_s) before "
                           "reconstructing; estimate: it estimates the lag from where the "
                           "vehicles crossed their own tracks and undoes that (lag_s then only "
-                          "sets the simulated sensor's); none: the lag is left in."),
+                          "sets the simulated sensor's); none: the lag is left in. The "
+                          "onboard tracer is told the lag the station corrects for, with "
+                          "the contour items."),
 }
 """``vehicles.sensor``: the sensor the vehicles carry (:class:`SensorConfig`); all zero is a
 perfect sensor."""

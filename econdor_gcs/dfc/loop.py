@@ -300,6 +300,27 @@ class Dfc:
         return [dataclasses.replace(r, samples=correct_lag(
             r.samples, sensor.lag_s, LagCorrection(sensor.lag_correction))) for r in reports]
 
+    def _told_lag_s(self) -> float | None:
+        """The sensor lag (s) the onboard tracer is to trace with: the one the station
+        corrects the samples for (the mission's known lag, or the last usable estimate);
+        None when it corrects for none (the tracer keeps its own setting)."""
+        sensor = self.mission.vehicles.sensor
+        if sensor.lag_correction == LagCorrection.DECONVOLVE:
+            return sensor.lag_s if sensor.lag_s > 0.0 else None
+        if sensor.lag_correction == LagCorrection.ESTIMATE:
+            self._samples()  # the estimate from every sample so far
+            return self.lag_s if math.isfinite(self.lag_s) else None
+        return None
+
+    def _tell_lag(self, plans: list[list[Task]]) -> list[list[Task]]:
+        """``plans`` with every trace task carrying :meth:`_told_lag_s`; as they are when
+        that is None."""
+        lag = self._told_lag_s()
+        if lag is None:
+            return plans
+        return [[dataclasses.replace(t, sensor_lag_s=lag) if isinstance(t, TraceTask) else t
+                 for t in plan] for plan in plans]
+
     def _positions(self, iteration: int) -> list[tuple[float, float]]:
         """Where the vehicles are when ``iteration`` is planned (recorded ones on replay)."""
         rec = self._replay.get(iteration)
@@ -310,11 +331,13 @@ class Dfc:
     def _fly(self, plans: list[list[Task]], iteration: int, survey: bool = False
              ) -> list[FlightReport]:
         """Fly ``plans`` (or replay the recorded flight of ``iteration``); the samples are
-        handed to ``on_flight`` -- written to disk -- before the DFC uses them.
+        handed to ``on_flight`` -- written to disk -- before the DFC uses them. Each trace
+        task is given the sensor lag the station corrects for (:meth:`_tell_lag`).
 
         ``survey`` marks the mission's initiation pattern: the executor is told, and its
         samples come back ``Phase.SURVEY`` (a replayed one has them so on disk).
         """
+        plans = self._tell_lag(plans)
         rec = self._replay.pop(iteration, None)
         if rec is not None:
             if rec.plans != plans:

@@ -3,6 +3,8 @@ samples of simulated flights with a lagging sensor and on synthetic tracks."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -14,7 +16,8 @@ from econdor_gcs.core.lag import (
     noise_std,
     track_derivative,
 )
-from econdor_gcs.core.tasks import SampleLog
+from econdor_gcs.core.tasks import SampleLog, TraceTask
+from econdor_gcs.files.checkpoint import read_checkpoint
 from econdor_lab.inprocess import run_inprocess
 from sim_vehicle.sensor import SensorModel
 from tests.helpers.sensor import fly
@@ -112,13 +115,15 @@ def test_zero_lag_or_none_changes_nothing():
         correct_lag(raw, -1.0)
 
 
-def _lagging_mission(correction: str = "deconvolve"):
+def _lagging_mission(correction: str = "deconvolve", *, lag_s: float = 1.0,
+                     iterations: int = 1):
     return parse_mission({
         "name": "lagging", "seed": 3, "field": {"model": "paper", "n1": 4, "n2": 4},
-        "vehicles": {"count": 2, "sensor": {"noise_std": 0.3, "lag_s": 1.0,
+        "vehicles": {"count": 2, "sensor": {"noise_std": 0.3, "lag_s": lag_s,
                                             "lag_correction": correction}},
-        "algorithm": {"planner": "econdor", "max_iterations": 1, "min_iterations": 1,
-                      "grid_spacing_m": 2.0, "max_trace_length_m": 150.0},
+        "algorithm": {"planner": "econdor", "max_iterations": iterations,
+                      "min_iterations": 1, "grid_spacing_m": 2.0,
+                      "max_trace_length_m": 150.0},
     })
 
 
@@ -232,3 +237,34 @@ def test_the_station_estimates_the_lag_when_told_to(tmp_path):
     assert result.summary()["lag_s"] == lag
     known = run_inprocess(_lagging_mission(), tmp_path / "known")
     assert all(r.lag_s == 1.0 for r in known.records)
+
+
+@pytest.mark.parametrize(("correction", "lag_s"), [("estimate", 1.0), ("deconvolve", 1.0),
+                                                   ("none", 1.0), ("deconvolve", 0.0)])
+def test_the_trace_tasks_carry_the_lag_the_station_corrects_for(tmp_path, correction, lag_s):
+    """Every trace task is flown with the lag the station corrects the samples for when it
+    is planned (``TraceTask.sensor_lag_s``): the known one; the estimate once one is usable
+    (the estimate of the samples the plan was made from, recorded with the iteration
+    before), nothing before; never a lag left in or a zero one, whose runs plan and record
+    (``flights.jsonl``) their tasks as they always did."""
+    result = run_inprocess(_lagging_mission(correction, lag_s=lag_s, iterations=3),
+                           tmp_path / "run")
+    flights = read_checkpoint(tmp_path / "run")
+    told: list[float | None] = []
+    for flight in flights:
+        tasks = [t for plan in flight.plans for t in plan if isinstance(t, TraceTask)]
+        tasks += [o.task for r in flight.reports for o in r.outcomes
+                  if isinstance(o.task, TraceTask)]
+        if not tasks:
+            continue
+        before = result.records[flight.iteration - 1].lag_s
+        want = {"estimate": before if math.isfinite(before) else None,
+                "deconvolve": lag_s or None, "none": None}[correction]
+        assert {t.sensor_lag_s for t in tasks} == {want}
+        told.append(want)
+    assert len(told) >= 2
+    if correction == "estimate":  # none before the first usable estimate, then each one
+        assert told[0] is None and all(lag == pytest.approx(1.0, rel=0.15)
+                                       for lag in told[1:])
+    if not any(told):
+        assert "sensor_lag_s" not in (tmp_path / "run" / "flights.jsonl").read_text()
