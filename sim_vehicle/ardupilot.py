@@ -19,8 +19,8 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   report the float frames (3 for 6, 0 for 5), altitudes in centimetres and autocontinue 1,
   and a command stored without a position (DO_CHANGE_SPEED, RTL: not in
   :data:`POSITION_COMMANDS`) comes back with frame 0 and x, y, z = 0; unknown commands are
-  refused with MAV_MISSION_UNSUPPORTED (the contour item too, unless a companion computer runs
-  the tracer). A mission is flown from item 1.
+  refused with MAV_MISSION_UNSUPPORTED (the contour item and the sensor lag item too, unless
+  a companion computer runs the tracer). A mission is flown from item 1.
 * The upload's clock is the vehicle's (sim) time, as ArduPilot's ``AP_HAL::millis()``: a
   missing item is requested again after 1 s, the transfer is cancelled
   (MAV_MISSION_OPERATION_CANCELLED) after 8 s without one; an item other than the one

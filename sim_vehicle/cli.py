@@ -7,8 +7,8 @@
 
 ``--autopilot`` picks the personality (PX4 or ArduCopter habits, see
 :mod:`sim_vehicle.px4` and :mod:`sim_vehicle.ardupilot`); without ``--companion`` the vehicle
-is a stock autopilot and refuses contour items (MAV_MISSION_UNSUPPORTED), with it a companion
-computer runs the onboard tracer.
+is a stock autopilot and refuses contour items and sensor lag items (MAV_MISSION_UNSUPPORTED),
+with it a companion computer runs the onboard tracer.
 
 One process per vehicle. With ``--count N`` this process launches N child ``sim-vehicle``
 processes (system ids B..B+N-1, B defaults to ``--sysid``) and waits for them; for ``udpin``
@@ -102,7 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="whose habits to imitate (default px4)")
     p.add_argument("--companion", action="store_true",
                    help="a companion computer runs the contour tracer: accept contour items "
-                        "(MAV_CMD_WAYPOINT_USER_1); without it they are refused")
+                        "(MAV_CMD_WAYPOINT_USER_1) and sensor lag items (MAV_CMD_USER_4); "
+                        "without it they are refused")
     p.add_argument("--prearm-s", type=_non_negative, default=None,
                    help="wall seconds after boot during which arming fails (default: 2 for "
                         "ardupilot, 0 for px4)")

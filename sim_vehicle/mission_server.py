@@ -20,7 +20,9 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
   and :meth:`MissionServer.reported` let a personality change both: ArduPilot overwrites item 0
   with home and reports frames and altitudes its own way).
 * items whose command is not in ``accepted_commands`` are refused with
-  MAV_MISSION_UNSUPPORTED (the contour item only when a companion computer runs the tracer).
+  MAV_MISSION_UNSUPPORTED (the contour item and the sensor lag item only when a companion
+  computer runs the tracer); a sensor lag item whose lag (param1) is not a finite number
+  >= 0 with MAV_MISSION_INVALID_PARAM1.
 * MISSION_CLEAR_ALL -> MISSION_ACK (of the upload's type, or of type ALL, it also ends a running
   upload); MISSION_SET_CURRENT -> MISSION_CURRENT.
 * FENCE uploads are checked item by item and as a whole (:func:`sim_vehicle.fence.check_fence`)
@@ -29,11 +31,14 @@ Supported (per ``mission_type``: MISSION, FENCE, RALLY are stored separately):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from econdor_gcs.core.tasks import SENSOR_LAG_COMMAND
 
 from .fence import check_fence, check_fence_item
 
@@ -62,10 +67,12 @@ NAV_COMMANDS = frozenset({
     mavlink.MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_WAYPOINT_USER_1,
 })
-DO_COMMANDS = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED})
+DO_COMMANDS = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, SENSOR_LAG_COMMAND})
 SUPPORTED_COMMANDS = NAV_COMMANDS | DO_COMMANDS
-"""Everything the navigator can fly, the contour item included."""
-STOCK_COMMANDS = SUPPORTED_COMMANDS - {MAV_CMD_WAYPOINT_USER_1}
+"""Everything the navigator can fly, the contour item and the sensor lag item included."""
+COMPANION_COMMANDS = frozenset({MAV_CMD_WAYPOINT_USER_1, SENSOR_LAG_COMMAND})
+"""The items for the onboard tracer: only a companion computer takes them."""
+STOCK_COMMANDS = SUPPORTED_COMMANDS - COMPANION_COMMANDS
 """What a stock autopilot (no companion) accepts."""
 
 
@@ -141,6 +148,9 @@ def check_item(item: StoredItem, accepted: frozenset[int] = SUPPORTED_COMMANDS) 
         ok = set(GLOBAL_FRAMES) | {mavlink.MAV_FRAME_MISSION}
     if item.frame not in ok:
         return mavlink.MAV_MISSION_UNSUPPORTED_FRAME
+    if item.command == SENSOR_LAG_COMMAND and not (math.isfinite(item.param1)
+                                                   and item.param1 >= 0.0):
+        return mavlink.MAV_MISSION_INVALID_PARAM1
     return mavlink.MAV_MISSION_ACCEPTED
 
 

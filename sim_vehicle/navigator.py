@@ -11,7 +11,9 @@ script on a stock ArduPilot reports every tick in the air (:meth:`Autopilot.tick
 
 Mission items (see :func:`sim_vehicle.mission_server.check_item` for what is accepted):
 NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_UNLIM / LOITER_TIME, DO_CHANGE_SPEED (from the next
-item), NAV_RETURN_TO_LAUNCH, NAV_LAND and the contour item ``MAV_CMD_WAYPOINT_USER_1``.
+item), NAV_RETURN_TO_LAUNCH, NAV_LAND, the contour item ``MAV_CMD_WAYPOINT_USER_1`` and the
+sensor lag item (:data:`~econdor_gcs.core.tasks.SENSOR_LAG_COMMAND`: the tracer's
+``sensor_lag_s`` from then on, in later missions too, until another says otherwise).
 Progress goes out as MISSION_CURRENT and MISSION_ITEM_REACHED; the outcome of a trace item as
 a ``DEBUG_FLOAT_ARRAY("TRACE")`` report just before its MISSION_ITEM_REACHED (its events and
 outcome also as STATUSTEXT, for people).
@@ -26,7 +28,14 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from econdor_gcs.core.tasks import OutcomeStatus, Phase, TraceReport, TraceTask, Waypoint
+from econdor_gcs.core.tasks import (
+    SENSOR_LAG_COMMAND,
+    OutcomeStatus,
+    Phase,
+    TraceReport,
+    TraceTask,
+    Waypoint,
+)
 
 from .body import Sample
 from .executor import run_task
@@ -75,7 +84,8 @@ class Navigator:
     outbox
         Where progress messages and texts go.
     tracer_params
-        Base tracer tuning; the speeds come from ``state.speed_mps``.
+        Base tracer tuning; the speeds come from ``state.speed_mps``, the sensor lag from
+        the last sensor lag item flown (until then, this tuning's).
     flow
         The modes the personality shows on the way (:class:`ModeFlow`).
     """
@@ -234,6 +244,10 @@ class Navigator:
         if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
             if it.param2 > 0:
                 st.speed_mps = min(float(it.param2), st.settings.max_speed_mps)
+            return "ok"
+        if cmd == SENSOR_LAG_COMMAND:  # the server accepts only a finite lag >= 0
+            self.tracer_base = dataclasses.replace(self.tracer_base,
+                                                   sensor_lag_s=float(it.param1))
             return "ok"
         if cmd in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
                    mavlink.MAV_CMD_NAV_LOITER_TIME):

@@ -32,7 +32,7 @@ from econdor_gcs.files.autopilot_files import MissionFile, is_global_frame, is_h
 from econdor_gcs.files.plausibility import check_plausible
 from econdor_gcs.link.autopilots import ARDUPILOT_POSITION_COMMANDS, AutopilotKind, start_mission
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.items import INT_TO_FLOAT_FRAME, MissionItemSpec
+from econdor_gcs.link.items import INT_TO_FLOAT_FRAME, SENSOR_LAG_COMMAND, MissionItemSpec
 from econdor_gcs.link.router import Router
 
 __all__ = ["Mismatch", "compare_items", "upload_cli", "upload_verified"]
@@ -198,7 +198,7 @@ def upload_cli(args: argparse.Namespace) -> int:
             result = station.call(upload_verified(router, sysid, mfile, args.timeout))
         except MissionRejected as exc:
             hint = ""
-            if exc.command == mavlink.MAV_CMD_WAYPOINT_USER_1:
+            if exc.command in (mavlink.MAV_CMD_WAYPOINT_USER_1, SENSOR_LAG_COMMAND):
                 hint = (" (a stock autopilot flies contours as waypoints: export with "
                         "--style waypoints)")
             raise EcondorError(f"{exc}{hint}") from None

@@ -1,7 +1,8 @@
 """What the DFC asks a vehicle to do, and what comes back.
 
 These types are shared by the in-process executor and the MAVLink layers: a
-:class:`TraceTask` becomes one ``MAV_CMD_WAYPOINT_USER_1`` mission item, a
+:class:`TraceTask` becomes one ``MAV_CMD_WAYPOINT_USER_1`` mission item (after a
+:data:`SENSOR_LAG_COMMAND` item when it carries a sensor lag the one before it did not), a
 :class:`Waypoint` a ``MAV_CMD_NAV_WAYPOINT``.
 
 What comes back over MAVLink besides the samples is machine-readable (README, "MAVLink
@@ -237,8 +238,9 @@ SAMPLE_COUNT_COMMAND = 31010
 ``result_param2`` = the count.
 
 >>> from pymavlink.dialects.v20 import common
->>> (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND) == (common.MAV_CMD_USER_1,
-...                                                   common.MAV_CMD_USER_2)
+>>> (SAMPLE_COUNT_COMMAND, SAMPLE_RESEND_COMMAND, TRACE_RESEND_COMMAND,
+...  SENSOR_LAG_COMMAND) == (common.MAV_CMD_USER_1, common.MAV_CMD_USER_2,
+...                          common.MAV_CMD_USER_3, common.MAV_CMD_USER_4)
 True
 """
 SAMPLE_RESEND_COMMAND = 31011
@@ -251,6 +253,11 @@ SAMPLE_RESEND_MAX = 400
 TRACE_RESEND_COMMAND = 31012
 """``MAV_CMD_USER_3``: send the TRACE reports of [x, y] ms again (by the report's sim time);
 COMMAND_ACK ACCEPTED with ``result_param2`` = how many follow."""
+SENSOR_LAG_COMMAND = 31013
+"""``MAV_CMD_USER_4``, a mission item (a DO command, no position): the onboard tracer takes
+``param1`` as the sensor lag (s, >= 0) from this item on, in this mission and later ones,
+until an item tells it another (:attr:`TraceTask.sensor_lag_s`). Only a vehicle whose
+tracer runs on board (a companion computer) accepts it, as it accepts the contour item."""
 
 
 @dataclass(frozen=True)

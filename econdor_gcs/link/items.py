@@ -1,9 +1,10 @@
 """Mission items and plans: what the station uploads, without the protocol that uploads it.
 
 :class:`MissionItemSpec` (one ``MISSION_ITEM_INT`` without its addressing), the item
-builders (home, takeoff, waypoint, contour item, speed, RTL, loiter, fence vertices) and
-:func:`plan_mission`, a vehicle's mission "item 0 home, takeoff, [DO_CHANGE_SPEED], the
-tasks, the end item" (DESIGN.md §4). The transfer protocols are in :mod:`.mission`.
+builders (home, takeoff, waypoint, contour item, sensor lag, speed, RTL, loiter, fence
+vertices) and :func:`plan_mission`, a vehicle's mission "item 0 home, takeoff,
+[DO_CHANGE_SPEED], the tasks, the end item" (DESIGN.md §4). The transfer protocols are in
+:mod:`.mission`.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 
 from ..core.geodesy import Origin
 from ..core.geometry import Region
-from ..core.tasks import Phase, Task, TaskStyle, TraceTask, Waypoint
+from ..core.tasks import SENSOR_LAG_COMMAND, Phase, Task, TaskStyle, TraceTask, Waypoint
 from ..core.waypoints import task_waypoints
 from .codec import MAVLinkMessage, mavlink
 
@@ -23,6 +24,7 @@ __all__ = [
     "MAV_CMD_WAYPOINT_USER_1",
     "MissionItemSpec",
     "MissionPlan",
+    "SENSOR_LAG_COMMAND",
     "build_mission",
     "change_speed_item",
     "command_name",
@@ -32,6 +34,7 @@ __all__ = [
     "loiter_item",
     "plan_mission",
     "rtl_item",
+    "sensor_lag_item",
     "takeoff_item",
     "trace_item",
     "waypoint_item",
@@ -150,6 +153,19 @@ def trace_item(
     )
 
 
+def sensor_lag_item(seq: int, lag_s: float) -> MissionItemSpec:
+    """The sensor lag for the onboard tracer from this item on: :data:`SENSOR_LAG_COMMAND`
+    (``MAV_CMD_USER_4``, 31013), param1 = the lag (s), no position, in ``MAV_FRAME_MISSION``
+    as :func:`change_speed_item`.
+
+    >>> it = sensor_lag_item(3, 0.75)
+    >>> (it.command, it.param1, it.x, it.y, it.z)
+    (31013, 0.75, 0, 0, 0.0)
+    """
+    return MissionItemSpec(seq, mavlink.MAV_FRAME_MISSION, SENSOR_LAG_COMMAND,
+                           param1=float(lag_s))
+
+
 def waypoint_item(
     seq: int, lat_deg: float, lon_deg: float, alt_m: float, *, hold_s: float = 0.0,
     acceptance_radius_m: float = 0.0,
@@ -248,6 +264,9 @@ def plan_mission(
         ``MAV_CMD_WAYPOINT_USER_1`` (:func:`trace_item`) with ``style=TRACE``, or its
         estimated contour as ``NAV_WAYPOINT`` items (Douglas-Peucker to ``tolerance_m``,
         :func:`~econdor_gcs.core.waypoints.task_waypoints`) with ``style=WAYPOINTS``.
+        With ``style=TRACE`` a trace item whose task carries a ``sensor_lag_s`` other than
+        the last one told in this mission comes after a :func:`sensor_lag_item`, which
+        belongs to no task (``task_seqs``, ``item_phases``: as DO_CHANGE_SPEED).
     altitude_m:
         Flight altitude above home (frame ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``).
     home:
@@ -274,14 +293,19 @@ def plan_mission(
         items.append(change_speed_item(len(items), speed_mps))
     task_seqs: list[tuple[int, int]] = []
     last = (home_lat, home_lon)
+    told_lag_s: float | None = None
     for task in tasks:
-        first = len(items)
         if isinstance(task, TraceTask) and style == TaskStyle.TRACE:
+            if task.sensor_lag_s is not None and task.sensor_lag_s != told_lag_s:
+                told_lag_s = task.sensor_lag_s
+                items.append(sensor_lag_item(len(items), told_lag_s))
+            first = len(items)
             lat, lon, _ = origin.to_global(task.x_m, task.y_m)
             items.append(trace_item(first, lat, lon, altitude_m, task.level,
                                     task.search_radius_m, task.max_length_m, task.piece_id))
             phases[first] = Phase.SEARCH
         elif isinstance(task, TraceTask | Waypoint):
+            first = len(items)
             along = isinstance(task, TraceTask)
             for k, wp in enumerate(task_waypoints(task, tolerance_m)):
                 lat, lon, _ = origin.to_global(wp.x_m, wp.y_m)

@@ -3,10 +3,10 @@
 :class:`VehicleMissions` is a part of :class:`~.executor.MavlinkExecutor`: per vehicle and
 flight, the tasks become a mission "item 0 home, takeoff, DO_CHANGE_SPEED, the tasks"
 (:func:`~.link.mission.plan_mission`), saved in the run directory and uploaded; a vehicle
-that refuses a contour (trace) item gets the estimated contours as waypoint polylines from
-then on, and an upload whose answers were lost starts again (:data:`UPLOAD_ATTEMPTS`). The
-mission area is uploaded to every vehicle as its geofence. Like the rest of the executor,
-this runs on the station's loop thread.
+that refuses a contour (trace) item, or the sensor lag item that goes before one, gets the
+estimated contours as waypoint polylines from then on, and an upload whose answers were lost
+starts again (:data:`UPLOAD_ATTEMPTS`). The mission area is uploaded to every vehicle as its
+geofence. Like the rest of the executor, this runs on the station's loop thread.
 """
 
 from __future__ import annotations
@@ -23,7 +23,12 @@ from econdor_gcs.core.tasks import Task, TaskStyle, TraceTask
 from econdor_gcs.errors import MissionRejected, ProtocolError, RunError, VehicleTimeout
 from econdor_gcs.files.autopilot_files import write_wpl
 from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.items import MAV_CMD_WAYPOINT_USER_1, MissionItemSpec, plan_mission
+from econdor_gcs.link.items import (
+    MAV_CMD_WAYPOINT_USER_1,
+    SENSOR_LAG_COMMAND,
+    MissionItemSpec,
+    plan_mission,
+)
 from econdor_gcs.link.router import Router
 from econdor_gcs.station.flight import Flight
 from econdor_gcs.station.losses import SILENT_S, VehicleLosses
@@ -108,7 +113,7 @@ class VehicleMissions:
     async def plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
                               round_no: int, survey: bool = False) -> None:
         """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
-        refused a trace item (the flight begins first: a failed upload leaves its tasks
+        refused a trace item or its sensor lag item (the flight begins first: a failed upload leaves its tasks
         unfinished, for the others; ``survey``: it is flown as a survey).
 
         A vehicle's refusal is its MISSION_ACK to the refused item; when that ACK is lost we
@@ -133,7 +138,8 @@ class VehicleMissions:
                 await self.upload(v, plan.items)
             except MissionRejected as exc:
                 refused_trace = (exc.result == mavlink.MAV_MISSION_UNSUPPORTED
-                                 and exc.command == MAV_CMD_WAYPOINT_USER_1)
+                                 and exc.command in (MAV_CMD_WAYPOINT_USER_1,
+                                                     SENSOR_LAG_COMMAND))
                 if exc.result in RESTART_RESULTS and attempts < UPLOAD_ATTEMPTS:
                     log.warning("vehicle %d: %s; uploading the mission again", v.sysid, exc)
                     continue

@@ -6,15 +6,23 @@ simulated by dropping packets on either side.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import pytest
 
 from econdor_gcs.core.geodesy import Origin
-from econdor_gcs.core.tasks import TraceTask, Waypoint
+from econdor_gcs.core.tasks import SENSOR_LAG_COMMAND, Phase, TaskStyle, TraceTask, Waypoint
 from econdor_gcs.errors import MissionRejected, ProtocolError, VehicleTimeout
 from econdor_gcs.link.codec import Codec, Parser, mavlink
-from econdor_gcs.link.items import MissionItemSpec, build_mission, trace_item, waypoint_item
+from econdor_gcs.link.items import (
+    MissionItemSpec,
+    build_mission,
+    plan_mission,
+    sensor_lag_item,
+    trace_item,
+    waypoint_item,
+)
 from econdor_gcs.link.transfer import (
     CommandSender,
     MissionClear,
@@ -405,3 +413,48 @@ def test_item_helpers_and_message_round_trip():
     assert MissionItemSpec.from_message(msg) == item
     wp = waypoint_item(1, 47.4, 8.5, 10.0)
     assert MissionItemSpec.from_message(wp.to_legacy_message(SYSID, 1)) == wp
+
+
+def _told(level: float, piece: int, lag_s: float | None) -> TraceTask:
+    return TraceTask(level, 30.0, 40.0, 15.0, 0.0, piece, route_m=((30.0, 40.0), (50.0, 40.0)),
+                     sensor_lag_s=lag_s)
+
+
+def test_the_sensor_lag_item_goes_before_a_trace_item_once_and_again_on_change():
+    tasks = [Waypoint(80.0, 10.0), _told(1.0, 1, 0.75), _told(2.0, 2, 0.75), Waypoint(5.0, 5.0),
+             _told(3.0, 3, None), _told(4.0, 4, 1.25), _told(5.0, 5, 0.75)]
+    plan = plan_mission(ORIGIN, tasks, 20.0, speed_mps=6.0, end="none")
+    cmds = [it.command for it in plan.items]
+    user_1, lag, wp = 31000, SENSOR_LAG_COMMAND, mavlink.MAV_CMD_NAV_WAYPOINT
+    assert cmds == [wp, mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_DO_CHANGE_SPEED, wp,
+                    lag, user_1, user_1, wp, user_1, lag, user_1, lag, user_1]
+    assert [plan.items[s].param1 for s in (4, 9, 11)] == [0.75, 1.25, 0.75]
+    assert plan.items[4] == sensor_lag_item(4, 0.75)
+    # the lag items belong to no task: the tasks' items, phases and last seq are the trace
+    # items', numbered on past them
+    assert plan.task_seqs == [(3, 3), (5, 5), (6, 6), (7, 7), (8, 8), (10, 10), (12, 12)]
+    assert plan.last_task_seq == 12 and 4 not in plan.item_phases
+    assert {plan.item_phases[s] for s in (5, 6, 8, 10, 12)} == {Phase.SEARCH}
+    assert [it.seq for it in plan.items] == list(range(len(plan.items)))
+    # no lag told, no item: the mission is what it was
+    untold = [dataclasses.replace(t, sensor_lag_s=None) if isinstance(t, TraceTask) else t
+              for t in tasks]
+    assert SENSOR_LAG_COMMAND not in [it.command for it in
+                                      plan_mission(ORIGIN, untold, 20.0, end="none").items]
+    # each mission tells the lag afresh (a vehicle may be new to this one)
+    again = plan_mission(ORIGIN, tasks[2:3], 20.0, end="none")
+    assert [it.command for it in again.items][2:] == [lag, user_1]
+
+
+def test_a_waypoint_mission_has_no_sensor_lag_item():
+    plan = plan_mission(ORIGIN, [_told(1.0, 1, 0.75)], 20.0, style=TaskStyle.WAYPOINTS,
+                        end="none")
+    assert SENSOR_LAG_COMMAND not in [it.command for it in plan.items]
+
+
+def test_the_sensor_lag_item_has_no_position_and_survives_the_wire():
+    item = sensor_lag_item(3, 0.8125)
+    assert (item.frame, item.command, item.param1) == (mavlink.MAV_FRAME_MISSION, 31013, 0.8125)
+    assert (item.x, item.y, item.z) == (0, 0, 0.0)
+    assert MissionItemSpec.from_message(item.to_message(SYSID, 1)) == item
+    assert MissionItemSpec.from_message(item.to_legacy_message(SYSID, 1)) == item

@@ -7,6 +7,8 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from econdor_gcs.core.tasks import SENSOR_LAG_COMMAND
+from sim_vehicle import navigator
 from sim_vehicle.ardupilot import (
     COPTER_AUTO,
     COPTER_GUIDED,
@@ -354,3 +356,60 @@ def test_gcs_failsafe_needs_a_gcs_heard_once_and_can_be_off(kw, heard):
     ap.one_hz(60.0)
     ap.tick()
     assert not ap.gcs_failsafe and ap.state.mode == mode
+
+
+# -- the sensor lag item ----------------------------------------------------------------------
+
+
+def lag_item(seq, lag_s):
+    return item_int(seq, SENSOR_LAG_COMMAND, p1=lag_s, frame=mavlink.MAV_FRAME_MISSION)
+
+
+@pytest.mark.parametrize("cls", [Px4Autopilot, ArduCopterAutopilot])
+def test_only_a_companion_takes_the_sensor_lag_item(cls):
+    """The sensor lag item is for the onboard tracer: refused as the contour item is by a
+    stock autopilot, taken by one with a companion computer, which refuses a lag that is
+    not a number >= 0."""
+    request = "MISSION_REQUEST" if cls is ArduCopterAutopilot else "MISSION_REQUEST_INT"
+    mission = [*copter_mission()[:2], lag_item(2, 0.75)]
+    stock = make(cls)
+    upload(stock, mission, expect=mavlink.MAV_MISSION_UNSUPPORTED, request=request)
+    assert stock.server.mission == []
+    companion = make(cls, companion=True)
+    upload(companion, mission, request=request)
+    assert companion.server.mission[2].param1 == 0.75
+    for bad in (-0.5, math.nan, math.inf):
+        upload(make(cls, companion=True), [*copter_mission()[:2], lag_item(2, bad)],
+               expect=mavlink.MAV_MISSION_INVALID_PARAM1, request=request)
+
+
+def test_the_tracer_traces_with_the_lag_the_item_tells_from_then_on(monkeypatch):
+    """A sensor lag item sets the onboard tracer's lag for the rest of the mission and the
+    missions after it (until another item says otherwise): the trace items are flown with
+    it, and ``tracer_params()`` has it."""
+    told = []
+
+    def recording_run_task(body, task, params, on_event=None):
+        told.append((type(task).__name__, params.sensor_lag_s))
+        return run_task(body, task, params, on_event)
+
+    run_task = navigator.run_task
+    monkeypatch.setattr(navigator, "run_task", recording_run_task)
+    ap = make(sample_rate_hz=10.0, companion=True)
+    assert ap.navigator.tracer_params().sensor_lag_s == 0.0
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10, current=1), lag_item(1, 0.75),
+                item_int(2, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(10, 0), 10)])
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: ap.state.mission_complete)
+    assert ap.navigator.tracer_params().sensor_lag_s == 0.75
+    # the next mission has no lag item: its trace is flown with the lag told before
+    trace = item_int(1, 31000, *ll(30, 0), 10, p1=5.0, p2=5.0, p3=10.0, p4=3)
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(10, 0), 10, current=1), trace])
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: ("TraceTask", 0.75) in told)
+    # and another item tells another lag
+    upload(ap, [lag_item(0, 0.25), trace])
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: ("TraceTask", 0.25) in told)
+    assert ap.navigator.tracer_params().sensor_lag_s == 0.25
