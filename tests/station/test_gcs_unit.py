@@ -15,6 +15,7 @@ import pytest
 from econdor_gcs.config import parse_mission
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.tasks import (
+    SENSOR_LAG_COMMAND,
     OutcomeStatus,
     Phase,
     SampleLog,
@@ -587,6 +588,23 @@ def test_a_lost_refusal_of_a_contour_item_restarts_the_upload() -> None:
     assert all(c[3:] == [wp] * 3 for c in sent[2:])
     assert v.style == TaskStyle.WAYPOINTS
     assert v.flight is not None and v.flight.style == TaskStyle.WAYPOINTS
+
+
+def test_a_refused_sensor_lag_item_sends_the_pieces_as_waypoints() -> None:
+    """A stock vehicle meets the sensor lag item before the contour item it goes with and
+    refuses it (UNSUPPORTED) as it would the contour item: the pieces go as waypoints."""
+    m = _mission()
+    ex = MavlinkExecutor(SimpleNamespace(router=FakeRouter()), m, [1])  # type: ignore[arg-type]
+    sent = _scripted_uploads(ex, [mavlink.MAV_MISSION_UNSUPPORTED, None])
+    route = ((10.0, 0.0), (20.0, 0.0), (20.0, 10.0))
+    v = ex.vehicles[1]
+    asyncio.run(ex.vehicle_missions.plan_and_upload(
+        v, [TraceTask(50.0, 10.0, 0.0, 10.0, 0.0, 1000, route_m=route, sensor_lag_s=0.5)],
+        1, 0))
+    trace = mavlink.MAV_CMD_WAYPOINT_USER_1
+    assert sent[0][3:] == [SENSOR_LAG_COMMAND, trace]
+    assert sent[1][3:] == [mavlink.MAV_CMD_NAV_WAYPOINT] * 3
+    assert v.style == TaskStyle.WAYPOINTS
 
 
 def test_an_upload_refused_again_and_again_fails() -> None:
