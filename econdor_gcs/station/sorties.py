@@ -113,8 +113,8 @@ class VehicleMissions:
     async def plan_and_upload(self, v: VehicleState, tasks: list[Task], iteration: int,
                               round_no: int, survey: bool = False) -> None:
         """Upload ``tasks`` to ``v`` as trace items, or as waypoint polylines once ``v`` has
-        refused a trace item or its sensor lag item (the flight begins first: a failed upload leaves its tasks
-        unfinished, for the others; ``survey``: it is flown as a survey).
+        refused a trace item or its sensor lag item (the flight begins first: a failed upload
+        leaves its tasks unfinished, for the others; ``survey``: it is flown as a survey).
 
         A vehicle's refusal is its MISSION_ACK to the refused item; when that ACK is lost we
         send the item again and a vehicle with no transfer running answers INVALID_SEQUENCE
