@@ -27,6 +27,7 @@ from econdor_gcs.link.items import (
     MAV_CMD_WAYPOINT_USER_1,
     SENSOR_LAG_COMMAND,
     MissionItemSpec,
+    command_name,
     plan_mission,
 )
 from econdor_gcs.link.router import Router
@@ -145,8 +146,8 @@ class VehicleMissions:
                     continue
                 if not (refused_trace and style == TaskStyle.TRACE):
                     raise
-                log.info("vehicle %d refused a contour item: its pieces go as waypoints",
-                         v.sysid)
+                log.info("vehicle %d refused %s: its pieces go as waypoints", v.sysid,
+                         command_name(exc.command) if exc.command is not None else "an item")
                 style = v.style = TaskStyle.WAYPOINTS
                 attempts = 0
                 continue

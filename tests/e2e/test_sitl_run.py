@@ -5,7 +5,9 @@ flight code, a real payload script and the station (issue 33's goals).
   of the samples the Lua scripts sent placed, at the sensor's rate, each where it was sensed
   (the goal of <= -40 dB is measured over many runs by ``bench/sitl.py``);
 * one copter through ``econdor relay`` losing 10 % of the datagrams each way (SITL sends UDP
-  itself): the run completes and every sample that reached the station is placed.
+  itself): the run completes and every sample that reached the station is placed; its
+  sensor has a known lag, so its contour missions begin with the sensor lag item, which the
+  real autopilot refuses as it refuses the contour item: the contours go as waypoints.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import pytest
 import yaml
 
 from econdor_gcs.config import load_mission
+from econdor_gcs.link.codec import mavlink
+from econdor_gcs.link.tlog import read_tlog
 from econdor_gcs.payload import field_script
 from tests.helpers.sitl import Sitl, lua_counts, requires_sitl, sitls
 from tests.helpers.vehicles import DEMO, REPO, free_port
@@ -89,6 +93,9 @@ def test_one_sitl_copter_through_a_lossy_link_keeps_every_sample_that_arrived(tm
     doc = yaml.safe_load(DEMO.read_text())
     doc["algorithm"].update(max_iterations=2, min_iterations=2)
     doc["vehicles"]["count"] = 1
+    # a known sensor lag: the contour missions carry the sensor lag item before the contour
+    # item, and the real ArduCopter refuses it (UNSUPPORTED) as it refuses the contour item
+    doc["vehicles"]["sensor"] = {"lag_s": 0.2}
     small = tmp_path / "small.yaml"
     small.write_text(yaml.safe_dump(doc))
     mission = load_mission(small)
@@ -116,3 +123,19 @@ def test_one_sitl_copter_through_a_lossy_link_keeps_every_sample_that_arrived(tm
           f"received samples placed, relay: {dropped[-1]}")
     assert placed == received[1]
     assert summary["samples_dropped_unpaired"] == 0
+    # the station flew the contours as waypoints: the mission it flew has neither item
+    contour_missions = 0
+    for tasks_file in sorted((out / "missions").glob("iter*_v1.tasks.json")):
+        tasks = json.loads(tasks_file.read_text())["tasks"]
+        if not any(t["kind"] == "trace" for t in tasks):
+            continue
+        contour_missions += 1
+        assert {t["sensor_lag_s"] for t in tasks if t["kind"] == "trace"} == {0.2}
+        items = json.loads(tasks_file.with_name(
+            tasks_file.name.replace(".tasks.json", ".json")).read_text())
+        commands = {it["command"] for it in items}
+        assert 31000 not in commands and 31013 not in commands and 16 in commands
+    assert contour_missions >= 1
+    refused = {m.type for m in read_tlog(out / "telemetry.tlog")
+               if m.get_type() == "MISSION_ACK" and m.get_srcSystem() == 1}
+    assert mavlink.MAV_MISSION_UNSUPPORTED in refused, refused
