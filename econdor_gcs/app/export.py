@@ -15,8 +15,11 @@ SOURCE is a run directory or a mission YAML:
 as a NAV_WAYPOINT polyline simplified to ``--tolerance-m`` (Douglas-Peucker,
 :mod:`econdor_gcs.core.waypoints`): any stock autopilot flies it. ``--style trace`` gives each
 piece as a contour item (``MAV_CMD_WAYPOINT_USER_1``) for an aircraft whose companion computer
-runs the tracer. Every mission is: item 0 home, takeoff to ``--alt-m``, DO_CHANGE_SPEED to
-``--speed-mps``, the tasks, return to launch. A ``.plan`` also carries an inclusion geofence
+runs the tracer; the next batch of a run whose station corrected a sensor lag (``summary.json``
+``lag_s``: the known one, or the last estimate) tells that tracer the lag with a sensor lag
+item before the first contour item, as the run's own missions did. Every mission is: item 0
+home, takeoff to ``--alt-m``, DO_CHANGE_SPEED to ``--speed-mps``, the tasks, return to
+launch. A ``.plan`` also carries an inclusion geofence
 around the area (``--fence-margin-m`` outside it) and a rally point at home.
 
 The formats themselves (QGC WPL 110, QGroundControl ``.plan``) are in
@@ -28,7 +31,9 @@ trace start points, and the area boundary ``Polygon`` when the run directory tel
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import re
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
@@ -43,7 +48,7 @@ from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
 from econdor_gcs.core.planners import Job, diagonal_jobs, survey_jobs
-from econdor_gcs.core.tasks import Task, TaskStyle
+from econdor_gcs.core.tasks import Task, TaskStyle, TraceTask
 from econdor_gcs.errors import EcondorError, MissionError
 from econdor_gcs.files.autopilot_files import is_global_frame, is_home_item, write_plan, write_wpl
 from econdor_gcs.files.plans import read_next_batch, read_tasks
@@ -394,8 +399,23 @@ def _next_batch(run_dir: Path, opts: ExportOptions) -> list[ExportedMission]:
     if not jobs:
         raise EcondorError(f"{path}: the next batch is empty (nothing left to fly)")
     plans = _split(jobs, mission, opts.vehicles, 1000 * iteration)
+    lag = _corrected_lag_s(_read_summary(run_dir))
+    if lag is not None:
+        plans = [[dataclasses.replace(t, sensor_lag_s=lag) if isinstance(t, TraceTask) else t
+                  for t in p] for p in plans]
     return [ExportedMission(f"next{iteration:02d}_v{k + 1}", _mission_items(mission, p, opts))
             for k, p in enumerate(plans) if p]
+
+
+def _corrected_lag_s(summary: dict[str, Any]) -> float | None:
+    """The sensor lag (s) the run's station corrected the samples for at its end
+    (``summary.json`` ``lag_s``), which the tracer is to be told; None when there was none
+    (left in, zero, or no estimate yet)."""
+    lag = summary.get("lag_s")
+    if isinstance(lag, bool) or not isinstance(lag, int | float) or not math.isfinite(lag) \
+            or lag <= 0.0:
+        return None
+    return float(lag)
 
 
 def _saved(run_dir: Path, iteration: str, vehicle: int | None,

@@ -139,6 +139,20 @@ def test_export_next_batch_as_waypoints_and_as_trace_items(tmp_path, capsys):
     # a tighter tolerance keeps more of the contour
     export_cli(export_args(run, tmp_path / "fine.waypoints", tolerance_m=0.1))
     assert len(read_wpl(tmp_path / "fine.waypoints")) > len(items)
+    assert 31013 not in [it.command for it in trace]  # the run corrected no lag
+    # a run whose station corrected a 0.8 s lag (known or estimated) tells the tracer so,
+    # once, before the first contour item; the waypoint style has no tracer to tell
+    summary = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(json.dumps({**summary, "lag_s": 0.8}))
+    assert export_cli(export_args(run, tmp_path / "lag.waypoints", style="trace")) == 0
+    told = read_wpl(tmp_path / "lag.waypoints")
+    cmds = [it.command for it in told]
+    assert cmds.count(31013) == 1 and cmds.index(31013) + 1 == cmds.index(31000)
+    assert told[cmds.index(31013)].param1 == pytest.approx(0.8)
+    assert [c for c in cmds if c != 31013] == [it.command for it in trace]
+    assert export_cli(export_args(run, tmp_path / "lag_w.waypoints")) == 0
+    assert 31013 not in [it.command for it in read_wpl(tmp_path / "lag_w.waypoints")]
+    (run / "summary.json").write_text(json.dumps(summary))
     # two aircraft: two files
     export_cli(export_args(run, str(tmp_path / "two") + "/", vehicles=2))
     assert sorted(p.name for p in (tmp_path / "two").iterdir()) == [
