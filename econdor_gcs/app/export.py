@@ -19,8 +19,8 @@ runs the tracer; the next batch of a run whose station corrected a sensor lag (`
 ``lag_s``: the known one, or the last estimate) tells that tracer the lag with a sensor lag
 item before the first contour item, as the run's own missions did. Every mission is: item 0
 home, takeoff to ``--alt-m``, DO_CHANGE_SPEED to ``--speed-mps``, the tasks, return to
-launch. A ``.plan`` also carries an inclusion geofence
-around the area (``--fence-margin-m`` outside it) and a rally point at home.
+launch. A ``.plan`` also carries an inclusion geofence around the area (``--fence-margin-m``
+outside it) and a rally point at home.
 
 The formats themselves (QGC WPL 110, QGroundControl ``.plan``) are in
 :mod:`econdor_gcs.files.autopilot_files`; GeoJSON (RFC 7946, positions ``[lon, lat]``) is here: one
