@@ -304,13 +304,9 @@ class Dfc:
         """The sensor lag (s) the onboard tracer is to trace with: the one the station
         corrects the samples for (the mission's known lag, or the last usable estimate);
         None when it corrects for none (the tracer keeps its own setting)."""
-        sensor = self.mission.vehicles.sensor
-        if sensor.lag_correction == LagCorrection.DECONVOLVE:
-            return sensor.lag_s if sensor.lag_s > 0.0 else None
-        if sensor.lag_correction == LagCorrection.ESTIMATE:
-            self._samples()  # the estimate from every sample so far
-            return self.lag_s if math.isfinite(self.lag_s) else None
-        return None
+        if self.mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE:
+            self._samples()  # brings :attr:`lag_s` up to every sample so far
+        return self.lag_s if math.isfinite(self.lag_s) and self.lag_s > 0.0 else None
 
     def _tell_lag(self, plans: list[list[Task]]) -> list[list[Task]]:
         """``plans`` with every trace task carrying :meth:`_told_lag_s`; as they are when
