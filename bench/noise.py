@@ -35,7 +35,11 @@ For each field and condition the report gives, medians over the seeds:
     python bench/noise.py --from-json runs/noise.jsonl --fresh 920:940 --markdown \
         --out docs/results/noise.md          # the tables again, fresh seeds apart
 
-``--json`` is appended to as runs finish; runs already there are not flown again. A
+``--json`` is appended to as runs finish (gzip-compressed when it ends in .gz); runs
+already there are not flown again. Every row carries the sensor, the fingerprint of the code
+it ran (``RUN_SOURCES``; a survey scan: only what a survey runs) and the commit: a row of
+other code is flown again and left out of the tables (``--any-code`` keeps it, and the
+report names the commits it was flown at). A
 planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
 (variants measured against the default in the same run).
 """
@@ -43,15 +47,18 @@ planner written ``adaptive[key=value,...]`` is the adaptive planner with those s
 from __future__ import annotations
 
 import argparse
+import gzip
 import hashlib
 import json
 import math
 import multiprocessing
 import os
 import re
+import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -145,7 +152,23 @@ def run_one(args: tuple[str, int, str, float, str]) -> dict[str, Any]:
         rows.append(row)
     return {"kind": "run", "field": field, "seed": seed, "planner": label, "noise": noise,
             "variant": variant, "rows": rows, "stop": res.stop_reason,
-            "target": target[0] if target else math.nan, "wall_s": time.perf_counter() - t0}
+            "target": target[0] if target else math.nan, "wall_s": time.perf_counter() - t0,
+            **provenance(field, noise, variant)}
+
+
+def provenance(field: str, noise: float, variant: str, survey: bool = False
+               ) -> dict[str, Any]:
+    """What a saved row was flown with: the sensor, the fingerprint of the code it ran (a
+    survey: only what a survey runs), the commit."""
+    return {"sensor": condition_sensor(field, noise, variant),
+            "code": survey_code() if survey else run_code(), "commit": commit()}
+
+
+def current(row: dict[str, Any]) -> bool:
+    """Whether a saved row was flown by this code with its condition's sensor."""
+    code = survey_code() if row["kind"] == "survey" else run_code()
+    return (row.get("code") == code and row.get("sensor")
+            == condition_sensor(row["field"], row["noise"], row["variant"]))
 
 
 class NoisySurveyScan(SurveyScan):
@@ -162,17 +185,66 @@ class NoisySurveyScan(SurveyScan):
         return fly_survey(self.field, self.seed, lines, self.sensor)
 
 
-def code_fingerprint() -> str:
-    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``, this module too)."""
+def code_fingerprint(sources: tuple[str, ...] = (*SURVEY_SOURCES, "bench/noise.py"),
+                     skip: tuple[str, ...] = NOT_RUN_BY_A_NOISY_SURVEY) -> str:
+    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``, this module too),
+    or of other ``sources`` but for ``skip``."""
     h = hashlib.sha256()
-    for entry in (*SURVEY_SOURCES, "bench/noise.py"):
+    for entry in sources:
         p = ROOT / entry
         for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
             rel = f.relative_to(ROOT).as_posix()
-            if not rel.startswith(NOT_RUN_BY_A_NOISY_SURVEY):
+            if not rel.startswith(skip):
                 h.update(rel.encode())
                 h.update(f.read_bytes())
     return h.hexdigest()
+
+
+RUN_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc", "econdor_gcs/config",
+               "econdor_gcs/errors.py", "econdor_lab/inprocess.py", "sim_vehicle",
+               "bench/runs.py", "bench/surveys.py")
+"""The code a planner run or a survey scan runs: a saved row flown with other code is
+flown again (``--json``) and left out of the tables, unless ``--any-code``."""
+
+
+@cache
+def run_code() -> str:
+    """The fingerprint of ``RUN_SOURCES`` a row is stamped with (``code``)."""
+    return code_fingerprint(RUN_SOURCES, ())[:16]
+
+
+@cache
+def survey_code() -> str:
+    """The fingerprint of what a survey runs (:func:`code_fingerprint`) a scan is stamped
+    with: a change to the planners or the tracer leaves scans current."""
+    return code_fingerprint()[:16]
+
+
+@cache
+def commit() -> str:
+    """The commit a row is flown at (``+`` when the tree held changes not committed)."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
+                              check=False).stdout.strip()
+    head = git("rev-parse", "--short=12", "HEAD") or "unknown"
+    return head + ("+" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows saved in ``path`` (JSON lines; gzip-compressed when it ends in .gz)."""
+    if not path.exists():
+        return []
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt", encoding="utf-8") as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def append_row(path: Path, row: dict[str, Any]) -> None:
+    """Add one row to ``path`` (a gzip file gets a member per row: still one stream)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "at", encoding="utf-8") as fh:
+        fh.write(json.dumps(row, default=float) + "\n")
 
 
 _FINGERPRINT: list[str] = []
@@ -207,7 +279,8 @@ def scan_one(args: tuple[str, int, float, str, str | None]) -> dict[str, Any]:
             "scanned": sorted(scan.runs.values(), key=lambda r: r["lines"]),
             "to_iso": ({"flight_m": to_iso["flight_m"], "lines": to_iso["lines"]} if to_iso
                        else {"flight_m": math.inf, "lines": 0}),
-            "flown": scan.flown, "wall_s": time.perf_counter() - t0, "within": len(rows)}
+            "flown": scan.flown, "wall_s": time.perf_counter() - t0, "within": len(rows),
+            **provenance(field, noise, variant, survey=True)}
 
 
 # -- tables ----------------------------------------------------------------------------------
@@ -392,7 +465,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--cache", default=None, help="directory memoising survey runs")
     p.add_argument("--json", default=None,
                    help="append every run and survey scan here; what is there is not flown again")
-    p.add_argument("--from-json", default=None, help="the tables of saved runs")
+    p.add_argument("--from-json", default=None,
+                   help="the tables of saved runs (comma-separated files; .gz read as gzip)")
+    p.add_argument("--any-code", action="store_true",
+                   help="keep saved rows flown with other code (the report names their commits)")
     p.add_argument("--fresh", default="",
                    help="seeds reported apart as fresh (not looked at while tuning), e.g. 920:940")
     p.add_argument("--markdown", action="store_true")
@@ -422,8 +498,14 @@ def main(argv: list[str] | None = None) -> int:
     md = a.markdown or a.out is not None
     saved: list[dict[str, Any]] = []
     src = a.from_json or a.json
-    if src and Path(src).exists():
-        saved = [json.loads(line) for line in Path(src).read_text().splitlines() if line]
+    if src:
+        saved = [r for p in src.split(",") for r in read_rows(Path(p))]
+        stale = [r for r in saved if not current(r)]
+        if stale and not a.any_code:
+            print(f"{len(stale)} saved rows flown with other code or another sensor set "
+                  f"aside (commits {', '.join(sorted({str(r.get('commit')) for r in stale}))})",
+                  file=sys.stderr, flush=True)
+            saved = [r for r in saved if current(r)]
     t0 = time.perf_counter()
     if not a.from_json:
         seeds = parse_seeds(a.seeds)
@@ -462,9 +544,7 @@ def main(argv: list[str] | None = None) -> int:
                           f"{last['flight_m']:.0f} m, iso {last['iso_target']:.2f}, "
                           f"{r['stop']}, {r['wall_s']:.0f} s", file=sys.stderr, flush=True)
                 if a.json:
-                    Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-                    with Path(a.json).open("a", encoding="utf-8") as fh:
-                        fh.write(json.dumps(r, default=float) + "\n")
+                    append_row(Path(a.json), r)
         seeds_set, fields_set = set(seeds), set(fields)
         conds = set(conditions)
         saved = [r for r in saved if r["seed"] in seeds_set and r["field"] in fields_set
@@ -479,7 +559,8 @@ def main(argv: list[str] | None = None) -> int:
              f"{len(runs)} planner runs and {len(surveys)} survey scans (every line count "
              f"from 2 to {max_survey_lines(BUDGET_M)}, and on to the first that maps the "
              f"middle iso-line to {ISO_TARGET_M} m), seeds {fmt_seeds(seeds_all)}; "
-             f"{wall:.0f} s. Distances: everything flown behind an estimate, never the flight "
+             f"{wall:.0f} s; flown at {', '.join(sorted({str(r.get('commit')) for r in saved}))}"
+             ". Distances: everything flown behind an estimate, never the flight "
              "home. MAE in dB (20 log10 of the mean absolute error on the 101 x 101 grid). "
              "'× survey to its 4 km MAE': the distance to the best 4 km survey's MAE over "
              "the survey's own distance to it (stays reached; first reached in brackets; a "

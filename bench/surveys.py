@@ -41,8 +41,10 @@ SURVEY_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc/loop.py", "econdor_gcs/co
                   "bench/runs.py", "bench/surveys.py")
 """The code a survey runs (its cache key)."""
 NOT_RUN_BY_A_SURVEY = ("econdor_gcs/core/adaptive", "econdor_gcs/core/candidates.py",
-                       "econdor_gcs/core/uncertainty.py", "econdor_gcs/core/routes.py")
-"""... but for the adaptive planner's own modules: imported, never called by a survey."""
+                       "econdor_gcs/core/uncertainty.py", "econdor_gcs/core/routes.py",
+                       "sim_vehicle/machine/leg.py")
+"""... but for the adaptive planner's own modules and the tracer's trace leg: imported,
+never called by a survey."""
 
 
 @cache

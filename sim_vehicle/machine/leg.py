@@ -38,8 +38,11 @@ from .records import command as _command
 from .track import track_push
 from .vehicle import contains, edge_ahead_m, ground_speed, heading
 
-GAIN_ACCEL_MPS2 = 100.0
-"""The offset's unmodelled acceleration the filter's gains are matched to (see post)."""
+GAIN_ACCEL_MPS2 = 20.0
+"""The offset's unmodelled acceleration the filter's gains are matched to (see post): five
+times what the vehicle turns with (``lateral_accel_fraction`` of ``max_accel_mps2``, 4 m/s²
+by default), so the filter smooths a noisy offset without lagging the loop into chasing
+its own delay."""
 
 GOOD_OFFSET_M = 1.0
 """A trace sample within this lateral offset of the level is where a lost trace resumes
@@ -257,7 +260,7 @@ def post(ctl, params, task, tr, lg, tk, b, fv: np.ndarray, fr: np.ndarray, fc: n
     # the filter's gains: the tuned ones, lower only when the offset's noise is large
     # beside what a lateral acceleration of GAIN_ACCEL_MPS2 moves it in a tick (gains
     # matched to the vehicle's own lateral acceleration filter so much that the loop
-    # lags and loses the contour: docs/experiments/2026-12-05-tracer-noise.md)
+    # lags and loses the contour: docs/experiments/2026-12-05-tracer-gain.md)
     alpha, beta = alpha_beta_gains(sigma / tr.grad_mag, GAIN_ACCEL_MPS2, dt)
     alpha, beta = min(alpha, params.filter_alpha), min(beta, params.filter_beta)
     lg.beta = beta
