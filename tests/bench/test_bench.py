@@ -147,3 +147,36 @@ def test_the_survey_cache_key_names_code_that_exists():
     for entry in surveys.SURVEY_SOURCES:
         assert (ROOT / entry).exists(), entry
     assert len(surveys.code_fingerprint()) == 64
+
+
+def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
+    """A saved noise-bench row counts only if flown by this code with its condition's
+    sensor: one of other code, or whose sensor no longer matches, is left out of the
+    tables (and would be flown again); ``--any-code`` keeps it and names its commit. The
+    rows round-trip through a gzip file written a row at a time."""
+    import noise
+
+    def survey(seed: int) -> dict:
+        row = {"kind": "survey", "field": "plume", "seed": seed, "noise": 1.0,
+               "variant": "", "to_iso": {"flight_m": 1000.0, "lines": 9},
+               "scanned": [{"flight_m": 900.0, "mae_db": -10.0, "iso": [0.4] * 3, "iso_mean": 0.4,
+                            "lines": 9, "noise_std": 1.0}]}
+        return {**row, **noise.provenance("plume", 1.0, "", survey=True)}
+
+    path = tmp_path / "rows.jsonl.gz"
+    good, other_code, other_sensor = survey(1), survey(2), survey(3)
+    other_code.update(code="0" * 16, commit="abc")
+    other_sensor["sensor"] = {"noise_std": 2.0}
+    for row in (good, other_code, other_sensor):
+        noise.append_row(path, row)
+    assert [r["seed"] for r in noise.read_rows(path)] == [1, 2, 3]
+    assert [noise.current(r) for r in noise.read_rows(path)] == [True, False, False]
+    assert noise.current(good) and good["code"] == noise.survey_code()
+
+    noise.main(["--from-json", str(path), "--fields", "plume"])
+    out = capsys.readouterr()
+    assert "2 saved rows flown with other code or another sensor set aside" in out.err
+    assert "0 planner runs and 1 survey scans" in out.out
+    noise.main(["--from-json", str(path), "--fields", "plume", "--any-code"])
+    text = capsys.readouterr().out
+    assert "0 planner runs and 3 survey scans" in text and "abc" in text
