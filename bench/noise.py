@@ -30,10 +30,14 @@ For each field and condition the report gives, medians over the seeds:
   how it stopped.
 
     python bench/noise.py --fields plume --noise 1 --planners adaptive --seeds 900:903
-    python bench/noise.py --seeds 900:910 --cache runs/noise-surveys --json runs/noise.jsonl \\
-        --markdown --out docs/results/noise.md
-    python bench/noise.py --from-json runs/noise.jsonl --fresh 920:940 --markdown \
-        --out docs/results/noise.md          # the tables again, fresh seeds apart
+    python bench/noise.py --seeds 900:910 --cache runs/noise-surveys \\
+        --json docs/results/data/noise.jsonl.gz
+    python bench/noise.py --from-json docs/results/data/noise.jsonl.gz --fresh 920:940 \\
+        --markdown --out docs/results/noise.md   # the tables again, fresh seeds apart
+
+The rows behind ``docs/results/noise.md`` are kept beside it, in
+``docs/results/data/noise.jsonl.gz``: the report can be made again, and the rows still
+current need not be flown again after a change.
 
 ``--json`` is appended to as runs finish (gzip-compressed when it ends in .gz); runs
 already there are not flown again. Every row carries the sensor, the fingerprint of the code
@@ -203,8 +207,9 @@ def code_fingerprint(sources: tuple[str, ...] = (*SURVEY_SOURCES, "bench/noise.p
 RUN_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc", "econdor_gcs/config",
                "econdor_gcs/errors.py", "econdor_lab/inprocess.py", "sim_vehicle",
                "bench/runs.py", "bench/surveys.py")
-"""The code a planner run or a survey scan runs: a saved row flown with other code is
-flown again (``--json``) and left out of the tables, unless ``--any-code``."""
+"""The code a planner run runs: a saved run flown with other code is flown again
+(``--json``) and left out of the tables, unless ``--any-code`` (a survey scan the same,
+by :func:`survey_code`)."""
 
 
 @cache
