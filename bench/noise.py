@@ -189,10 +189,12 @@ class NoisySurveyScan(SurveyScan):
         return fly_survey(self.field, self.seed, lines, self.sensor)
 
 
-def code_fingerprint(sources: tuple[str, ...] = (*SURVEY_SOURCES, "bench/noise.py"),
+@cache
+def code_fingerprint(sources: tuple[str, ...] = SURVEY_SOURCES,
                      skip: tuple[str, ...] = NOT_RUN_BY_A_NOISY_SURVEY) -> str:
-    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``, this module too),
-    or of other ``sources`` but for ``skip``."""
+    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``), or of other
+    ``sources`` but for ``skip``. What this module adds to a survey is its sensor, which
+    the cache key and every saved row hold."""
     h = hashlib.sha256()
     for entry in sources:
         p = ROOT / entry
@@ -252,15 +254,10 @@ def append_row(path: Path, row: dict[str, Any]) -> None:
         fh.write(json.dumps(row, default=float) + "\n")
 
 
-_FINGERPRINT: list[str] = []
-
-
 def noisy_survey_key(field: str, sensor: dict[str, Any]) -> str:
-    if not _FINGERPRINT:
-        _FINGERPRINT.append(code_fingerprint())
     mission = mission_raw(field, 0.0, "lawnmower", "auto", survey_lines=2)
     mission["lawnmower"] = {}
-    text = json.dumps({"mission": mission, "sensor": sensor, "code": _FINGERPRINT[0]},
+    text = json.dumps({"mission": mission, "sensor": sensor, "code": code_fingerprint()},
                       sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
