@@ -44,6 +44,12 @@ times what the vehicle turns with (``lateral_accel_fraction`` of ``max_accel_mps
 by default), so the filter smooths a noisy offset without lagging the loop into chasing
 its own delay."""
 
+LAG_GAIN_ACCEL_MPS2 = 100.0
+"""... when the vehicle is told of a lag (``sensor_lag_s``): the sensor's delay already
+takes the loop's margin, and a filter smoothing as much as ``GAIN_ACCEL_MPS2`` allows
+adds its own (a told lag of 1 s: more pieces left unmapped in threshold mode, E-CONDOR's
+map 2 dB worse)."""
+
 GOOD_OFFSET_M = 1.0
 """A trace sample within this lateral offset of the level is where a lost trace resumes
 (searched for where the vehicle is when it is already within this distance of it)."""
@@ -258,10 +264,12 @@ def post(ctl, params, task, tr, lg, tk, b, fv: np.ndarray, fr: np.ndarray, fc: n
     dt = b.dt_s
     d_meas = tr.side * (v - task.level) / tr.grad_mag
     # the filter's gains: the tuned ones, lower only when the offset's noise is large
-    # beside what a lateral acceleration of GAIN_ACCEL_MPS2 moves it in a tick (gains
-    # matched to the vehicle's own lateral acceleration filter so much that the loop
-    # lags and loses the contour: docs/experiments/2026-12-05-tracer-gain.md)
-    alpha, beta = alpha_beta_gains(sigma / tr.grad_mag, GAIN_ACCEL_MPS2, dt)
+    # beside what a lateral acceleration of GAIN_ACCEL_MPS2 (with a told lag,
+    # LAG_GAIN_ACCEL_MPS2) moves it in a tick (gains matched to the vehicle's own
+    # lateral acceleration filter so much that the loop lags and loses the contour:
+    # docs/experiments/2026-12-05-tracer-gain.md)
+    accel = GAIN_ACCEL_MPS2 if params.sensor_lag_s <= 0.0 else LAG_GAIN_ACCEL_MPS2
+    alpha, beta = alpha_beta_gains(sigma / tr.grad_mag, accel, dt)
     alpha, beta = min(alpha, params.filter_alpha), min(beta, params.filter_beta)
     lg.beta = beta
     d_pred = lg.d_f + lg.dd_f * dt
