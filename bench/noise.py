@@ -411,7 +411,7 @@ def report(runs: list[dict[str, Any]], surveys: list[dict[str, Any]], md: bool,
     """The tables per field and condition, the tuning seeds apart from the ``fresh`` ones
     (never looked at while the design was tuned)."""
     out: list[str] = []
-    fields = list(dict.fromkeys(s["field"] for s in surveys))
+    fields = sorted({s["field"] for s in surveys}, key=list(SPAN).index)
     order = ["", *SENSORS]
     # noisy conditions first, by noise, then the sensor variants in SENSORS' order, and
     # the perfect sensor last
