@@ -58,7 +58,6 @@ import math
 import multiprocessing
 import os
 import re
-import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -70,7 +69,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from report import Table, at_budget, stamp  # noqa: E402
+from report import Table, at_budget, stamp, tree_commit  # noqa: E402
 from runs import (  # noqa: E402
     FIELDS,
     max_survey_lines,
@@ -230,11 +229,8 @@ def survey_code() -> str:
 @cache
 def commit() -> str:
     """The commit a row is flown at (``+`` when the tree held changes not committed)."""
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
-                              check=False).stdout.strip()
-    head = git("rev-parse", "--short=12", "HEAD") or "unknown"
-    return head + ("+" if git("status", "--porcelain", "--untracked-files=no") else "")
+    head, dirty = tree_commit()
+    return head[:12] + ("+" if dirty else "")
 
 
 def read_rows(path: Path) -> list[dict[str, Any]]:

@@ -43,15 +43,21 @@ class Table:
                 for r in (self.head, *self.rows)]
 
 
-def stamp(argv: Sequence[str]) -> list[str]:
-    """Where a results file came from: the exact command and the commit (with a note when
-    the working tree held changes not committed)."""
+def tree_commit() -> tuple[str, bool]:
+    """The commit checked out, and whether the working tree holds changes to tracked files
+    not committed."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
                               check=False).stdout.strip()
 
-    commit = git("rev-parse", "HEAD") or "unknown"
-    dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+    return (git("rev-parse", "HEAD") or "unknown",
+            bool(git("status", "--porcelain", "--untracked-files=no")))
+
+
+def stamp(argv: Sequence[str]) -> list[str]:
+    """Where a results file came from: the exact command and the commit (with a note when
+    the working tree held changes not committed)."""
+    commit, dirty = tree_commit()
     script = Path(argv[0]).resolve()
     if script.is_relative_to(ROOT):  # as run from the repository's root
         script = script.relative_to(ROOT)

@@ -172,6 +172,11 @@ def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
     assert [r["seed"] for r in noise.read_rows(path)] == [1, 2, 3]
     assert [noise.current(r) for r in noise.read_rows(path)] == [True, False, False]
     assert noise.current(good) and good["code"] == noise.survey_code()
+    # a planner run is stamped with the code a run runs (the tracer, the planners too)
+    run = {"kind": "run", "field": "plume", "seed": 1, "noise": 1.0, "variant": "",
+           **noise.provenance("plume", 1.0, "")}
+    assert noise.current(run) and run["code"] == noise.run_code() != noise.survey_code()
+    assert not noise.current({**run, "code": noise.survey_code()})
 
     noise.main(["--from-json", str(path), "--fields", "plume"])
     out = capsys.readouterr()
