@@ -28,7 +28,8 @@ from .tracer import EventCallback, TracerParams, fly_to, run_task_batch, trace_c
 
 def task_params(task: Task, params: TracerParams) -> TracerParams:
     """The tracer tuning ``task`` is flown with: ``params``, with the sensor lag a trace task
-    carries (``TraceTask.sensor_lag_s``, the station's) in place of theirs.
+    carries (``TraceTask.sensor_lag_s`` and ``lag_unknown``, the station's) in place of
+    theirs.
 
     >>> told = TraceTask(5.0, 0.0, 0.0, 10.0, 0.0, 1, sensor_lag_s=0.8)
     >>> task_params(told, TracerParams(sensor_lag_s=0.5)).sensor_lag_s
@@ -37,9 +38,10 @@ def task_params(task: Task, params: TracerParams) -> TracerParams:
     ...             TracerParams(sensor_lag_s=0.5)).sensor_lag_s
     0.5
     """
-    if isinstance(task, TraceTask) and task.sensor_lag_s is not None \
-            and task.sensor_lag_s != params.sensor_lag_s:
-        return dataclasses.replace(params, sensor_lag_s=task.sensor_lag_s)
+    if isinstance(task, TraceTask) and task.sensor_lag_s is not None and (
+            task.sensor_lag_s, task.lag_unknown) != (params.sensor_lag_s, params.lag_unknown):
+        return dataclasses.replace(params, sensor_lag_s=task.sensor_lag_s,
+                                   lag_unknown=task.lag_unknown)
     return params
 
 

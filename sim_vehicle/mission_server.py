@@ -151,6 +151,8 @@ def check_item(item: StoredItem, accepted: frozenset[int] = SUPPORTED_COMMANDS) 
     if item.command == SENSOR_LAG_COMMAND and not (math.isfinite(item.param1)
                                                    and item.param1 >= 0.0):
         return mavlink.MAV_MISSION_INVALID_PARAM1
+    if item.command == SENSOR_LAG_COMMAND and item.param2 not in (0.0, 1.0):
+        return mavlink.MAV_MISSION_INVALID_PARAM2
     return mavlink.MAV_MISSION_ACCEPTED
 
 

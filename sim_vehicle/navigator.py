@@ -13,7 +13,8 @@ Mission items (see :func:`sim_vehicle.mission_server.check_item` for what is acc
 NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_UNLIM / LOITER_TIME, DO_CHANGE_SPEED (from the next
 item), NAV_RETURN_TO_LAUNCH, NAV_LAND, the contour item ``MAV_CMD_WAYPOINT_USER_1`` and the
 sensor lag item (:data:`~econdor_gcs.core.tasks.SENSOR_LAG_COMMAND`: the tracer's
-``sensor_lag_s`` from then on, in later missions too, until another says otherwise).
+``sensor_lag_s`` and ``lag_unknown`` from then on, in later missions too, until another
+says otherwise).
 Progress goes out as MISSION_CURRENT and MISSION_ITEM_REACHED; the outcome of a trace item as
 a ``DEBUG_FLOAT_ARRAY("TRACE")`` report just before its MISSION_ITEM_REACHED (its events and
 outcome also as STATUSTEXT, for people).
@@ -247,7 +248,8 @@ class Navigator:
             return "ok"
         if cmd == SENSOR_LAG_COMMAND:  # the server accepts only a finite lag >= 0
             self.tracer_base = dataclasses.replace(self.tracer_base,
-                                                   sensor_lag_s=float(it.param1))
+                                                   sensor_lag_s=float(it.param1),
+                                                   lag_unknown=it.param2 == 1.0)
             return "ok"
         if cmd in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LOITER_UNLIM,
                    mavlink.MAV_CMD_NAV_LOITER_TIME):

@@ -178,6 +178,11 @@ class TracerParams:
         search puts the crossing back to where the vehicle was this long before.
         The readings' noise is not a parameter: the vehicle estimates it itself
         (:mod:`sim_vehicle.machine.noise`).
+    lag_unknown
+        The sensor lags by an amount not known yet (the station estimates it): the trace
+        leg's offset filter keeps the gains it has with a told lag (a lag takes the loop's
+        margin, and a filter set for noise alone would take it twice), and nothing is
+        compensated (``sensor_lag_s`` is 0).
     """
 
     speed_mps: float = 8.0
@@ -209,6 +214,7 @@ class TracerParams:
     edge_walk_m: float = 100.0
     rejoin_min_m: float = 20.0
     sensor_lag_s: float = 0.0
+    lag_unknown: bool = False
 
 
 # ----------------------------------------------------------------------------- the machine

@@ -41,7 +41,10 @@ class TraceTask:
     would fly it from where it comes (:func:`econdor_gcs.core.waypoints.piece_route`; empty
     when unknown); it takes no part in comparisons. ``sensor_lag_s`` is the sensor lag (s)
     the station corrects the samples for, which the onboard tracer uses for this trace
-    (``TracerParams.sensor_lag_s``); None: the tracer's own setting.
+    (``TracerParams.sensor_lag_s``); None: the tracer's own setting. ``lag_unknown``: the
+    sensor lags by an amount the station does not know yet (it estimates the lag and has
+    no usable estimate); the tracer traces as with a lag, compensating none
+    (``TracerParams.lag_unknown``; ``sensor_lag_s`` is then 0).
     """
 
     level: float
@@ -52,6 +55,7 @@ class TraceTask:
     piece_id: int
     route_m: tuple[tuple[float, float], ...] = field(default=(), compare=False, repr=False)
     sensor_lag_s: float | None = None
+    lag_unknown: bool = False
 
 
 Task = Waypoint | TraceTask

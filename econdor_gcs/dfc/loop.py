@@ -300,22 +300,28 @@ class Dfc:
         return [dataclasses.replace(r, samples=correct_lag(
             r.samples, sensor.lag_s, LagCorrection(sensor.lag_correction))) for r in reports]
 
-    def _told_lag_s(self) -> float | None:
-        """The sensor lag (s) the onboard tracer is to trace with: the one the station
-        corrects the samples for (the mission's known lag, or the last usable estimate);
-        None when it corrects for none (the tracer keeps its own setting)."""
+    def _told_lag(self) -> tuple[float, bool] | None:
+        """The sensor lag the onboard tracer is to trace with, as ``(sensor_lag_s,
+        lag_unknown)``: the one the station corrects the samples for (the mission's known
+        lag, or the last usable estimate); with an estimated lag and no usable estimate
+        yet, a lag of unknown size (``(0.0, True)``: the tracer's filter is set for a lag,
+        compensating none); None when it corrects for none (the tracer keeps its own
+        setting)."""
         if self.mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE:
             self._samples()  # brings :attr:`lag_s` up to every sample so far
-        return self.lag_s if math.isfinite(self.lag_s) and self.lag_s > 0.0 else None
+            if not math.isfinite(self.lag_s):
+                return 0.0, True
+        return (self.lag_s, False) if self.lag_s > 0.0 else None
 
     def _tell_lag(self, plans: list[list[Task]]) -> list[list[Task]]:
-        """``plans`` with every trace task carrying :meth:`_told_lag_s`; as they are when
+        """``plans`` with every trace task carrying :meth:`_told_lag`; as they are when
         that is None."""
-        lag = self._told_lag_s()
-        if lag is None:
+        told = self._told_lag()
+        if told is None:
             return plans
-        return [[dataclasses.replace(t, sensor_lag_s=lag) if isinstance(t, TraceTask) else t
-                 for t in plan] for plan in plans]
+        lag, unknown = told
+        return [[dataclasses.replace(t, sensor_lag_s=lag, lag_unknown=unknown)
+                 if isinstance(t, TraceTask) else t for t in plan] for plan in plans]
 
     def _positions(self, iteration: int) -> list[tuple[float, float]]:
         """Where the vehicles are when ``iteration`` is planned (recorded ones on replay)."""

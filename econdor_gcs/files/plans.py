@@ -42,7 +42,8 @@ FORMAT_VERSION = 1
 
 
 def task_to_json(task: Task) -> dict[str, Any]:
-    """One task as a JSON object (a trace task's ``sensor_lag_s`` only when it has one)."""
+    """One task as a JSON object (a trace task's ``sensor_lag_s`` only when it has one, its
+    ``lag_unknown`` only when true)."""
     if isinstance(task, Waypoint):
         return {"kind": "waypoint", "x_m": task.x_m, "y_m": task.y_m}
     d = {"kind": "trace", "level": task.level, "x_m": task.x_m, "y_m": task.y_m,
@@ -50,6 +51,8 @@ def task_to_json(task: Task) -> dict[str, Any]:
          "piece_id": task.piece_id, "route_m": [list(p) for p in task.route_m]}
     if task.sensor_lag_s is not None:
         d["sensor_lag_s"] = task.sensor_lag_s
+    if task.lag_unknown:
+        d["lag_unknown"] = True
     return d
 
 
@@ -91,9 +94,13 @@ def task_from_json(d: Any, where: str) -> Task:
                 raise EcondorError(f"{where}.sensor_lag_s: expected a finite number >= 0 "
                                    f"(seconds), got {v!r}")
             lag = float(v)
+        unknown = d.get("lag_unknown", False)
+        if not isinstance(unknown, bool) or (unknown and lag != 0.0):
+            raise EcondorError(f"{where}.lag_unknown: expected true or false, true only with "
+                               f"sensor_lag_s 0, got {unknown!r}")
         return TraceTask(level, x, y, radius, max_len, int(piece),
                          route_m=tuple(_points(d.get("route_m", []), f"{where}.route_m")),
-                         sensor_lag_s=lag)
+                         sensor_lag_s=lag, lag_unknown=unknown)
     raise EcondorError(f"{where}.kind: expected 'waypoint' or 'trace', got {kind!r}")
 
 

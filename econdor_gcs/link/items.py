@@ -153,17 +153,20 @@ def trace_item(
     )
 
 
-def sensor_lag_item(seq: int, lag_s: float) -> MissionItemSpec:
+def sensor_lag_item(seq: int, lag_s: float, unknown: bool = False) -> MissionItemSpec:
     """The sensor lag for the onboard tracer from this item on: :data:`SENSOR_LAG_COMMAND`
-    (``MAV_CMD_USER_4``, 31013), param1 = the lag (s), no position, in ``MAV_FRAME_MISSION``
-    as :func:`change_speed_item`.
+    (``MAV_CMD_USER_4``, 31013), param1 = the lag (s), param2 = 1 when the sensor lags by
+    an amount not known yet (param1 then 0; ``TraceTask.lag_unknown``), no position, in
+    ``MAV_FRAME_MISSION`` as :func:`change_speed_item`.
 
     >>> it = sensor_lag_item(3, 0.75)
-    >>> (it.command, it.param1, it.x, it.y, it.z)
-    (31013, 0.75, 0, 0, 0.0)
+    >>> (it.command, it.param1, it.param2, it.x, it.y, it.z)
+    (31013, 0.75, 0.0, 0, 0, 0.0)
+    >>> sensor_lag_item(3, 0.0, unknown=True).param2
+    1.0
     """
     return MissionItemSpec(seq, mavlink.MAV_FRAME_MISSION, SENSOR_LAG_COMMAND,
-                           param1=float(lag_s))
+                           param1=float(lag_s), param2=1.0 if unknown else 0.0)
 
 
 def waypoint_item(
@@ -264,8 +267,9 @@ def plan_mission(
         ``MAV_CMD_WAYPOINT_USER_1`` (:func:`trace_item`) with ``style=TRACE``, or its
         estimated contour as ``NAV_WAYPOINT`` items (Douglas-Peucker to ``tolerance_m``,
         :func:`~econdor_gcs.core.waypoints.task_waypoints`) with ``style=WAYPOINTS``.
-        With ``style=TRACE`` a trace item whose task carries a ``sensor_lag_s`` other than
-        the last one told in this mission comes after a :func:`sensor_lag_item`, which
+        With ``style=TRACE`` a trace item whose task carries a ``sensor_lag_s`` (or
+        ``lag_unknown``) other than the last one told in this mission comes after a
+        :func:`sensor_lag_item`, which
         belongs to no task (``task_seqs``, ``item_phases``: as DO_CHANGE_SPEED).
     altitude_m:
         Flight altitude above home (frame ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``).
@@ -293,12 +297,12 @@ def plan_mission(
         items.append(change_speed_item(len(items), speed_mps))
     task_seqs: list[tuple[int, int]] = []
     last = (home_lat, home_lon)
-    told_lag_s: float | None = None
+    told: tuple[float, bool] | None = None
     for task in tasks:
         if isinstance(task, TraceTask) and style == TaskStyle.TRACE:
-            if task.sensor_lag_s is not None and task.sensor_lag_s != told_lag_s:
-                told_lag_s = task.sensor_lag_s
-                items.append(sensor_lag_item(len(items), told_lag_s))
+            if task.sensor_lag_s is not None and (task.sensor_lag_s, task.lag_unknown) != told:
+                told = (task.sensor_lag_s, task.lag_unknown)
+                items.append(sensor_lag_item(len(items), *told))
             first = len(items)
             lat, lon, _ = origin.to_global(task.x_m, task.y_m)
             items.append(trace_item(first, lat, lon, altitude_m, task.level,

@@ -45,10 +45,11 @@ by default), so the filter smooths a noisy offset without lagging the loop into 
 its own delay."""
 
 LAG_GAIN_ACCEL_MPS2 = 100.0
-"""... when the vehicle is told of a lag (``sensor_lag_s``): the sensor's delay already
-takes the loop's margin, and a filter smoothing as much as ``GAIN_ACCEL_MPS2`` allows
-adds its own (a told lag of 1 s: more pieces left unmapped in threshold mode, E-CONDOR's
-map 2 dB worse)."""
+"""... when the vehicle is told of a lag (``sensor_lag_s``, or ``lag_unknown``): the
+sensor's delay already takes the loop's margin, and a filter smoothing as much as
+``GAIN_ACCEL_MPS2`` allows adds its own (a told lag of 1 s: more pieces left unmapped in
+threshold mode, E-CONDOR's map 2 dB worse; a lag of 1 s the vehicle is not told of while
+the station estimates it: E-CONDOR's map 5 dB worse)."""
 
 GOOD_OFFSET_M = 1.0
 """A trace sample within this lateral offset of the level is where a lost trace resumes
@@ -264,11 +265,12 @@ def post(ctl, params, task, tr, lg, tk, b, fv: np.ndarray, fr: np.ndarray, fc: n
     dt = b.dt_s
     d_meas = tr.side * (v - task.level) / tr.grad_mag
     # the filter's gains: the tuned ones, lower only when the offset's noise is large
-    # beside what a lateral acceleration of GAIN_ACCEL_MPS2 (with a told lag,
-    # LAG_GAIN_ACCEL_MPS2) moves it in a tick (gains matched to the vehicle's own
+    # beside what a lateral acceleration of GAIN_ACCEL_MPS2 (with a told lag or one of
+    # unknown size, LAG_GAIN_ACCEL_MPS2) moves it in a tick (gains matched to the vehicle's own
     # lateral acceleration filter so much that the loop lags and loses the contour:
     # docs/experiments/2026-12-05-tracer-gain.md)
-    accel = GAIN_ACCEL_MPS2 if params.sensor_lag_s <= 0.0 else LAG_GAIN_ACCEL_MPS2
+    lagging = params.sensor_lag_s > 0.0 or params.lag_unknown
+    accel = LAG_GAIN_ACCEL_MPS2 if lagging else GAIN_ACCEL_MPS2
     alpha, beta = alpha_beta_gains(sigma / tr.grad_mag, accel, dt)
     alpha, beta = min(alpha, params.filter_alpha), min(beta, params.filter_beta)
     lg.beta = beta

@@ -68,6 +68,7 @@ PARAMS = np.dtype([
     ("reacquire_radius_m", _F), ("max_reacquire", _I), ("min_loop_radius_m", _F),
     ("budget_factor", _F), ("edge_skip_m", _F), ("recover_speed_mps", _F), ("recover_m", _F),
     ("edge_walk_m", _F), ("rejoin_min_m", _F), ("sensor_lag_s", _F),
+    ("lag_unknown", _I),
 ])
 """The tracer's tuning, field for field :class:`~sim_vehicle.tracer.TracerParams`."""
 

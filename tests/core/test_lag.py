@@ -245,12 +245,12 @@ def test_the_trace_tasks_carry_the_lag_the_station_corrects_for(tmp_path, correc
     """Every trace task is flown with the lag the station corrects the samples for when it
     is planned (``TraceTask.sensor_lag_s``): the known one; the estimate once one is usable
     (the estimate of the samples the plan was made from, recorded with the iteration
-    before), nothing before; never a lag left in or a zero one, whose runs plan and record
-    (``flights.jsonl``) their tasks as they always did."""
+    before), a lag of unknown size before (``lag_unknown``); never a lag left in or a zero
+    one, whose runs plan and record (``flights.jsonl``) their tasks as they always did."""
     result = run_inprocess(_lagging_mission(correction, lag_s=lag_s, iterations=3),
                            tmp_path / "run")
     flights = read_checkpoint(tmp_path / "run")
-    told: list[float | None] = []
+    told: list[tuple[float | None, bool]] = []
     for flight in flights:
         tasks = [t for plan in flight.plans for t in plan if isinstance(t, TraceTask)]
         tasks += [o.task for r in flight.reports for o in r.outcomes
@@ -258,13 +258,13 @@ def test_the_trace_tasks_carry_the_lag_the_station_corrects_for(tmp_path, correc
         if not tasks:
             continue
         before = result.records[flight.iteration - 1].lag_s
-        want = {"estimate": before if math.isfinite(before) else None,
-                "deconvolve": lag_s or None, "none": None}[correction]
-        assert {t.sensor_lag_s for t in tasks} == {want}
+        want = {"estimate": (before, False) if math.isfinite(before) else (0.0, True),
+                "deconvolve": (lag_s or None, False), "none": (None, False)}[correction]
+        assert {(t.sensor_lag_s, t.lag_unknown) for t in tasks} == {want}
         told.append(want)
     assert len(told) >= 2
-    if correction == "estimate":  # none before the first usable estimate, then each one
-        assert told[0] is None and all(lag == pytest.approx(1.0, rel=0.15)
-                                       for lag in told[1:])
-    if not any(told):
+    if correction == "estimate":  # of unknown size before the first usable estimate
+        assert told[0] == (0.0, True)
+        assert all(lag == pytest.approx(1.0, rel=0.15) for lag, _ in told[1:])
+    if not any(lag or unknown for lag, unknown in told):
         assert "sensor_lag_s" not in (tmp_path / "run" / "flights.jsonl").read_text()

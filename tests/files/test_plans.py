@@ -16,17 +16,31 @@ from econdor_gcs.files.plans import read_tasks, task_from_json, task_to_json, wr
 ROUTE = ((10.0, 0.0), (20.0, 0.5))
 TOLD = TraceTask(42.5, 10.0, 0.0, 15.0, 0.0, 7, route_m=ROUTE, sensor_lag_s=0.8125)
 UNTOLD = TraceTask(42.5, 10.0, 0.0, 15.0, 0.0, 8, route_m=ROUTE)
+UNKNOWN = TraceTask(42.5, 10.0, 0.0, 15.0, 0.0, 9, route_m=ROUTE, sensor_lag_s=0.0,
+                    lag_unknown=True)
 
 
 def test_a_trace_tasks_sensor_lag_goes_to_the_file_and_back(tmp_path):
-    path = write_tasks(tmp_path / "t.tasks.json", [Waypoint(1.0, 2.0), TOLD, UNTOLD])
+    path = write_tasks(tmp_path / "t.tasks.json", [Waypoint(1.0, 2.0), TOLD, UNTOLD, UNKNOWN])
     back = read_tasks(path)
-    assert back == [Waypoint(1.0, 2.0), TOLD, UNTOLD]
+    assert back == [Waypoint(1.0, 2.0), TOLD, UNTOLD, UNKNOWN]
     assert (back[1].sensor_lag_s, back[2].sensor_lag_s) == (0.8125, None)
+    assert [t.lag_unknown for t in back[1:]] == [False, False, True]
     assert back[1].route_m == ROUTE
     # written only when there is one: files without it are as they were
     written = json.loads(path.read_text())["tasks"]
     assert written[1]["sensor_lag_s"] == 0.8125 and "sensor_lag_s" not in written[2]
+    assert "lag_unknown" not in written[1] and written[3]["lag_unknown"] is True
+
+
+@pytest.mark.parametrize(("lag", "unknown"), [(0.0, "yes"), (0.0, 1), (0.5, True)])
+def test_a_bad_unknown_lag_is_one_line_naming_the_key(lag, unknown):
+    d = {**task_to_json(UNTOLD), "sensor_lag_s": lag, "lag_unknown": unknown}
+    with pytest.raises(EcondorError) as err:
+        task_from_json(d, "t.tasks.json: tasks[1]")
+    msg = str(err.value)
+    assert msg.startswith("t.tasks.json: tasks[1].lag_unknown: expected true or false")
+    assert "\n" not in msg
 
 
 def test_the_lag_takes_part_in_comparisons():

@@ -444,6 +444,13 @@ def test_the_sensor_lag_item_goes_before_a_trace_item_once_and_again_on_change()
     # each mission tells the lag afresh (a vehicle may be new to this one)
     again = plan_mission(ORIGIN, tasks[2:3], 20.0, end="none")
     assert [it.command for it in again.items][2:] == [lag, user_1]
+    # a lag of unknown size is told apart from a zero one (param2 = 1), and when it
+    # becomes known the lag is told again
+    unknown = dataclasses.replace(_told(1.0, 1, 0.0), lag_unknown=True)
+    plan = plan_mission(ORIGIN, [unknown, unknown, _told(2.0, 2, 0.0), _told(3.0, 3, 0.9)],
+                        20.0, end="none")
+    told = [(it.param1, it.param2) for it in plan.items if it.command == lag]
+    assert told == [(0.0, 1.0), (0.0, 0.0), (0.9, 0.0)]
 
 
 def test_a_waypoint_mission_has_no_sensor_lag_item():

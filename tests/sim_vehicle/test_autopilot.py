@@ -361,8 +361,9 @@ def test_gcs_failsafe_needs_a_gcs_heard_once_and_can_be_off(kw, heard):
 # -- the sensor lag item ----------------------------------------------------------------------
 
 
-def lag_item(seq, lag_s):
-    return item_int(seq, SENSOR_LAG_COMMAND, p1=lag_s, frame=mavlink.MAV_FRAME_MISSION)
+def lag_item(seq, lag_s, unknown=0.0):
+    return item_int(seq, SENSOR_LAG_COMMAND, p1=lag_s, p2=unknown,
+                    frame=mavlink.MAV_FRAME_MISSION)
 
 
 @pytest.mark.parametrize("cls", [Px4Autopilot, ArduCopterAutopilot])
@@ -381,6 +382,9 @@ def test_only_a_companion_takes_the_sensor_lag_item(cls):
     for bad in (-0.5, math.nan, math.inf):
         upload(make(cls, companion=True), [*copter_mission()[:2], lag_item(2, bad)],
                expect=mavlink.MAV_MISSION_INVALID_PARAM1, request=request)
+    for bad in (0.5, -1.0, math.nan):  # param2: 1 for a lag of unknown size, else 0
+        upload(make(cls, companion=True), [*copter_mission()[:2], lag_item(2, 0.0, bad)],
+               expect=mavlink.MAV_MISSION_INVALID_PARAM2, request=request)
 
 
 def test_the_tracer_traces_with_the_lag_the_item_tells_from_then_on(monkeypatch):
@@ -390,7 +394,7 @@ def test_the_tracer_traces_with_the_lag_the_item_tells_from_then_on(monkeypatch)
     told = []
 
     def recording_run_task(body, task, params, on_event=None):
-        told.append((type(task).__name__, params.sensor_lag_s))
+        told.append((type(task).__name__, params.sensor_lag_s, params.lag_unknown))
         return run_task(body, task, params, on_event)
 
     run_task = navigator.run_task
@@ -407,9 +411,16 @@ def test_the_tracer_traces_with_the_lag_the_item_tells_from_then_on(monkeypatch)
     trace = item_int(1, 31000, *ll(30, 0), 10, p1=5.0, p2=5.0, p3=10.0, p4=3)
     upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(10, 0), 10, current=1), trace])
     assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
-    run_until(ap, lambda ms: ("TraceTask", 0.75) in told)
+    run_until(ap, lambda ms: ("TraceTask", 0.75, False) in told)
     # and another item tells another lag
     upload(ap, [lag_item(0, 0.25), trace])
     assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
-    run_until(ap, lambda ms: ("TraceTask", 0.25) in told)
+    run_until(ap, lambda ms: ("TraceTask", 0.25, False) in told)
     assert ap.navigator.tracer_params().sensor_lag_s == 0.25
+    # a lag of unknown size (param2 = 1), and a known one after it clears it
+    upload(ap, [lag_item(0, 0.0, 1.0), trace])
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: ("TraceTask", 0.0, True) in told)
+    upload(ap, [lag_item(0, 0.5), trace])
+    assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: ("TraceTask", 0.5, False) in told)

@@ -94,3 +94,23 @@ def test_a_noisy_circle_is_traced_and_closed(seed: int) -> None:
     outcome, dist = _trace_circle(1.0, seed)
     assert outcome.status == "closed"
     assert np.percentile(dist, 90) < 1.2
+
+
+@pytest.mark.parametrize("noise_std", [0.0, 1.0])
+def test_a_lag_of_unknown_size_changes_only_a_noisy_traces_filter(noise_std: float) -> None:
+    """``lag_unknown`` (the station estimates the lag and has no estimate yet) sets the
+    trace leg's filter as a told lag does, compensating none: a noisy trace is flown
+    otherwise than with no lag told, and still closed; a noise-free one exactly as before
+    (the filter's gains are the tuned ones there either way)."""
+
+    def trace(unknown: bool) -> tuple[np.ndarray, str]:
+        body = SimBody(_field, REGION, 5.0, 5.0, sensor=SensorModel(noise_std=noise_std),
+                       rng=np.random.default_rng(4))
+        task = TraceTask(_level_at(20.0), 74.0, 50.0, 10.0, 0.0, 0)
+        rows, outcome = run_task_batch(body, task, TracerParams(speed_mps=8.0,
+                                                                lag_unknown=unknown))
+        return rows, outcome.status
+
+    (told, status), (untold, _) = trace(True), trace(False)
+    assert status == "closed"
+    assert np.array_equal(told, untold) == (noise_std == 0.0)
