@@ -43,7 +43,10 @@ current need not be flown again after a change.
 already there are not flown again. Every row carries the sensor, the fingerprint of the code
 it ran (``RUN_SOURCES``; a survey scan: only what a survey runs) and the commit: a row of
 other code is flown again and left out of the tables (``--any-code`` keeps it, and the
-report names the commits it was flown at). A
+report names the commits it was flown at). ``--restamp K`` lets the selected stale rows
+stand after a change that cannot touch them: K of them are flown again, and only if every
+one comes out as saved are they all stamped with the current code
+(:func:`saved_rows.restamp`; the report names the commits they were checked at). A
 planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
 (variants measured against the default in the same run).
 """
@@ -51,7 +54,6 @@ planner written ``adaptive[key=value,...]`` is the adaptive planner with those s
 from __future__ import annotations
 
 import argparse
-import gzip
 import hashlib
 import json
 import math
@@ -60,6 +62,7 @@ import os
 import re
 import sys
 import time
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from functools import cache
 from pathlib import Path
@@ -81,6 +84,7 @@ from runs import (  # noqa: E402
     split_planners,
     split_variant,
 )
+from saved_rows import append_row, read_rows, restamp  # noqa: E402
 from summaries import first_reached, fmt, median, ratio, share_within, stays_reached  # noqa: E402
 from surveys import NOT_RUN_BY_A_SURVEY, SURVEY_SOURCES, SurveyScan, best_within  # noqa: E402
 
@@ -231,23 +235,6 @@ def commit() -> str:
     """The commit a row is flown at (``+`` when the tree held changes not committed)."""
     head, dirty = tree_commit()
     return head[:12] + ("+" if dirty else "")
-
-
-def read_rows(path: Path) -> list[dict[str, Any]]:
-    """The rows saved in ``path`` (JSON lines; gzip-compressed when it ends in .gz)."""
-    if not path.exists():
-        return []
-    opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "rt", encoding="utf-8") as fh:
-        return [json.loads(line) for line in fh if line.strip()]
-
-
-def append_row(path: Path, row: dict[str, Any]) -> None:
-    """Add one row to ``path`` (a gzip file gets a member per row: still one stream)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "at", encoding="utf-8") as fh:
-        fh.write(json.dumps(row, default=float) + "\n")
 
 
 def noisy_survey_key(field: str, sensor: dict[str, Any]) -> str:
@@ -467,6 +454,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="the tables of saved runs (comma-separated files; .gz read as gzip)")
     p.add_argument("--any-code", action="store_true",
                    help="keep saved rows flown with other code (the report names their commits)")
+    p.add_argument("--restamp", type=int, default=0, metavar="K",
+                   help="with --json: fly K of the selected rows of other code again and, if "
+                        "each comes out as saved, stamp them all with this code")
     p.add_argument("--fresh", default="",
                    help="seeds reported apart as fresh (not looked at while tuning), e.g. 920:940")
     p.add_argument("--markdown", action="store_true")
@@ -491,6 +481,57 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return a
 
 
+Selection = tuple[list[int], list[str], list[tuple[float, str]], list[str]]
+
+
+def selection(a: argparse.Namespace) -> Selection:
+    """The seeds, fields, conditions (noise, sensor variant) and planner labels asked for."""
+    conditions = [(float(n), "") for n in a.noise.split(",") if n] + [
+        (float(n), v) for n in a.sensor_noise.split(",") if n for v in a.variants]
+    labels = []
+    for pl in split_planners(a.planners):
+        labels.append("adaptive:threshold" if pl == "threshold" else
+                      pl.replace("threshold", "adaptive", 1) + ":threshold"
+                      if pl.startswith("threshold[") else pl)
+    return parse_seeds(a.seeds), a.fields.split(","), conditions, labels
+
+
+def selected(r: dict[str, Any], seeds: list[int], fields: list[str],
+             conditions: list[tuple[float, str]], labels: list[str]) -> bool:
+    """Whether a saved row is of the :func:`selection`."""
+    return (r["seed"] in seeds and r["field"] in fields
+            and (r["noise"], r["variant"]) in conditions
+            and (r["kind"] == "survey" or r["planner"] in labels))
+
+
+def _job(r: dict[str, Any], cache: str | None) -> tuple[str, tuple[Any, ...]]:
+    """The job that flies saved row ``r`` again."""
+    if r["kind"] == "survey":
+        return "survey", (r["field"], r["seed"], r["noise"], r["variant"], cache)
+    return "run", (r["field"], r["seed"], r["planner"], r["noise"], r["variant"])
+
+
+def fly(jobs: list[tuple[str, tuple[Any, ...]]], workers: int
+        ) -> Iterator[tuple[int, dict[str, Any]]]:
+    """Fly ``jobs`` (survey scans and planner runs) on ``workers`` processes: each job's
+    index and row as it comes in."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        futs = {pool.submit(scan_one if kind == "survey" else run_one, job): i
+                for i, (kind, job) in enumerate(jobs)}
+        for fut in as_completed(futs):
+            yield futs[fut], fut.result()
+
+
+def fly_in_order(jobs: list[tuple[str, tuple[Any, ...]]], workers: int
+                 ) -> list[dict[str, Any]]:
+    """:func:`fly`'s rows in the order of ``jobs``."""
+    rows: dict[int, dict[str, Any]] = dict(fly(jobs, workers))
+    return [rows[i] for i in range(len(jobs))]
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     md = a.markdown or a.out is not None
@@ -505,16 +546,26 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr, flush=True)
             saved = [r for r in saved if current(r)]
     t0 = time.perf_counter()
+    if a.restamp:
+        if not a.json:
+            print("noise.py: --restamp needs --json (the rows to check)", file=sys.stderr)
+            return 2
+        rows = read_rows(Path(a.json))
+        seeds, fields, conditions, labels = selection(a)
+        stale = [r for r in rows if not current(r) and r.get("sensor") == condition_sensor(
+            r["field"], r["noise"], r["variant"]) and selected(r, seeds, fields, conditions,
+                                                               labels)]
+        if not stale:
+            print("noise.py: no selected row of other code to restamp", file=sys.stderr)
+            return 2
+        ok, line = restamp(Path(a.json), stale, a.restamp,
+                           lambda picked: fly_in_order([_job(r, a.cache) for r in picked], a.workers),
+                           lambda r: survey_code() if r["kind"] == "survey" else run_code(),
+                           commit())
+        print(line, file=sys.stderr)
+        return 0 if ok else 1
     if not a.from_json:
-        seeds = parse_seeds(a.seeds)
-        fields = a.fields.split(",")
-        conditions = [(float(n), "") for n in a.noise.split(",") if n] + [
-            (float(n), v) for n in a.sensor_noise.split(",") if n for v in a.variants]
-        labels = []
-        for pl in split_planners(a.planners):
-            labels.append("adaptive:threshold" if pl == "threshold" else
-                          pl.replace("threshold", "adaptive", 1) + ":threshold"
-                          if pl.startswith("threshold[") else pl)
+        seeds, fields, conditions, labels = selection(a)
         have = {(r["kind"], r["field"], r["seed"], r.get("planner", ""), r["noise"],
                  r["variant"]) for r in saved}
         jobs: list[tuple[str, tuple[Any, ...]]] = []
@@ -526,28 +577,17 @@ def main(argv: list[str] | None = None) -> int:
                     jobs += [("run", (f, s, pl, noise, variant)) for pl in labels
                              if ("run", f, s, pl, noise, variant) not in have]
         print(f"{len(saved)} saved, {len(jobs)} to fly", file=sys.stderr, flush=True)
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ.setdefault(var, "1")
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
-            futs = [pool.submit(scan_one if kind == "survey" else run_one, job)
-                    for kind, job in jobs]
-            for fut in as_completed(futs):
-                r = fut.result()
-                saved.append(r)
-                if r["kind"] == "run":
-                    last = r["rows"][-1]
-                    print(f"{r['field']} {condition_name(r['noise'], r['variant'])} seed "
-                          f"{r['seed']} {r['planner']}: {last['mae_db']:.1f} dB at "
-                          f"{last['flight_m']:.0f} m, iso {last['iso_target']:.2f}, "
-                          f"{r['stop']}, {r['wall_s']:.0f} s", file=sys.stderr, flush=True)
-                if a.json:
-                    append_row(Path(a.json), r)
-        seeds_set, fields_set = set(seeds), set(fields)
-        conds = set(conditions)
-        saved = [r for r in saved if r["seed"] in seeds_set and r["field"] in fields_set
-                 and (r["noise"], r["variant"]) in conds
-                 and (r["kind"] == "survey" or r["planner"] in labels)]
+        for _, r in fly(jobs, a.workers):
+            saved.append(r)
+            if r["kind"] == "run":
+                last = r["rows"][-1]
+                print(f"{r['field']} {condition_name(r['noise'], r['variant'])} seed "
+                      f"{r['seed']} {r['planner']}: {last['mae_db']:.1f} dB at "
+                      f"{last['flight_m']:.0f} m, iso {last['iso_target']:.2f}, "
+                      f"{r['stop']}, {r['wall_s']:.0f} s", file=sys.stderr, flush=True)
+            if a.json:
+                append_row(Path(a.json), r)
+        saved = [r for r in saved if selected(r, seeds, fields, conditions, labels)]
     runs = [r for r in saved if r["kind"] == "run"]
     surveys = [r for r in saved if r["kind"] == "survey"]
     wall = time.perf_counter() - t0
@@ -558,7 +598,7 @@ def main(argv: list[str] | None = None) -> int:
              f"from 2 to {max_survey_lines(BUDGET_M)}, and on to the first that maps the "
              f"middle iso-line to {ISO_TARGET_M} m), seeds {fmt_seeds(seeds_all)}; "
              f"{wall:.0f} s; flown at {', '.join(sorted({str(r.get('commit')) for r in saved}))}"
-             ". Distances: everything flown behind an estimate, never the flight "
+             f"{restamped(saved)}. Distances: everything flown behind an estimate, never the flight "
              "home. MAE in dB (20 log10 of the mean absolute error on the 101 x 101 grid). "
              "'× survey to its 4 km MAE': the distance to the best 4 km survey's MAE over "
              "the survey's own distance to it (stays reached; first reached in brackets; a "
@@ -628,6 +668,14 @@ def figures(out: Path, runs: list[dict[str, Any]], surveys: list[dict[str, Any]]
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+def restamped(rows: list[dict[str, Any]]) -> str:
+    """What the report says of rows restamped (``--restamp``), if any."""
+    at = sorted({str(r["restamped"]) for r in rows if r.get("restamped")})
+    n = sum(1 for r in rows if r.get("restamped"))
+    return (f" ({n} of them checked to fly the same with the code of {', '.join(at)}: "
+            "a sample flown again came out as saved)") if at else ""
 
 
 def fmt_seeds(seeds: list[int]) -> str:

@@ -185,3 +185,37 @@ def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
     noise.main(["--from-json", str(path), "--fields", "plume", "--any-code"])
     text = capsys.readouterr().out
     assert "0 planner runs and 3 survey scans" in text and "abc" in text
+
+
+def test_restamp_lets_stale_rows_stand_only_when_flown_again_they_come_out_the_same(tmp_path):
+    """``--restamp``: of the stale rows, a spread sample is flown again; only if every one
+    comes out as saved (timings and stamps aside) do they all get the current code, the
+    commit they were flown at kept and the checking commit added; one that differs leaves
+    the file as it was."""
+    import saved_rows
+
+    def row(seed: int, mae: float) -> dict:
+        return {"kind": "run", "field": "plume", "seed": seed, "noise": 1.0, "variant": "",
+                "planner": "adaptive", "rows": [{"mae": mae, "flight_m": 100.0}],
+                "wall_s": 1.0, "code": "old", "commit": "c0"}
+
+    path = tmp_path / "rows.jsonl.gz"
+    stale = [row(s, 0.1 * s) for s in range(6)]
+    for r in stale:
+        saved_rows.append_row(path, r)
+    flown: list[list[int]] = []
+
+    def fly(picked, shift=0.0):
+        flown.append([r["seed"] for r in picked])
+        return [{**r, "rows": [{"mae": r["rows"][0]["mae"] + shift, "flight_m": 100.0}],
+                 "wall_s": 9.0, "code": "new", "commit": "c1"} for r in picked]
+
+    ok, line = saved_rows.restamp(path, stale, 2, lambda p: fly(p, 1e-9), lambda r: "new", "c1")
+    assert not ok and "differs" in line
+    assert saved_rows.read_rows(path) == stale
+    ok, line = saved_rows.restamp(path, stale, 2, fly, lambda r: "new", "c1")
+    assert ok and "6 rows restamped at c1" in line
+    assert flown == [[1, 4], [1, 4]]  # spread over the rows, not the first ones
+    back = saved_rows.read_rows(path)
+    assert [(r["code"], r["commit"], r["restamped"]) for r in back] == [("new", "c0", "c1")] * 6
+    assert [r["rows"] for r in back] == [r["rows"] for r in stale]

@@ -1,0 +1,111 @@
+"""A benchmark's rows kept on disk (JSON lines, gzip when the name ends in .gz), and the
+check that lets rows flown with older code stand for the current code.
+
+Every row is stamped with the fingerprint of the code it ran (``code``) and the commit it
+was flown at (``commit``). A change to that code makes every row stale, also where the
+change cannot touch a row's flight (a mode the rows never use). :func:`restamp` lets such
+rows stand: some of them are flown again, and only if every one comes out the same as the
+saved row are the stale rows given the current fingerprint (``code``), with the commit at
+which they were checked (``restamped``); the commit they were flown at stays.
+
+>>> a = {"kind": "run", "rows": [{"mae": 0.5, "wall_s": 3.0}], "code": "a", "commit": "x"}
+>>> same_flight(a, {**a, "rows": [{"mae": 0.5, "wall_s": 9.0}], "code": "b"})
+True
+>>> same_flight(a, {**a, "rows": [{"mae": 0.6, "wall_s": 3.0}]})
+False
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+VOLATILE = frozenset({"wall_s", "code", "commit", "restamped", "flown"})
+"""Keys that are not the flight: timings, stamps, and how many survey runs came from a
+cache (``flown``)."""
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows saved in ``path`` (JSON lines; gzip-compressed when it ends in .gz)."""
+    if not path.exists():
+        return []
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt", encoding="utf-8") as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def append_row(path: Path, row: dict[str, Any]) -> None:
+    """Add one row to ``path`` (a gzip file gets a member per row: still one stream)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "at", encoding="utf-8") as fh:
+        fh.write(json.dumps(row, default=float) + "\n")
+
+
+def write_rows(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Replace ``path`` with ``rows`` (written beside it first, then moved over it)."""
+    tmp = path.with_name(path.name + ".tmp" + path.suffix)
+    tmp.unlink(missing_ok=True)
+    for row in rows:
+        append_row(tmp, row)
+    tmp.replace(path)
+
+
+def _flight(v: Any) -> Any:
+    """``v`` as JSON gives it back, without the :data:`VOLATILE` keys."""
+    if isinstance(v, dict):
+        return {k: _flight(x) for k, x in v.items() if k not in VOLATILE}
+    if isinstance(v, list | tuple):
+        return [_flight(x) for x in v]
+    return v
+
+
+def same_flight(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Whether two rows hold the same flight: every value equal (as JSON keeps it) but the
+    :data:`VOLATILE` ones."""
+    return bool(_flight(json.loads(json.dumps(a, default=float)))
+                == _flight(json.loads(json.dumps(b, default=float))))
+
+
+def spread(rows: Sequence[dict[str, Any]], k: int) -> list[dict[str, Any]]:
+    """``k`` of ``rows`` spread evenly over them in the order of their kind, field,
+    condition, planner and seed (all when there are no more)."""
+    order = sorted(rows, key=lambda r: (r["kind"], r["field"], r["noise"], r["variant"],
+                                        r.get("planner", ""), r["seed"]))
+    if len(order) <= k:
+        return order
+    return [order[(2 * i + 1) * len(order) // (2 * k)] for i in range(k)]
+
+
+def restamp(path: Path, stale: Sequence[dict[str, Any]], k: int,
+            fly: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
+            code: Callable[[dict[str, Any]], str], commit: str) -> tuple[bool, str]:
+    """Fly :func:`spread` ``k`` of the ``stale`` rows saved in ``path`` again (``fly``:
+    the rows flown anew, in the same order); if each comes out as saved, give every stale
+    row its current fingerprint (``code(row)``) and ``restamped = commit`` in ``path``.
+    Returns whether it did, and a line saying what was found."""
+    picked = spread(stale, k)
+    again = fly(picked)
+    for old, new in zip(picked, again, strict=True):
+        if not same_flight(old, new):
+            what = {key: old.get(key) for key in ("kind", "field", "noise", "variant",
+                                                   "planner", "seed") if key in old}
+            return False, f"flown again, {what} differs from the saved row: nothing restamped"
+    rows = read_rows(path)
+    keys = {_key(r) for r in stale}
+    n = 0
+    for row in rows:
+        if _key(row) in keys:
+            row.update(code=code(row), restamped=commit)
+            n += 1
+    write_rows(path, rows)
+    return True, (f"{len(picked)} of {len(stale)} stale rows flown again came out as saved: "
+                  f"{n} rows restamped at {commit}")
+
+
+def _key(row: dict[str, Any]) -> tuple[Any, ...]:
+    return (row["kind"], row["field"], row["seed"], row.get("planner", ""), row["noise"],
+            row["variant"], row.get("code"))
