@@ -45,13 +45,14 @@ class Table:
 
 def tree_commit() -> tuple[str, bool]:
     """The commit checked out, and whether the working tree holds changes to tracked files
-    not committed."""
+    not committed (outside docs/: a report and the rows it keeps are written there, they
+    change no result)."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
                               check=False).stdout.strip()
 
     return (git("rev-parse", "HEAD") or "unknown",
-            bool(git("status", "--porcelain", "--untracked-files=no")))
+            bool(git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!docs")))
 
 
 def stamp(argv: Sequence[str]) -> list[str]:
