@@ -48,9 +48,9 @@ def append_row(path: Path, row: dict[str, Any]) -> None:
 def write_rows(path: Path, rows: Sequence[dict[str, Any]]) -> None:
     """Replace ``path`` with ``rows`` (written beside it first, then moved over it)."""
     tmp = path.with_name(path.name + ".tmp" + path.suffix)
-    tmp.unlink(missing_ok=True)
-    for row in rows:
-        append_row(tmp, row)
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(tmp, "wt", encoding="utf-8") as fh:
+        fh.writelines(json.dumps(row, default=float) + "\n" for row in rows)
     tmp.replace(path)
 
 
