@@ -29,6 +29,13 @@ against the best survey's distance to the same iso-line error, per seed and summ
 A planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
 on top of ``--adaptive``: variants measured against the default in the same run.
 ``--out FILE`` writes the report as Markdown, stamped with the command and the commit.
+
+``--json FILE`` keeps every planner run and survey scan as a JSON line (gzip when it ends
+in .gz), appended as each finishes, stamped with the job, the fingerprint of the code it
+ran and the commit (:mod:`saved_rows`); a job already there, flown by this code, is not
+flown again. ``--from-json`` makes the report from such files alone: rows of other code
+are set aside unless ``--any-code`` (the report names the commits every row was flown
+at).
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +75,7 @@ from runs import (  # noqa: E402
     split_planners,
     split_variant,
 )
+from saved_rows import append_row, commit, read_rows, run_code, survey_code  # noqa: E402
 from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
 
@@ -141,11 +149,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--adaptive", default="", help="adaptive settings, e.g. model=proxy,floor=20")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cache", default=None, help="directory memoising survey runs")
-    p.add_argument("--json", default=None, help="write every run's rows here")
+    p.add_argument("--json", default=None,
+                   help="append every run and survey scan here (JSON lines, .gz: gzip); "
+                        "what is there, flown by this code, is not flown again")
     p.add_argument("--from-json", default=None,
-                   help="print tables (and figures) from saved runs: one --json file, or "
-                        "several, comma-separated (their runs and surveys together, e.g. one "
-                        "field each)")
+                   help="print tables (and figures) from saved rows alone: --json files, "
+                        "comma-separated")
+    p.add_argument("--any-code", action="store_true",
+                   help="keep saved rows flown with other code (the report names the "
+                        "commits every row was flown at)")
     p.add_argument("--figures", default=None, help="draw MAE-against-distance figures here")
     p.add_argument("--quick", action="store_true", help="2 seeds, 3 km budget")
     p.add_argument("--markdown", action="store_true", help="print Markdown tables")
@@ -169,6 +181,30 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return a
 
 
+Job = tuple[Any, ...]
+
+
+def jobs_of(a: argparse.Namespace) -> tuple[list[Job], list[Job]]:
+    """The planner runs' and the survey scans' jobs the arguments ask for."""
+    seeds = parse_seeds(a.seeds)
+    fields = a.fields.split(",")
+    planners = [x for x in split_planners(a.planners) if x]
+    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
+    budgets.append(a.budget)
+    settings = parse_settings(a.adaptive)
+    jobs: list[Job] = [] if a.threshold_only else [
+        (f, s, pl, a.budget, a.reconstruction, False, settings)
+        for f in fields for s in seeds for pl in planners]
+    if a.threshold:
+        mappers = [pl for pl in planners if split_variant(pl)[0] == "adaptive"] or ["adaptive"]
+        jobs += [(f, s, pl, a.budget, a.reconstruction, True, settings)
+                 for f in fields for s in seeds for pl in mappers]
+    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets,
+                    () if a.threshold_only else TARGETS_DB, ISO_TARGET_M, not a.threshold_only)
+                   for f in fields for s in seeds]
+    return jobs, survey_jobs
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     seeds = parse_seeds(a.seeds)
@@ -179,52 +215,50 @@ def main(argv: list[str] | None = None) -> int:
     if a.cache:
         Path(a.cache).mkdir(parents=True, exist_ok=True)
     settings = parse_settings(a.adaptive)
-    jobs: list[tuple[Any, ...]] = [] if a.threshold_only else [
-        (f, s, pl, a.budget, a.reconstruction, False, settings)
-        for f in fields for s in seeds for pl in planners]
-    if a.threshold:
-        mappers = [pl for pl in planners if split_variant(pl)[0] == "adaptive"] or ["adaptive"]
-        jobs += [(f, s, pl, a.budget, a.reconstruction, True, settings)
-                 for f in fields for s in seeds for pl in mappers]
-    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets,
-                    () if a.threshold_only else TARGETS_DB, ISO_TARGET_M, not a.threshold_only)
-                   for f in fields for s in seeds]
+    jobs, survey_jobs = jobs_of(a)
     t0 = time.perf_counter()
-    if a.from_json:
-        runs, surveys = [], []
-        for name in a.from_json.split(","):
-            saved = json.loads(Path(name).read_text())
-            runs += saved["runs"]
-            surveys += saved["surveys"]
-    else:
+    keyed = {job_key("survey", j): ("survey", j) for j in survey_jobs}
+    keyed.update({job_key("run", j): ("run", j) for j in jobs})
+    saved: dict[str, dict[str, Any]] = {}
+    src = a.from_json or a.json
+    if src:
+        rows = [r for name in src.split(",") for r in read_rows(Path(name))]
+        stale = [r for r in rows if not current(r)]
+        if stale and not a.any_code:
+            print(f"{len(stale)} saved rows flown with other code set aside (commits "
+                  f"{', '.join(sorted({str(r.get('commit')) for r in stale}))})",
+                  file=sys.stderr, flush=True)
+            rows = [r for r in rows if current(r)]
+        saved = {r["job"]: r for r in rows if r.get("job") in keyed}
+    todo = [] if a.from_json else [(k, kind, j) for k, (kind, j) in keyed.items()
+                                   if k not in saved]
+    if todo:
         for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
         ctx = multiprocessing.get_context("spawn")
-        done = [0]
-        total = len(survey_jobs) + len(jobs)
-
-        def tick(what: str) -> Callable[[Future[Any]], None]:
-            def report(fut: Future[Any]) -> None:
-                done[0] += 1
-                if fut.exception() is None:
-                    print(f"[{done[0]}/{total}] {what} {time.perf_counter() - t0:.0f} s",
-                          file=sys.stderr, flush=True)
-            return report
-
         with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
-            survey_futs = [pool.submit(scan_survey, j) for j in survey_jobs]
-            run_futs = [pool.submit(run_planner, j) for j in jobs]
-            for j, fut in zip(survey_jobs, survey_futs, strict=True):
-                fut.add_done_callback(tick(f"surveys {j[0]} {j[1]}"))
-            for j, fut in zip(jobs, run_futs, strict=True):
-                fut.add_done_callback(tick(f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}"))
-            surveys = [f.result() for f in survey_futs]
-            runs = [f.result() for f in run_futs]
+            fly: dict[str, Callable[[Any], dict[str, Any]]] = {"survey": scan_survey,
+                                                                "run": run_planner}
+            futs = {pool.submit(fly[kind], j): (k, kind, j) for k, kind, j in todo}
+            for n, fut in enumerate(as_completed(futs), 1):
+                k, kind, j = futs[fut]
+                row = {"kind": kind, "job": k, **fut.result(),
+                       "code": survey_code() if kind == "survey" else run_code(),
+                       "commit": commit()}
+                saved[k] = row
+                if a.json:
+                    append_row(Path(a.json), row)
+                what = (f"surveys {j[0]} {j[1]}" if kind == "survey" else
+                        f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}")
+                print(f"[{n}/{len(todo)}] {what} {time.perf_counter() - t0:.0f} s",
+                      file=sys.stderr, flush=True)
+    missing = [k for k in keyed if k not in saved]
+    if missing:
+        print(f"{len(missing)} of the {len(keyed)} runs and survey scans asked for are not "
+              "in the saved rows: left out of the tables", file=sys.stderr, flush=True)
+    surveys = [saved[k] for k, (kind, _) in keyed.items() if kind == "survey" and k in saved]
+    runs = [saved[k] for k, (kind, _) in keyed.items() if kind == "run" and k in saved]
     wall = time.perf_counter() - t0
-    if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps({"args": vars(a), "wall_s": wall, "runs": runs,
-                                            "surveys": surveys}, default=float))
     md = a.markdown or a.out is not None
     lines = [f"# Efficiency: {len(seeds)} seeds ({a.seeds}), budget {a.budget / 1000:g} km",
              "", *(stamp(sys.argv) if a.out else []), "",
@@ -232,6 +266,7 @@ def main(argv: list[str] | None = None) -> int:
              f"({sum(s.get('flown', 0) for s in surveys)} flown, the rest from the cache) "
              + (f"read from {a.from_json}" if a.from_json else
                 f"in {wall:.0f} s on {a.workers} workers")
+             + f", flown at {', '.join(sorted({str(r.get('commit')) for r in runs + surveys}))}"
              + f"; reconstruction {a.reconstruction}, "
              f"adaptive settings {settings or 'the defaults'}. Surveys: every line count from 2 "
              f"up to {max_survey_lines(a.budget)}. Distances: everything flown behind an "
@@ -265,6 +300,19 @@ def main(argv: list[str] | None = None) -> int:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(text, encoding="utf-8")
     return 0
+
+
+def job_key(kind: str, job: tuple[Any, ...]) -> str:
+    """A run's or survey scan's job as a saved row names it: a survey scan's without the
+    cache directory, which changes no result."""
+    if kind == "survey":
+        job = job[:4] + job[5:]
+    return json.dumps([kind, *job], default=float, sort_keys=True)
+
+
+def current(row: dict[str, Any]) -> bool:
+    """Whether a saved row was flown by this code."""
+    return row.get("code") == (survey_code() if row.get("kind") == "survey" else run_code())
 
 
 if __name__ == "__main__":

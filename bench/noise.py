@@ -64,7 +64,6 @@ import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -72,7 +71,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from report import Table, at_budget, stamp, tree_commit  # noqa: E402
+from report import Table, at_budget, stamp  # noqa: E402
 from runs import (  # noqa: E402
     FIELDS,
     max_survey_lines,
@@ -84,9 +83,17 @@ from runs import (  # noqa: E402
     split_planners,
     split_variant,
 )
-from saved_rows import append_row, read_rows, restamp  # noqa: E402
+from saved_rows import (  # noqa: E402
+    append_row,
+    code_fingerprint,
+    commit,
+    read_rows,
+    restamp,
+    run_code,
+    survey_code,
+)
 from summaries import first_reached, fmt, median, ratio, share_within, stays_reached  # noqa: E402
-from surveys import NOT_RUN_BY_A_SURVEY, SURVEY_SOURCES, SurveyScan, best_within  # noqa: E402
+from surveys import SurveyScan, best_within  # noqa: E402
 
 from econdor_lab.study import parse_seeds  # noqa: E402
 
@@ -115,11 +122,6 @@ survey's distance to it (noise 1, plumes)."""
 GOAL_THRESHOLD = 0.5
 """Threshold mode's goal: an iso-line error <= 0.5 m in at most this share of the best
 survey's distance to it."""
-NOT_RUN_BY_A_NOISY_SURVEY = (*NOT_RUN_BY_A_SURVEY, "econdor_gcs/core/levels.py",
-                             "econdor_gcs/core/sg.py")
-"""E-CONDOR's own modules are imported by a survey, never called either."""
-
-
 def condition_sensor(field: str, noise: float, variant: str) -> dict[str, Any]:
     """The ``vehicles.sensor`` of a condition: the noise scaled to ``field``'s span, and
     the variant's lag and position error."""
@@ -190,51 +192,6 @@ class NoisySurveyScan(SurveyScan):
 
     def fly(self, lines: int) -> dict[str, Any]:
         return fly_survey(self.field, self.seed, lines, self.sensor)
-
-
-@cache
-def code_fingerprint(sources: tuple[str, ...] = SURVEY_SOURCES,
-                     skip: tuple[str, ...] = NOT_RUN_BY_A_NOISY_SURVEY) -> str:
-    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``), or of other
-    ``sources`` but for ``skip``. What this module adds to a survey is its sensor, which
-    the cache key and every saved row hold."""
-    h = hashlib.sha256()
-    for entry in sources:
-        p = ROOT / entry
-        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
-            rel = f.relative_to(ROOT).as_posix()
-            if not rel.startswith(skip):
-                h.update(rel.encode())
-                h.update(f.read_bytes())
-    return h.hexdigest()
-
-
-RUN_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc", "econdor_gcs/config",
-               "econdor_gcs/errors.py", "econdor_lab/inprocess.py", "sim_vehicle",
-               "bench/runs.py", "bench/surveys.py")
-"""The code a planner run runs: a saved run flown with other code is flown again
-(``--json``) and left out of the tables, unless ``--any-code`` (a survey scan the same,
-by :func:`survey_code`)."""
-
-
-@cache
-def run_code() -> str:
-    """The fingerprint of ``RUN_SOURCES`` a row is stamped with (``code``)."""
-    return code_fingerprint(RUN_SOURCES, ())[:16]
-
-
-@cache
-def survey_code() -> str:
-    """The fingerprint of what a survey runs (:func:`code_fingerprint`) a scan is stamped
-    with: a change to the planners or the tracer leaves scans current."""
-    return code_fingerprint()[:16]
-
-
-@cache
-def commit() -> str:
-    """The commit a row is flown at (``+`` when the tree held changes not committed)."""
-    head, dirty = tree_commit()
-    return head[:12] + ("+" if dirty else "")
 
 
 def noisy_survey_key(field: str, sensor: dict[str, Any]) -> str:

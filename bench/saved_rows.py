@@ -1,5 +1,6 @@
-"""A benchmark's rows kept on disk (JSON lines, gzip when the name ends in .gz), and the
-check that lets rows flown with older code stand for the current code.
+"""A benchmark's rows kept on disk (JSON lines, gzip when the name ends in .gz): what
+code they were flown with, and the check that lets rows flown with older code stand for
+the current code.
 
 Every row is stamped with the fingerprint of the code it ran (``code``) and the commit it
 was flown at (``commit``). A change to that code makes every row stale, also where the
@@ -18,10 +19,67 @@ False
 from __future__ import annotations
 
 import gzip
+import hashlib
 import json
 from collections.abc import Callable, Sequence
+from functools import cache
 from pathlib import Path
 from typing import Any
+
+from report import tree_commit
+from surveys import NOT_RUN_BY_A_SURVEY, SURVEY_SOURCES
+
+ROOT = Path(__file__).resolve().parents[1]
+
+NOT_RUN_BY_A_NOISY_SURVEY = (*NOT_RUN_BY_A_SURVEY, "econdor_gcs/core/levels.py",
+                             "econdor_gcs/core/sg.py")
+"""E-CONDOR's own modules are imported by a survey, never called either."""
+
+
+@cache
+def code_fingerprint(sources: tuple[str, ...] = SURVEY_SOURCES,
+                     skip: tuple[str, ...] = NOT_RUN_BY_A_NOISY_SURVEY) -> str:
+    """A hash of the source a survey runs (``surveys.SURVEY_SOURCES``), or of other
+    ``sources`` but for ``skip``. What the noise bench adds to a survey is its sensor,
+    which the cache key and every saved row hold."""
+    h = hashlib.sha256()
+    for entry in sources:
+        p = ROOT / entry
+        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
+            rel = f.relative_to(ROOT).as_posix()
+            if not rel.startswith(skip):
+                h.update(rel.encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+RUN_SOURCES = ("econdor_gcs/core", "econdor_gcs/dfc", "econdor_gcs/config",
+               "econdor_gcs/errors.py", "econdor_lab/inprocess.py", "sim_vehicle",
+               "bench/runs.py", "bench/surveys.py")
+"""The code a planner run runs: a saved run flown with other code is flown again
+(a bench's ``--json``) and left out of its tables (a survey scan the same, by
+:func:`survey_code`)."""
+
+
+@cache
+def run_code() -> str:
+    """The fingerprint of ``RUN_SOURCES`` a row is stamped with (``code``)."""
+    return code_fingerprint(RUN_SOURCES, ())[:16]
+
+
+@cache
+def survey_code() -> str:
+    """The fingerprint of what a survey runs (:func:`code_fingerprint`) a scan is stamped
+    with: a change to the planners or the tracer leaves scans current."""
+    return code_fingerprint()[:16]
+
+
+@cache
+def commit() -> str:
+    """The commit a row is flown at (``+`` when the tree held changes not committed)."""
+    head, dirty = tree_commit()
+    return head[:12] + ("+" if dirty else "")
+
 
 VOLATILE = frozenset({"wall_s", "code", "commit", "restamped", "flown"})
 """Keys that are not the flight: timings, stamps, and how many survey runs came from a

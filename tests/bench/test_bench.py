@@ -116,11 +116,12 @@ def test_every_results_file_names_a_command_that_runs():
 
 
 def test_tables_from_saved_runs_of_several_files(tmp_path, capsys):
-    """One field per saved run (each written as it finished), printed as one report."""
-    import json
-
+    """One field per saved file (each row written as it finished), printed as one report;
+    a row is the run or scan of the job it names, flown by this code."""
     import efficiency
 
+    argv = ["--fields", "plume,paper", "--seeds", "1:3", "--threshold-only", "--no-per-seed"]
+    jobs, survey_jobs = efficiency.jobs_of(efficiency.parse_args(argv))
     names = []
     for field, seed in (("plume", 1), ("paper", 2)):
         run = {"field": field, "seed": seed, "planner": "adaptive:threshold", "target": 5.0,
@@ -128,17 +129,22 @@ def test_tables_from_saved_runs_of_several_files(tmp_path, capsys):
                "rows": [{**r, "target_missed": 0} for r in _rows([0.9, 0.4])]}
         survey = {"field": field, "seed": seed, "runs": 9, "flown": 9, "budget": {},
                   "to_db": {}, "to_iso": {"flight_m": 1000.0, "lines": 9}, "scanned": []}
-        path = tmp_path / f"{field}.json"
-        path.write_text(json.dumps({"args": {}, "runs": [run], "surveys": [survey]}))
+        path = tmp_path / f"{field}.jsonl"
+        job, = [j for j in jobs if j[:2] == (field, seed)]
+        scan, = [j for j in survey_jobs if j[:2] == (field, seed)]
+        efficiency.append_row(path, {"kind": "run", "job": efficiency.job_key("run", job),
+                                     **run, "code": efficiency.run_code()})
+        efficiency.append_row(path, {"kind": "survey", **survey, "code": efficiency.survey_code(),
+                                     "job": efficiency.job_key("survey", scan)})
         names.append(str(path))
     out = tmp_path / "t.md"
-    assert efficiency.main(["--from-json", ",".join(names), "--fields", "plume,paper",
-                            "--seeds", "1:3", "--threshold-only", "--no-per-seed",
-                            "--out", str(out)]) == 0
+    assert efficiency.main(["--from-json", ",".join(names), *argv, "--out", str(out)]) == 0
     text = out.read_text()
     assert "## Field: plume" in text and "## Field: paper" in text
     assert "2 planner runs and 18 surveys" in text
     assert "Threshold mapping, every field" in text
+    assert "4 of the 8 runs and survey scans asked for are not in the saved rows" in \
+        capsys.readouterr().err
 
 
 def test_the_survey_cache_key_names_code_that_exists():
@@ -219,3 +225,29 @@ def test_restamp_lets_stale_rows_stand_only_when_flown_again_they_come_out_the_s
     back = saved_rows.read_rows(path)
     assert [(r["code"], r["commit"], r["restamped"]) for r in back] == [("new", "c0", "c1")] * 6
     assert [r["rows"] for r in back] == [r["rows"] for r in stale]
+
+
+def test_efficiency_rows_are_named_by_their_job_and_set_aside_when_of_other_code(
+        tmp_path, capsys):
+    """The efficiency bench's saved rows (``--json``, JSON lines) are named by their job
+    (a survey scan's without the cache directory, which changes no result); ``--from-json``
+    sets aside a row of other code, says so, and says how many asked for are missing."""
+    import efficiency
+
+    scan = ("plume", 3, 10_000.0, "auto", "/tmp/a", [10_000.0], (), 0.5, False)
+    assert efficiency.job_key("survey", scan) == efficiency.job_key(
+        "survey", (*scan[:4], "/elsewhere", *scan[5:]))
+    assert efficiency.job_key("survey", scan) != efficiency.job_key(
+        "survey", ("plume", 4, *scan[2:]))
+    run = ("plume", 3, "adaptive", 10_000.0, "auto", True, {})
+    row = {"kind": "run", "job": efficiency.job_key("run", run), "code": "0" * 16,
+           "commit": "abc"}
+    assert not efficiency.current(row)
+    assert efficiency.current({**row, "code": efficiency.run_code()})
+    path = tmp_path / "rows.jsonl.gz"
+    efficiency.append_row(path, row)
+    efficiency.main(["--from-json", str(path), "--fields", "plume", "--seeds", "3",
+                     "--threshold-only"])
+    err = capsys.readouterr().err
+    assert "1 saved rows flown with other code set aside (commits abc)" in err
+    assert "2 of the 2 runs and survey scans asked for are not in the saved rows" in err
