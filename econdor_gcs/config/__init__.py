@@ -239,6 +239,7 @@ class AdaptiveConfig:
     rays: int
     line_weight: LineWeight
     probe_length_m: float
+    probe_rise: float
 
 
 @dataclass(frozen=True)
