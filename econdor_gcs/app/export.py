@@ -47,6 +47,7 @@ from econdor_gcs.config import Mission, load_mission
 from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
+from econdor_gcs.core.lag import LagCorrection
 from econdor_gcs.core.planners import Job, diagonal_jobs, survey_jobs
 from econdor_gcs.core.tasks import Task, TaskStyle, TraceTask
 from econdor_gcs.errors import EcondorError, MissionError
@@ -400,9 +401,12 @@ def _next_batch(run_dir: Path, opts: ExportOptions) -> list[ExportedMission]:
         raise EcondorError(f"{path}: the next batch is empty (nothing left to fly)")
     plans = _split(jobs, mission, opts.vehicles, 1000 * iteration)
     lag = _corrected_lag_s(_read_summary(run_dir))
-    if lag is not None:
-        plans = [[dataclasses.replace(t, sensor_lag_s=lag) if isinstance(t, TraceTask) else t
-                  for t in p] for p in plans]
+    unknown = lag is None and mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE
+    if lag is not None or unknown:
+        # as the station tells it (a run that estimates the lag and has no usable estimate:
+        # a lag of unknown size)
+        plans = [[dataclasses.replace(t, sensor_lag_s=lag or 0.0, lag_unknown=unknown)
+                  if isinstance(t, TraceTask) else t for t in p] for p in plans]
     return [ExportedMission(f"next{iteration:02d}_v{k + 1}", _mission_items(mission, p, opts))
             for k, p in enumerate(plans) if p]
 

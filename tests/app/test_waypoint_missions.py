@@ -153,6 +153,14 @@ def test_export_next_batch_as_waypoints_and_as_trace_items(tmp_path, capsys):
     assert export_cli(export_args(run, tmp_path / "lag_w.waypoints")) == 0
     assert 31013 not in [it.command for it in read_wpl(tmp_path / "lag_w.waypoints")]
     (run / "summary.json").write_text(json.dumps(summary))
+    # a run that estimates the lag and has no estimate yet tells a lag of unknown size
+    mission_yaml = (run / "mission.yaml").read_text()
+    (run / "mission.yaml").write_text(mission_yaml.replace(
+        "vehicles:\n", "vehicles:\n  sensor: {lag_s: 0.8, lag_correction: estimate}\n", 1))
+    assert export_cli(export_args(run, tmp_path / "est.waypoints", style="trace")) == 0
+    told = [it for it in read_wpl(tmp_path / "est.waypoints") if it.command == 31013]
+    assert [(it.param1, it.param2) for it in told] == [(0.0, 1.0)]
+    (run / "mission.yaml").write_text(mission_yaml)
     # two aircraft: two files
     export_cli(export_args(run, str(tmp_path / "two") + "/", vehicles=2))
     assert sorted(p.name for p in (tmp_path / "two").iterdir()) == [
