@@ -239,7 +239,6 @@ class AdaptiveConfig:
     rays: int
     line_weight: LineWeight
     probe_length_m: float
-    probe_rise: float
 
 
 @dataclass(frozen=True)

@@ -343,7 +343,6 @@ SCHEMA: dict[str, Section] = {
         "rays": within(0, 3600),
         "line_weight": _BY_ENUM,
         "probe_length_m": _DIST,
-        "probe_rise": within(0.0, 1e6),
     }),
 }
 """section -> key -> :class:`Key` (every section but ``field``, and ``vehicles.sensor``)."""

@@ -55,11 +55,6 @@ class Candidate:
     """Flight beyond ``length_m`` and the transit to the start: a component that meets the
     area's edge, entered at a crossing in its middle, is traced to one edge, flown back
     to the entry, and traced to the other."""
-    rise: float = 0.0
-    """A probe (:func:`extremum_probes`): how far its extremum stands out along the track
-    (its prominence) over how far it falls short of the nearest level it falls short of:
-    1 when the hill beside the track has already risen, along it, as much as it still
-    needs to reach the level."""
 
     @property
     def length_m(self) -> float:
@@ -282,8 +277,7 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
 
     With ``reach > 0``, an extremum is probed only if a level it falls short of is within
     ``reach`` times :func:`probe_reach` of it: a round bump as curved along the track as
-    the samples are there, its centre anywhere on the probe. Each probe carries its
-    extremum's ``rise`` (:attr:`Candidate.rise`).
+    the samples are there, its centre anywhere on the probe.
 
     Examples
     --------
@@ -314,10 +308,9 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
                 short = sign * (levels - v[j]) > 0
                 if not np.any(short):
                     continue
-                shortfall = sign * (levels[short] - v[j])
                 if reach > 0:
                     top = reach * probe_reach(samples, run, j, sign, height, 0.5 * probe_m)
-                    if not np.any(shortfall <= top):
+                    if not np.any(sign * (levels[short] - v[j]) <= top):
                         continue
                 a, b = run[max(j - 2, 0)], run[min(j + 2, len(run) - 1)]
                 t = np.array([samples.x_m[b] - samples.x_m[a], samples.y_m[b] - samples.y_m[a]])
@@ -338,8 +331,7 @@ def extremum_probes(samples: SampleLog, levels: FloatArray, region: Region, prob
                 d, _ = tree.query(pts)
                 if np.mean(d <= covered_m) >= 0.8:
                     continue
-                out.append(Candidate(CandidateKind.LEG, seg, reversible=True, first=True,
-                                     rise=height / float(np.min(shortfall))))
+                out.append(Candidate(CandidateKind.LEG, seg, reversible=True, first=True))
     return out
 
 

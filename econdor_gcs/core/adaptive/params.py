@@ -236,14 +236,6 @@ class AdaptiveParams:
         beside a track: no GP fitted, one with no amplitude yet, or a fitted length scale
         below this (m); ``explore: auto`` is ``legs`` then. With a longer length (a smooth
         field) the GP-weighted lines look beside the tracks themselves. 0: always.
-    probe_rise : float
-        ``explore: lines`` where the model sees beside the tracks (``probe_length_m``): a
-        probe whose extremum has risen along the track by at least this share of what it
-        still falls short of the level (:attr:`~econdor_gcs.core.candidates.Candidate.rise`:
-        a hill beside the track, not a wiggle on a slope far below the level) goes first
-        all the same, interrupting the line being flown: a smooth field's GP does not see
-        a hill top that barely reaches the level, whose closed iso-line may be a few metres
-        across. 0: none goes first there.
     target_levels : tuple of float
         Threshold mode when not empty.
     """
@@ -288,7 +280,6 @@ class AdaptiveParams:
     rays: int = 32
     line_weight: LineWeight = LineWeight.P
     probe_length_m: float = 20.0
-    probe_rise: float = 0.0
     target_levels: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:

@@ -307,10 +307,6 @@ class ThresholdPlanner(AdaptivePlanner):
         after_trace, self._traced = self._traced, bool(traces)
         if traces:
             return fly_first(traces)
-        rising = [] if p.probe_rise <= 0 or self._blind_beside(context) else [
-            c for c in cands if c.first and c.kind == CandidateKind.LEG and c.rise >= p.probe_rise]
-        if rising:  # hills beside the track: probed before the line goes on
-            return fly_first(rising)
         s = context.samples
         samples_xy = np.column_stack([s.x_m, s.y_m])
         weight = np.ones(len(dist))
