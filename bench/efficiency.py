@@ -75,7 +75,7 @@ from runs import (  # noqa: E402
     split_planners,
     split_variant,
 )
-from saved_rows import append_row, commit, read_rows, run_code, survey_code  # noqa: E402
+from saved_rows import append_row, commit, load, run_code, survey_code  # noqa: E402
 from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
 
@@ -222,14 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     saved: dict[str, dict[str, Any]] = {}
     src = a.from_json or a.json
     if src:
-        rows = [r for name in src.split(",") for r in read_rows(Path(name))]
-        stale = [r for r in rows if not current(r)]
-        if stale and not a.any_code:
-            print(f"{len(stale)} saved rows flown with other code set aside (commits "
-                  f"{', '.join(sorted({str(r.get('commit')) for r in stale}))})",
-                  file=sys.stderr, flush=True)
-            rows = [r for r in rows if current(r)]
-        saved = {r["job"]: r for r in rows if r.get("job") in keyed}
+        saved = {r["job"]: r for r in load(src, current, a.any_code) if r.get("job") in keyed}
     todo = [] if a.from_json else [(k, kind, j) for k, (kind, j) in keyed.items()
                                    if k not in saved]
     if todo:

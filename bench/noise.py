@@ -87,6 +87,7 @@ from saved_rows import (  # noqa: E402
     append_row,
     code_fingerprint,
     commit,
+    load,
     read_rows,
     restamp,
     run_code,
@@ -495,13 +496,7 @@ def main(argv: list[str] | None = None) -> int:
     saved: list[dict[str, Any]] = []
     src = a.from_json or a.json
     if src:
-        saved = [r for p in src.split(",") for r in read_rows(Path(p))]
-        stale = [r for r in saved if not current(r)]
-        if stale and not a.any_code:
-            print(f"{len(stale)} saved rows flown with other code or another sensor set "
-                  f"aside (commits {', '.join(sorted({str(r.get('commit')) for r in stale}))})",
-                  file=sys.stderr, flush=True)
-            saved = [r for r in saved if current(r)]
+        saved = load(src, current, a.any_code, "flown with other code or another sensor")
     t0 = time.perf_counter()
     if a.restamp:
         if not a.json:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
+import sys
 from collections.abc import Callable, Sequence
 from functools import cache
 from pathlib import Path
@@ -93,6 +94,21 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
     opener = gzip.open if path.suffix == ".gz" else open
     with opener(path, "rt", encoding="utf-8") as fh:
         return [json.loads(line) for line in fh if line.strip()]
+
+
+def load(names: str, current: Callable[[dict[str, Any]], bool], keep_stale: bool = False,
+         stale_is: str = "flown with other code") -> list[dict[str, Any]]:
+    """The rows of the comma-separated files ``names``; those not ``current`` are set
+    aside, and said so on stderr with the commits they were flown at, unless
+    ``keep_stale``."""
+    rows = [r for name in names.split(",") for r in read_rows(Path(name))]
+    stale = [r for r in rows if not current(r)]
+    if stale and not keep_stale:
+        print(f"{len(stale)} saved rows {stale_is} set aside (commits "
+              f"{', '.join(sorted({str(r.get('commit')) for r in stale}))})",
+              file=sys.stderr, flush=True)
+        rows = [r for r in rows if current(r)]
+    return rows
 
 
 def append_row(path: Path, row: dict[str, Any]) -> None:
