@@ -25,11 +25,30 @@ REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "missions" / "demo.yaml"
 
 
+FREE_PORTS_FROM = 20000
+"""Ports for tools that cannot take port 0 come from below the kernel's ephemeral range
+(32768 and up on Linux): a port the kernel once handed out as free may be handed out again
+to another socket (any process's client socket) before the tool binds it, and the tool then
+fails with "Address already in use". Each pytest-xdist worker takes its own block of
+:data:`FREE_PORTS_PER_WORKER`."""
+FREE_PORTS_PER_WORKER = 1000
+_next_port = iter(range(10**9))
+
+
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A currently free loopback port (for tools that cannot take port 0)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A free loopback port of this worker's block (:data:`FREE_PORTS_FROM`), not handed
+    out before in this process (for tools that cannot take port 0)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    base = FREE_PORTS_FROM + FREE_PORTS_PER_WORKER * (int(worker) % 12 if worker.isdigit() else 0)
+    for _ in range(FREE_PORTS_PER_WORKER):
+        port = base + next(_next_port) % FREE_PORTS_PER_WORKER
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return port
+    raise RuntimeError(f"no free loopback port in {base}..{base + FREE_PORTS_PER_WORKER - 1}")
 
 
 def udp_port_bound(port: int, host: str = "127.0.0.1") -> bool:
