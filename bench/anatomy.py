@@ -9,14 +9,14 @@ reads a saved bench run (``--json``) and sums it up, beside what each seed's tru
 is like (its pieces, their length, how many meet the area's edge) and, with ``--ideal``,
 what a tracer that knew where the iso-line is would fly (:func:`ideal_tracer`).
 
-    python bench/efficiency.py --fields authors --seeds 900:920 --threshold-only --json runs/a.json
-    python bench/anatomy.py runs/a.json --ideal
+    python bench/efficiency.py --fields authors --seeds 900:920 --threshold-only --json runs/a.jsonl
+    python bench/anatomy.py runs/a.jsonl --ideal
+    python bench/anatomy.py docs/results/data/threshold-fresh.jsonl.gz
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from report import ISO_TARGET_M, Table  # noqa: E402
 from runs import mid_level, mission_for  # noqa: E402
+from saved_rows import current_code, load  # noqa: E402
 from summaries import fmt, stays_reached  # noqa: E402
 
 from econdor_gcs.core.candidates import CandidateKind  # noqa: E402
@@ -211,11 +212,14 @@ def booked_until(rows: list[dict[str, Any]], upto_m: float) -> dict[str, float]:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    p.add_argument("json", help="a bench/efficiency.py --json file with threshold runs")
+    p.add_argument("json", help="bench/efficiency.py --json files with threshold runs "
+                                "(comma-separated)")
     p.add_argument("--ideal", action="store_true", help="add the ideal tracer (slow)")
     p.add_argument("--markdown", action="store_true")
     a = p.parse_args()
-    saved = json.loads(Path(a.json).read_text())
+    saved: dict[str, list[dict[str, Any]]] = {"runs": [], "surveys": []}
+    for row in load(a.json, current_code):
+        saved["runs" if row["kind"] == "run" else "surveys"].append(row)
     surveys = {(s["field"], s["seed"]): s for s in saved["surveys"]}
     cols = [f"{k}{part}" for k in KINDS for part in ("_approach", "")] + ["other"]
     for label in dict.fromkeys(r["planner"] for r in saved["runs"]

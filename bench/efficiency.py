@@ -75,7 +75,7 @@ from runs import (  # noqa: E402
     split_planners,
     split_variant,
 )
-from saved_rows import append_row, commit, load, run_code, survey_code  # noqa: E402
+from saved_rows import append_row, commit, current_code, load, run_code, survey_code  # noqa: E402
 from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
 
@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     saved: dict[str, dict[str, Any]] = {}
     src = a.from_json or a.json
     if src:
-        saved = {r["job"]: r for r in load(src, current, a.any_code) if r.get("job") in keyed}
+        saved = {r["job"]: r for r in load(src, current_code, a.any_code) if r.get("job") in keyed}
     todo = [] if a.from_json else [(k, kind, j) for k, (kind, j) in keyed.items()
                                    if k not in saved]
     if todo:
@@ -301,11 +301,6 @@ def job_key(kind: str, job: tuple[Any, ...]) -> str:
     if kind == "survey":
         job = job[:4] + job[5:]
     return json.dumps([kind, *job], default=float, sort_keys=True)
-
-
-def current(row: dict[str, Any]) -> bool:
-    """Whether a saved row was flown by this code."""
-    return row.get("code") == (survey_code() if row.get("kind") == "survey" else run_code())
 
 
 if __name__ == "__main__":

@@ -75,6 +75,12 @@ def survey_code() -> str:
     return code_fingerprint()[:16]
 
 
+def current_code(row: dict[str, Any]) -> bool:
+    """Whether a saved row (a planner run, or a survey scan: ``kind``) was flown by this
+    code."""
+    return row.get("code") == (survey_code() if row.get("kind") == "survey" else run_code())
+
+
 @cache
 def commit() -> str:
     """The commit a row is flown at (``+`` when the tree held changes not committed)."""

@@ -242,8 +242,8 @@ def test_efficiency_rows_are_named_by_their_job_and_set_aside_when_of_other_code
     run = ("plume", 3, "adaptive", 10_000.0, "auto", True, {})
     row = {"kind": "run", "job": efficiency.job_key("run", run), "code": "0" * 16,
            "commit": "abc"}
-    assert not efficiency.current(row)
-    assert efficiency.current({**row, "code": efficiency.run_code()})
+    assert not efficiency.current_code(row)
+    assert efficiency.current_code({**row, "code": efficiency.run_code()})
     path = tmp_path / "rows.jsonl.gz"
     efficiency.append_row(path, row)
     efficiency.main(["--from-json", str(path), "--fields", "plume", "--seeds", "3",
