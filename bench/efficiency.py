@@ -50,6 +50,7 @@ import time
 import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -184,37 +185,48 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 Job = tuple[Any, ...]
 
 
+@dataclass(frozen=True)
+class Asked:
+    """What the arguments ask for."""
+
+    seeds: list[int]
+    fields: list[str]
+    planners: list[str]
+    budgets: list[float]
+    settings: dict[str, Any]
+
+
+def asked(a: argparse.Namespace) -> Asked:
+    """The seeds, fields, planners, budgets and adaptive settings ``a`` asks for."""
+    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
+    return Asked(parse_seeds(a.seeds), a.fields.split(","),
+                 [x for x in split_planners(a.planners) if x], [*budgets, a.budget],
+                 parse_settings(a.adaptive))
+
+
 def jobs_of(a: argparse.Namespace) -> tuple[list[Job], list[Job]]:
     """The planner runs' and the survey scans' jobs the arguments ask for."""
-    seeds = parse_seeds(a.seeds)
-    fields = a.fields.split(",")
-    planners = [x for x in split_planners(a.planners) if x]
-    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
-    budgets.append(a.budget)
-    settings = parse_settings(a.adaptive)
+    q = asked(a)
     jobs: list[Job] = [] if a.threshold_only else [
-        (f, s, pl, a.budget, a.reconstruction, False, settings)
-        for f in fields for s in seeds for pl in planners]
+        (f, s, pl, a.budget, a.reconstruction, False, q.settings)
+        for f in q.fields for s in q.seeds for pl in q.planners]
     if a.threshold:
-        mappers = [pl for pl in planners if split_variant(pl)[0] == "adaptive"] or ["adaptive"]
-        jobs += [(f, s, pl, a.budget, a.reconstruction, True, settings)
-                 for f in fields for s in seeds for pl in mappers]
-    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, budgets,
+        mappers = [pl for pl in q.planners if split_variant(pl)[0] == "adaptive"] or ["adaptive"]
+        jobs += [(f, s, pl, a.budget, a.reconstruction, True, q.settings)
+                 for f in q.fields for s in q.seeds for pl in mappers]
+    survey_jobs = [(f, s, a.budget, a.reconstruction, a.cache, q.budgets,
                     () if a.threshold_only else TARGETS_DB, ISO_TARGET_M, not a.threshold_only)
-                   for f in fields for s in seeds]
+                   for f in q.fields for s in q.seeds]
     return jobs, survey_jobs
 
 
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
-    seeds = parse_seeds(a.seeds)
-    fields = a.fields.split(",")
-    planners = [x for x in split_planners(a.planners) if x]
-    budgets = [b for b in (1_000.0, 2_000.0, 5_000.0, 10_000.0, 20_000.0) if b < a.budget]
-    budgets.append(a.budget)
+    q = asked(a)
+    seeds, fields, planners, budgets, settings = (q.seeds, q.fields, q.planners, q.budgets,
+                                                   q.settings)
     if a.cache:
         Path(a.cache).mkdir(parents=True, exist_ok=True)
-    settings = parse_settings(a.adaptive)
     jobs, survey_jobs = jobs_of(a)
     t0 = time.perf_counter()
     keyed = {job_key("survey", j): ("survey", j) for j in survey_jobs}

@@ -14,6 +14,8 @@ which they were checked (``restamped``); the commit they were flown at stays.
 True
 >>> same_flight(a, {**a, "rows": [{"mae": 0.6, "wall_s": 3.0}]})
 False
+>>> same_flight({**a, "target": float("nan")}, {**a, "target": float("nan")})
+True
 """
 
 from __future__ import annotations
@@ -146,8 +148,10 @@ def _flight(v: Any) -> Any:
 def same_flight(a: dict[str, Any], b: dict[str, Any]) -> bool:
     """Whether two rows hold the same flight: every value equal (as JSON keeps it) but the
     :data:`VOLATILE` ones."""
-    return bool(_flight(json.loads(json.dumps(a, default=float)))
-                == _flight(json.loads(json.dumps(b, default=float))))
+    def text(row: dict[str, Any]) -> str:  # NaN as "NaN": equal to itself
+        return json.dumps(_flight(json.loads(json.dumps(row, default=float))), sort_keys=True)
+
+    return text(a) == text(b)
 
 
 def spread(rows: Sequence[dict[str, Any]], k: int) -> list[dict[str, Any]]:
