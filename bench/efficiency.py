@@ -76,7 +76,13 @@ from runs import (  # noqa: E402
     split_planners,
     split_variant,
 )
-from saved_rows import append_row, commit, current_code, load, run_code, survey_code  # noqa: E402
+from saved_rows import (  # noqa: E402
+    append_row,
+    code_of,
+    commit,
+    current_code,
+    load,
+)
 from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
 
@@ -248,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             for n, fut in enumerate(as_completed(futs), 1):
                 k, kind, j = futs[fut]
                 row = {"kind": kind, "job": k, **fut.result(),
-                       "code": survey_code() if kind == "survey" else run_code(),
+                       "code": code_of(kind),
                        "commit": commit()}
                 saved[k] = row
                 if a.json:

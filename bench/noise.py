@@ -86,12 +86,12 @@ from runs import (  # noqa: E402
 from saved_rows import (  # noqa: E402
     append_row,
     code_fingerprint,
+    code_of,
     commit,
+    current_code,
     load,
     read_rows,
     restamp,
-    run_code,
-    survey_code,
 )
 from summaries import first_reached, fmt, median, ratio, share_within, stays_reached  # noqa: E402
 from surveys import SurveyScan, best_within  # noqa: E402
@@ -171,14 +171,13 @@ def provenance(field: str, noise: float, variant: str, survey: bool = False
     """What a saved row was flown with: the sensor, the fingerprint of the code it ran (a
     survey: only what a survey runs), the commit."""
     return {"sensor": condition_sensor(field, noise, variant),
-            "code": survey_code() if survey else run_code(), "commit": commit()}
+            "code": code_of("survey" if survey else "run"), "commit": commit()}
 
 
 def current(row: dict[str, Any]) -> bool:
     """Whether a saved row was flown by this code with its condition's sensor."""
-    code = survey_code() if row["kind"] == "survey" else run_code()
-    return (row.get("code") == code and row.get("sensor")
-            == condition_sensor(row["field"], row["noise"], row["variant"]))
+    return current_code(row) and row.get("sensor") == condition_sensor(
+        row["field"], row["noise"], row["variant"])
 
 
 class NoisySurveyScan(SurveyScan):
@@ -512,7 +511,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         ok, line = restamp(Path(a.json), stale, a.restamp,
                            lambda picked: fly_in_order([_job(r, a.cache) for r in picked], a.workers),
-                           lambda r: survey_code() if r["kind"] == "survey" else run_code(),
+                           lambda r: code_of(r["kind"]),
                            commit())
         print(line, file=sys.stderr)
         return 0 if ok else 1

@@ -77,10 +77,16 @@ def survey_code() -> str:
     return code_fingerprint()[:16]
 
 
+def code_of(kind: str) -> str:
+    """The fingerprint a row of ``kind`` is stamped with: a survey scan's
+    (:func:`survey_code`), or a planner run's (:func:`run_code`)."""
+    return survey_code() if kind == "survey" else run_code()
+
+
 def current_code(row: dict[str, Any]) -> bool:
     """Whether a saved row (a planner run, or a survey scan: ``kind``) was flown by this
     code."""
-    return row.get("code") == (survey_code() if row.get("kind") == "survey" else run_code())
+    return row.get("code") == code_of(str(row.get("kind")))
 
 
 @cache

@@ -18,6 +18,7 @@ sys.path.append(str(ROOT / "bench"))  # after the packages: bench/sim_vehicle.py
 
 import report  # noqa: E402
 import runs  # noqa: E402
+import saved_rows  # noqa: E402
 import summaries  # noqa: E402
 import surveys  # noqa: E402
 from summaries import first_reached, median, ratio, share_within, stays_reached  # noqa: E402
@@ -132,9 +133,9 @@ def test_tables_from_saved_runs_of_several_files(tmp_path, capsys):
         path = tmp_path / f"{field}.jsonl"
         job, = [j for j in jobs if j[:2] == (field, seed)]
         scan, = [j for j in survey_jobs if j[:2] == (field, seed)]
-        efficiency.append_row(path, {"kind": "run", "job": efficiency.job_key("run", job),
-                                     **run, "code": efficiency.run_code()})
-        efficiency.append_row(path, {"kind": "survey", **survey, "code": efficiency.survey_code(),
+        saved_rows.append_row(path, {"kind": "run", "job": efficiency.job_key("run", job),
+                                     **run, "code": saved_rows.run_code()})
+        saved_rows.append_row(path, {"kind": "survey", **survey, "code": saved_rows.survey_code(),
                                      "job": efficiency.job_key("survey", scan)})
         names.append(str(path))
     out = tmp_path / "t.md"
@@ -174,15 +175,15 @@ def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
     other_code.update(code="0" * 16, commit="abc")
     other_sensor["sensor"] = {"noise_std": 2.0}
     for row in (good, other_code, other_sensor):
-        noise.append_row(path, row)
-    assert [r["seed"] for r in noise.read_rows(path)] == [1, 2, 3]
-    assert [noise.current(r) for r in noise.read_rows(path)] == [True, False, False]
-    assert noise.current(good) and good["code"] == noise.survey_code()
+        saved_rows.append_row(path, row)
+    assert [r["seed"] for r in saved_rows.read_rows(path)] == [1, 2, 3]
+    assert [noise.current(r) for r in saved_rows.read_rows(path)] == [True, False, False]
+    assert noise.current(good) and good["code"] == saved_rows.survey_code()
     # a planner run is stamped with the code a run runs (the tracer, the planners too)
     run = {"kind": "run", "field": "plume", "seed": 1, "noise": 1.0, "variant": "",
            **noise.provenance("plume", 1.0, "")}
-    assert noise.current(run) and run["code"] == noise.run_code() != noise.survey_code()
-    assert not noise.current({**run, "code": noise.survey_code()})
+    assert noise.current(run) and run["code"] == saved_rows.run_code() != saved_rows.survey_code()
+    assert not noise.current({**run, "code": saved_rows.survey_code()})
 
     noise.main(["--from-json", str(path), "--fields", "plume"])
     out = capsys.readouterr()
@@ -198,7 +199,6 @@ def test_restamp_lets_stale_rows_stand_only_when_flown_again_they_come_out_the_s
     comes out as saved (timings and stamps aside) do they all get the current code, the
     commit they were flown at kept and the checking commit added; one that differs leaves
     the file as it was."""
-    import saved_rows
 
     def row(seed: int, mae: float) -> dict:
         return {"kind": "run", "field": "plume", "seed": seed, "noise": 1.0, "variant": "",
@@ -242,10 +242,10 @@ def test_efficiency_rows_are_named_by_their_job_and_set_aside_when_of_other_code
     run = ("plume", 3, "adaptive", 10_000.0, "auto", True, {})
     row = {"kind": "run", "job": efficiency.job_key("run", run), "code": "0" * 16,
            "commit": "abc"}
-    assert not efficiency.current_code(row)
-    assert efficiency.current_code({**row, "code": efficiency.run_code()})
+    assert not saved_rows.current_code(row)
+    assert saved_rows.current_code({**row, "code": saved_rows.run_code()})
     path = tmp_path / "rows.jsonl.gz"
-    efficiency.append_row(path, row)
+    saved_rows.append_row(path, row)
     efficiency.main(["--from-json", str(path), "--fields", "plume", "--seeds", "3",
                      "--threshold-only"])
     err = capsys.readouterr().err
