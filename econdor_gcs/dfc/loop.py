@@ -303,14 +303,14 @@ class Dfc:
     def _told_lag(self) -> tuple[float, bool] | None:
         """The sensor lag the onboard tracer is to trace with, as ``(sensor_lag_s,
         lag_unknown)``: the one the station corrects the samples for (the mission's known
-        lag, or the last usable estimate); with an estimated lag and no usable estimate
-        yet, a lag of unknown size (``(0.0, True)``: the tracer's filter is set for a lag,
+        lag, or the last usable estimate, 0 included: a tracer told of an unknown lag before
+        is told that it is known now); with an estimated lag and no usable estimate yet, a
+        lag of unknown size (``(0.0, True)``: the tracer's filter is set for a lag,
         compensating none); None when it corrects for none (the tracer keeps its own
         setting)."""
         if self.mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE:
             self._samples()  # brings :attr:`lag_s` up to every sample so far
-            if not math.isfinite(self.lag_s):
-                return 0.0, True
+            return (self.lag_s, False) if math.isfinite(self.lag_s) else (0.0, True)
         return (self.lag_s, False) if self.lag_s > 0.0 else None
 
     def _tell_lag(self, plans: list[list[Task]]) -> list[list[Task]]:

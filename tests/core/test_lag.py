@@ -11,6 +11,7 @@ import pytest
 from econdor_gcs.config import parse_mission
 from econdor_gcs.core.lag import (
     LagCorrection,
+    LagEstimate,
     correct_lag,
     estimate_lag,
     noise_std,
@@ -268,3 +269,17 @@ def test_the_trace_tasks_carry_the_lag_the_station_corrects_for(tmp_path, correc
         assert all(lag == pytest.approx(1.0, rel=0.15) for lag, _ in told[1:])
     if not any(lag or unknown for lag, unknown in told):
         assert "sensor_lag_s" not in (tmp_path / "run" / "flights.jsonl").read_text()
+
+
+def test_an_estimated_lag_of_zero_is_told_as_known(tmp_path, monkeypatch):
+    """With the lag estimated, a usable estimate of exactly 0 is told to the tracer as a
+    known lag of 0 (``sensor_lag_s = 0``, not ``lag_unknown``, not left untold): a MAVLink
+    tracer told of a lag of unknown size before would otherwise go on tracing as if its
+    sensor lagged."""
+    import econdor_gcs.dfc.loop as loop
+
+    monkeypatch.setattr(loop, "estimate_lag", lambda raw: LagEstimate(0.0, 0.0, 100))
+    run_inprocess(_lagging_mission("estimate", lag_s=1.0, iterations=3), tmp_path / "run")
+    told = {(t.sensor_lag_s, t.lag_unknown) for flight in read_checkpoint(tmp_path / "run")
+            for plan in flight.plans for t in plan if isinstance(t, TraceTask)}
+    assert told == {(0.0, False)}
