@@ -70,6 +70,8 @@ class TracerEvent(StrEnum):
     FENCE = "stopped at the fence"
     EDGE_WALK = "boundary reached, walking the edge"
     EDGE_FOUND = "contour found along the edge"
+    LOST_OTHER_DIRECTION = "contour lost, tracing other direction"
+    PRIOR_OTHER_DIRECTION = "came onto an earlier trace, tracing other direction"
 
 
 _EVENTS = {m.EV_FOUND: TracerEvent.FOUND, m.EV_NOT_FOUND: TracerEvent.NOT_FOUND,
@@ -79,7 +81,9 @@ _EVENTS = {m.EV_FOUND: TracerEvent.FOUND, m.EV_NOT_FOUND: TracerEvent.NOT_FOUND,
            m.EV_BUDGET: TracerEvent.BUDGET_EXHAUSTED, m.EV_CLOSED: TracerEvent.CLOSED,
            m.EV_BOUNDARY: TracerEvent.BOUNDARY, m.EV_LENGTH_LIMIT: TracerEvent.LENGTH_LIMIT,
            m.EV_LOST: TracerEvent.LOST, m.EV_FENCE: TracerEvent.FENCE,
-           m.EV_EDGE_WALK: TracerEvent.EDGE_WALK, m.EV_EDGE_FOUND: TracerEvent.EDGE_FOUND}
+           m.EV_EDGE_WALK: TracerEvent.EDGE_WALK, m.EV_EDGE_FOUND: TracerEvent.EDGE_FOUND,
+           m.EV_LOST_OTHER: TracerEvent.LOST_OTHER_DIRECTION,
+           m.EV_PRIOR_OTHER: TracerEvent.PRIOR_OTHER_DIRECTION}
 
 EventCallback = Callable[[TracerEvent], None]
 

@@ -35,7 +35,7 @@ from .records import (
     TRACING,
 )
 from .records import command as _command
-from .track import track_push
+from .track import ONTO_PRIOR, track_push
 from .vehicle import contains, edge_ahead_m, ground_speed, heading
 
 GAIN_ACCEL_MPS2 = 20.0
@@ -112,6 +112,7 @@ def _start(ctl, params, task, tr, lg, b, recent: np.ndarray) -> None:
         e0 = recent[k, 2] - task.level
     lg.d_f = lg.d_init if lg.has_init else tr.side * e0 / tr.grad_mag
     lg.has_init = 0
+    lg.onto_prior = 0
     lg.beta = params.filter_beta
     lg.dd_f = 0.0
     lg.lost_s = 0.0
@@ -297,8 +298,10 @@ def post(ctl, params, task, tr, lg, tk, b, fv: np.ndarray, fr: np.ndarray, fc: n
     lg.has_prev_dist, lg.prev_dist = 1, dist
     away_m = max(params.closure_min_away_m, params.closure_radius_m) if _orbit_prone(b, tr) \
         else 0.0
-    if params.rejoin_min_m > 0.0 and track_push(ctl, params, tr, tk, track, prior, x, y,
-                                                 away_m):
+    onto = track_push(ctl, params, tr, tk, track, prior, x, y, away_m) if (
+        params.rejoin_min_m > 0.0) else 0
+    if onto:
+        lg.onto_prior = onto == ONTO_PRIOR
         _end(ctl, lg, CLOSED)
         return
     if not contains(b.xmin, b.xmax, b.ymin, b.ymax, x, y) or (

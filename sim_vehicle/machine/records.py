@@ -128,10 +128,12 @@ LEG = np.dtype([
     ("n_fit", _I), ("turned", _F), ("th_start", _I), ("th_len", _I), ("turn_k", _I),
     ("turn_n", _I), ("ux", _F), ("uy", _F), ("heading_before", _F), ("status", _I),
     ("win_start", _I), ("win_len", _I), ("has_init", _I), ("d_init", _F), ("beta", _F),
+    ("onto_prior", _I),
 ])
 """One trace leg: the commanded heading ``psi`` and the path curvature (the controller's
 integral state), speed, the filtered lateral offset and its rate, the window of the
-gradient fits and the turn history of the lost test."""
+gradient fits and the turn history of the lost test; whether it ended on an earlier
+trace's track."""
 
 WALK = np.dtype([
     ("edge", _I), ("len_m", _F), ("odo0_m", _F), ("k", _I), ("k_max", _I),
@@ -166,7 +168,7 @@ STATUS_NAMES = {REACHED: "reached", UNREACHABLE: "unreachable", CLOSED: "closed"
 # events (see sim_vehicle.tracer.TracerEvent)
 (EV_FOUND, EV_NOT_FOUND, EV_LOST_SEARCHING, EV_REACQUIRED, EV_BOUNDARY_OTHER, EV_BUDGET,
  EV_CLOSED, EV_BOUNDARY, EV_LENGTH_LIMIT, EV_LOST, EV_FENCE, EV_EDGE_WALK,
- EV_EDGE_FOUND) = range(1, 14)
+ EV_EDGE_FOUND, EV_LOST_OTHER, EV_PRIOR_OTHER) = range(1, 16)
 
 # phases of the samples (econdor_gcs.core.tasks.Phase)
 TRANSIT, SEARCHING, TRACING = 0, 1, 2

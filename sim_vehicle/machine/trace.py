@@ -8,6 +8,9 @@ The task calls the other parts as subroutines and decides, after each, what come
 * after the first leg met the boundary: an edge walk (:mod:`.walk`) for where an iso-line
   comes back in, traced on the same way; otherwise, or when the walk finds none, back to
   the entry and the second leg the other way;
+* after the first leg lost the contour for good, or came onto an earlier trace's track
+  (the iso-line goes on both ways from the entry, and only one is known to be traced):
+  back to the entry and the second leg the other way;
 * after any other end: the task's status and its event.
 """
 
@@ -32,8 +35,10 @@ from .records import (
     EV_FOUND,
     EV_LENGTH_LIMIT,
     EV_LOST,
+    EV_LOST_OTHER,
     EV_LOST_SEARCHING,
     EV_NOT_FOUND,
+    EV_PRIOR_OTHER,
     EV_REACQUIRED,
     LENGTH_LIMIT,
     LOST,
@@ -114,8 +119,25 @@ def _after_search(ctl, params, task, cr, tr, lg, b, fv: np.ndarray, fr: np.ndarr
 
 
 @njit(cache=True)
+def _other_way(ctl, params, ft, tr, b, events: np.ndarray, code: int) -> bool:
+    """After the first leg ended where the iso-line goes on (lost for good, or onto an
+    earlier trace's track): back to the entry and the second leg the other way, as after
+    the boundary (unless that way leaves the area at once). False on the second leg."""
+    if tr.side < 0.0 or tr.back_edge_m <= params.edge_skip_m:
+        return False
+    _emit(ctl, events, code)
+    tr.reacquired = 0
+    fly.call(ctl, ft, b, tr.start_x, tr.start_y, TRANSIT, 0.5, params.transit_speed_mps,
+             PC_TR_AFTER_RETURN)
+    return True
+
+
+@njit(cache=True)
 def _after_leg(ctl, params, task, ft, cr, sr, tr, lg, wk, b, events: np.ndarray) -> None:
     status = lg.status
+    if status == CLOSED and lg.onto_prior and _other_way(ctl, params, ft, tr, b, events,
+                                                          EV_PRIOR_OTHER):
+        return
     if status == LOST:
         if params.recover_m > 0.0 and ctl.traced_m - tr.lost_at_m > REACQUIRE_RESET_M:
             tr.reacquired = 0  # held the iso-line long enough since the last loss
@@ -131,6 +153,8 @@ def _after_leg(ctl, params, task, ft, cr, sr, tr, lg, wk, b, events: np.ndarray)
                 return
             search.call(ctl, cr, sr, task.level, b.x_m, b.y_m, params.reacquire_radius_m,
                         PC_TR_AFTER_REACQUIRE)
+            return
+        if _other_way(ctl, params, ft, tr, b, events, EV_LOST_OTHER):
             return
     if status == BOUNDARY and tr.side > 0 and tr.back_edge_m > params.edge_skip_m:
         # before the flight back: along the edge, the area's inside on the left as
@@ -212,7 +236,7 @@ def pre(ctl, params, task, ft, cr, sr, tr, lg, wk, b, fv: np.ndarray, fr: np.nda
                 tr.slow_until_m = ctl.traced_m + params.recover_m
             leg.call_from_crossing(ctl, params, tr, lg, cr, b,
                                    heading_from_gradient(cr.gx, cr.gy, tr.side), tr.side)
-        else:
+        elif not _other_way(ctl, params, ft, tr, b, events, EV_LOST_OTHER):
             ctl.status = LOST
             ctl.pc = PC_TR_END
     elif pc == PC_TR_AFTER_RETURN:
