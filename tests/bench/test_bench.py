@@ -162,13 +162,14 @@ def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
     tables (and would be flown again); ``--any-code`` keeps it and names its commit. The
     rows round-trip through a gzip file written a row at a time."""
     import noise
+    import noise_flights
 
     def survey(seed: int) -> dict:
         row = {"kind": "survey", "field": "plume", "seed": seed, "noise": 1.0,
                "variant": "", "to_iso": {"flight_m": 1000.0, "lines": 9},
                "scanned": [{"flight_m": 900.0, "mae_db": -10.0, "iso": [0.4] * 3, "iso_mean": 0.4,
                             "lines": 9, "noise_std": 1.0}]}
-        return {**row, **noise.provenance("plume", 1.0, "", survey=True)}
+        return {**row, **noise_flights.provenance("plume", 1.0, "", survey=True)}
 
     path = tmp_path / "rows.jsonl.gz"
     good, other_code, other_sensor = survey(1), survey(2), survey(3)
@@ -177,13 +178,13 @@ def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
     for row in (good, other_code, other_sensor):
         saved_rows.append_row(path, row)
     assert [r["seed"] for r in saved_rows.read_rows(path)] == [1, 2, 3]
-    assert [noise.current(r) for r in saved_rows.read_rows(path)] == [True, False, False]
-    assert noise.current(good) and good["code"] == saved_rows.survey_code()
+    assert [noise_flights.current(r) for r in saved_rows.read_rows(path)] == [True, False, False]
+    assert noise_flights.current(good) and good["code"] == saved_rows.survey_code()
     # a planner run is stamped with the code a run runs (the tracer, the planners too)
     run = {"kind": "run", "field": "plume", "seed": 1, "noise": 1.0, "variant": "",
-           **noise.provenance("plume", 1.0, "")}
-    assert noise.current(run) and run["code"] == saved_rows.run_code() != saved_rows.survey_code()
-    assert not noise.current({**run, "code": saved_rows.survey_code()})
+           **noise_flights.provenance("plume", 1.0, "")}
+    assert noise_flights.current(run) and run["code"] == saved_rows.run_code() != saved_rows.survey_code()
+    assert not noise_flights.current({**run, "code": saved_rows.survey_code()})
 
     noise.main(["--from-json", str(path), "--fields", "plume"])
     out = capsys.readouterr()
