@@ -401,11 +401,13 @@ def _next_batch(run_dir: Path, opts: ExportOptions) -> list[ExportedMission]:
         raise EcondorError(f"{path}: the next batch is empty (nothing left to fly)")
     plans = _split(jobs, mission, opts.vehicles, 1000 * iteration)
     lag = _corrected_lag_s(_read_summary(run_dir))
-    unknown = lag is None and mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE
-    if lag is not None or unknown:
-        # as the station tells it (a run that estimates the lag and has no usable estimate:
-        # a lag of unknown size)
-        plans = [[dataclasses.replace(t, sensor_lag_s=lag or 0.0, lag_unknown=unknown)
+    told: tuple[float, bool] | None = (lag, False) if lag is not None and lag > 0.0 else None
+    if mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE:
+        # as the station tells it (``Dfc._told_lag``): the estimate, 0 included; with no
+        # usable estimate, a lag of unknown size
+        told = (lag, False) if lag is not None else (0.0, True)
+    if told is not None:
+        plans = [[dataclasses.replace(t, sensor_lag_s=told[0], lag_unknown=told[1])
                   if isinstance(t, TraceTask) else t for t in p] for p in plans]
     return [ExportedMission(f"next{iteration:02d}_v{k + 1}", _mission_items(mission, p, opts))
             for k, p in enumerate(plans) if p]
@@ -413,11 +415,11 @@ def _next_batch(run_dir: Path, opts: ExportOptions) -> list[ExportedMission]:
 
 def _corrected_lag_s(summary: dict[str, Any]) -> float | None:
     """The sensor lag (s) the run's station corrected the samples for at its end
-    (``summary.json`` ``lag_s``), which the tracer is to be told; None when there was none
-    (left in, zero, or no estimate yet)."""
+    (``summary.json`` ``lag_s``: 0 when it corrected none); None when it has none (no
+    estimate yet)."""
     lag = summary.get("lag_s")
     if isinstance(lag, bool) or not isinstance(lag, int | float) or not math.isfinite(lag) \
-            or lag <= 0.0:
+            or lag < 0.0:
         return None
     return float(lag)
 

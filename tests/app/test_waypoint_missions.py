@@ -160,6 +160,12 @@ def test_export_next_batch_as_waypoints_and_as_trace_items(tmp_path, capsys):
     assert export_cli(export_args(run, tmp_path / "est.waypoints", style="trace")) == 0
     told = [it for it in read_wpl(tmp_path / "est.waypoints") if it.command == 31013]
     assert [(it.param1, it.param2) for it in told] == [(0.0, 1.0)]
+    # ... and once it has estimated 0, a known lag of 0 (as the station tells it)
+    (run / "summary.json").write_text(json.dumps({**summary, "lag_s": 0.0}))
+    assert export_cli(export_args(run, tmp_path / "est0.waypoints", style="trace")) == 0
+    told = [it for it in read_wpl(tmp_path / "est0.waypoints") if it.command == 31013]
+    assert [(it.param1, it.param2) for it in told] == [(0.0, 0.0)]
+    (run / "summary.json").write_text(json.dumps(summary))
     (run / "mission.yaml").write_text(mission_yaml)
     # two aircraft: two files
     export_cli(export_args(run, str(tmp_path / "two") + "/", vehicles=2))
