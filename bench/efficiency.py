@@ -35,7 +35,10 @@ in .gz), appended as each finishes, stamped with the job, the fingerprint of the
 ran and the commit (:mod:`saved_rows`); a job already there, flown by this code, is not
 flown again. ``--from-json`` makes the report from such files alone: rows of other code
 are set aside unless ``--any-code`` (the report names the commits every row was flown
-at).
+at). ``--restamp K`` lets the asked-for rows of other code stand after a change that cannot
+touch their flights (a refactor): K of them, spread over fields, kinds and seeds, are flown
+again, and only if every one comes out as saved are they all stamped with the current code
+(:func:`saved_rows.restamp`).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ import os
 import sys
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,6 +85,8 @@ from saved_rows import (  # noqa: E402
     commit,
     current_code,
     load,
+    read_rows,
+    restamp,
 )
 from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
@@ -165,6 +170,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--any-code", action="store_true",
                    help="keep saved rows flown with other code (the report names the "
                         "commits every row was flown at)")
+    p.add_argument("--restamp", type=int, default=0, metavar="K",
+                   help="with --json: fly K of the asked-for rows of other code again and, "
+                        "if each comes out as saved, stamp them all with this code")
     p.add_argument("--figures", default=None, help="draw MAE-against-distance figures here")
     p.add_argument("--quick", action="store_true", help="2 seeds, 3 km budget")
     p.add_argument("--markdown", action="store_true", help="print Markdown tables")
@@ -237,32 +245,23 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     keyed = {job_key("survey", j): ("survey", j) for j in survey_jobs}
     keyed.update({job_key("run", j): ("run", j) for j in jobs})
+    if a.restamp:
+        return restamp_rows(a, keyed)
     saved: dict[str, dict[str, Any]] = {}
     src = a.from_json or a.json
     if src:
         saved = {r["job"]: r for r in load(src, current_code, a.any_code) if r.get("job") in keyed}
     todo = [] if a.from_json else [(k, kind, j) for k, (kind, j) in keyed.items()
                                    if k not in saved]
-    if todo:
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=a.workers, mp_context=ctx) as pool:
-            fly: dict[str, Callable[[Any], dict[str, Any]]] = {"survey": scan_survey,
-                                                                "run": run_planner}
-            futs = {pool.submit(fly[kind], j): (k, kind, j) for k, kind, j in todo}
-            for n, fut in enumerate(as_completed(futs), 1):
-                k, kind, j = futs[fut]
-                row = {"kind": kind, "job": k, **fut.result(),
-                       "code": code_of(kind),
-                       "commit": commit()}
-                saved[k] = row
-                if a.json:
-                    append_row(Path(a.json), row)
-                what = (f"surveys {j[0]} {j[1]}" if kind == "survey" else
-                        f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}")
-                print(f"[{n}/{len(todo)}] {what} {time.perf_counter() - t0:.0f} s",
-                      file=sys.stderr, flush=True)
+    for n, (k, row) in enumerate(fly_jobs(todo, a.workers), 1):
+        saved[k] = row
+        if a.json:
+            append_row(Path(a.json), row)
+        kind, j = keyed[k]
+        what = (f"surveys {j[0]} {j[1]}" if kind == "survey" else
+                f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}")
+        print(f"[{n}/{len(todo)}] {what} {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
     missing = [k for k in keyed if k not in saved]
     if missing:
         print(f"{len(missing)} of the {len(keyed)} runs and survey scans asked for are not "
@@ -311,6 +310,48 @@ def main(argv: list[str] | None = None) -> int:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(text, encoding="utf-8")
     return 0
+
+
+def fly_jobs(todo: list[tuple[str, str, Job]], workers: int
+             ) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Fly ``todo`` (key, kind, job) on ``workers`` spawned processes; each row (stamped
+    with its code and the commit) with its key, as it finishes."""
+    if not todo:
+        return
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        fly: dict[str, Callable[[Any], dict[str, Any]]] = {"survey": scan_survey,
+                                                            "run": run_planner}
+        futs = {pool.submit(fly[kind], j): (k, kind) for k, kind, j in todo}
+        for fut in as_completed(futs):
+            k, kind = futs[fut]
+            yield k, {"kind": kind, "job": k, **fut.result(), "code": code_of(kind),
+                      "commit": commit()}
+
+
+def restamp_rows(a: argparse.Namespace, keyed: dict[str, tuple[str, Job]]) -> int:
+    """``--restamp``: the asked-for rows in ``--json`` of other code stand if ``--restamp``
+    of them, flown again, come out as saved (:func:`saved_rows.restamp`)."""
+    if not a.json:
+        print("efficiency.py: --restamp needs --json (the rows to check)", file=sys.stderr)
+        return 2
+    stale = [r for r in read_rows(Path(a.json))
+             if r.get("job") in keyed and not current_code(r)]
+    if not stale:
+        print("efficiency.py: no asked-for row of other code to restamp", file=sys.stderr)
+        return 2
+
+    def again(picked: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        todo = [(r["job"], *keyed[r["job"]]) for r in picked]
+        flown = dict(fly_jobs(todo, a.workers))
+        return [flown[r["job"]] for r in picked]
+
+    ok, line = restamp(Path(a.json), stale, a.restamp, again,
+                       lambda r: code_of(str(r["kind"])), commit())
+    print(line, file=sys.stderr)
+    return 0 if ok else 1
 
 
 def job_key(kind: str, job: tuple[Any, ...]) -> str:

@@ -163,8 +163,9 @@ def same_flight(a: dict[str, Any], b: dict[str, Any]) -> bool:
 def spread(rows: Sequence[dict[str, Any]], k: int) -> list[dict[str, Any]]:
     """``k`` of ``rows`` spread evenly over them in the order of their kind, field,
     condition, planner and seed (all when there are no more)."""
-    order = sorted(rows, key=lambda r: (r["kind"], r["field"], r["noise"], r["variant"],
-                                        r.get("planner", ""), r["seed"]))
+    order = sorted(rows, key=lambda r: (r["kind"], r["field"], r.get("noise", 0.0),
+                                        r.get("variant", ""), r.get("planner", ""),
+                                        r["seed"], r.get("job", "")))
     if len(order) <= k:
         return order
     return [order[(2 * i + 1) * len(order) // (2 * k)] for i in range(k)]
@@ -197,5 +198,9 @@ def restamp(path: Path, stale: Sequence[dict[str, Any]], k: int,
 
 
 def _key(row: dict[str, Any]) -> tuple[Any, ...]:
+    """What tells a saved row from the others: its job (``bench/efficiency.py``), or its
+    kind, field, seed, planner and condition (``bench/noise.py``), and its code."""
+    if "job" in row:
+        return (row["job"], row.get("code"))
     return (row["kind"], row["field"], row["seed"], row.get("planner", ""), row["noise"],
             row["variant"], row.get("code"))

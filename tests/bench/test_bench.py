@@ -252,3 +252,43 @@ def test_efficiency_rows_are_named_by_their_job_and_set_aside_when_of_other_code
     err = capsys.readouterr().err
     assert "1 saved rows flown with other code set aside (commits abc)" in err
     assert "2 of the 2 runs and survey scans asked for are not in the saved rows" in err
+
+
+@pytest.mark.parametrize("same", [True, False], ids=["as-saved", "differs"])
+def test_efficiency_restamp_flies_a_spread_of_the_asked_for_stale_rows_again(
+        tmp_path, monkeypatch, capsys, same):
+    """``efficiency.py --restamp K``: of the asked-for rows of other code (not those of
+    other fields), K spread over them are flown again by their jobs; the rows stand with the
+    current code only if each comes out as saved."""
+    import efficiency
+
+    argv = ["--fields", "plume,paper", "--seeds", "3:6", "--threshold-only"]
+    jobs, scans = efficiency.jobs_of(efficiency.parse_args(argv))
+    path = tmp_path / "rows.jsonl.gz"
+    saved = [{"kind": kind, "job": efficiency.job_key(kind, j), "field": j[0], "seed": j[1],
+              "rows": [{"iso_target": 0.1 * j[1]}], "code": "old", "commit": "c0"}
+             for kind, js in (("run", jobs), ("survey", scans)) for j in js]
+    other = {**saved[0], "job": "another field's", "field": "front"}
+    for r in [*saved, other]:
+        saved_rows.append_row(path, r)
+    flown: list[str] = []
+
+    def fly(todo, workers):
+        for key, kind, job in todo:
+            flown.append(key)
+            row = next(r for r in saved if r["job"] == key)
+            yield key, {**row, "rows": [{"iso_target": 0.1 * job[1] + (0 if same else 1)}],
+                        "code": efficiency.code_of(kind), "commit": "c1"}
+
+    monkeypatch.setattr(efficiency, "fly_jobs", fly)
+    code = efficiency.main([*argv, "--json", str(path), "--restamp", "3"])
+    assert len(flown) == 3 and len(set(flown)) == 3 and other["job"] not in flown
+    back = saved_rows.read_rows(path)
+    err = capsys.readouterr().err
+    if same:
+        assert code == 0 and "12 rows restamped" in err
+        assert [r["code"] == efficiency.code_of(r["kind"]) for r in back] == [True] * 12 + [False]
+        assert [r["rows"] for r in back] == [r["rows"] for r in [*saved, other]]
+    else:
+        assert code == 1 and "differs" in err
+        assert back == [*saved, other]
