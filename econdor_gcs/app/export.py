@@ -31,7 +31,6 @@ trace start points, and the area boundary ``Polygon`` when the run directory tel
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import re
@@ -47,9 +46,9 @@ from econdor_gcs.config import Mission, load_mission
 from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.geodesy import Origin
 from econdor_gcs.core.geometry import Region
-from econdor_gcs.core.lag import LagCorrection
+from econdor_gcs.core.lag import tell_lag, told_lag
 from econdor_gcs.core.planners import Job, diagonal_jobs, survey_jobs
-from econdor_gcs.core.tasks import Task, TaskStyle, TraceTask
+from econdor_gcs.core.tasks import Task, TaskStyle
 from econdor_gcs.errors import EcondorError, MissionError
 from econdor_gcs.files.autopilot_files import is_global_frame, is_home_item, write_plan, write_wpl
 from econdor_gcs.files.plans import read_next_batch, read_tasks
@@ -401,14 +400,7 @@ def _next_batch(run_dir: Path, opts: ExportOptions) -> list[ExportedMission]:
         raise EcondorError(f"{path}: the next batch is empty (nothing left to fly)")
     plans = _split(jobs, mission, opts.vehicles, 1000 * iteration)
     lag = _corrected_lag_s(_read_summary(run_dir))
-    told: tuple[float, bool] | None = (lag, False) if lag is not None and lag > 0.0 else None
-    if mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE:
-        # as the station tells it (``Dfc._told_lag``): the estimate, 0 included; with no
-        # usable estimate, a lag of unknown size
-        told = (lag, False) if lag is not None else (0.0, True)
-    if told is not None:
-        plans = [[dataclasses.replace(t, sensor_lag_s=told[0], lag_unknown=told[1])
-                  if isinstance(t, TraceTask) else t for t in p] for p in plans]
+    plans = tell_lag(plans, told_lag(mission.vehicles.sensor.lag_correction, lag))
     return [ExportedMission(f"next{iteration:02d}_v{k + 1}", _mission_items(mission, p, opts))
             for k, p in enumerate(plans) if p]
 

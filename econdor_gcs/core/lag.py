@@ -46,6 +46,7 @@ when and on what.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -56,7 +57,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from .geometry import FloatArray
-from .tasks import SampleLog
+from .tasks import SampleLog, Task, TraceTask
 
 GAP_S = 1.0
 """A pause in a vehicle's samples longer than this (and than 5 sample periods) separates
@@ -77,6 +78,36 @@ class LagCorrection(StrEnum):
     DECONVOLVE = "deconvolve"
     ESTIMATE = "estimate"
     NONE = "none"
+
+
+def told_lag(correction: str, lag_s: float | None) -> tuple[float, bool] | None:
+    """The sensor lag the onboard tracer is to trace with, as ``(sensor_lag_s,
+    lag_unknown)``, for a station that corrects its samples the ``correction`` way for
+    ``lag_s`` (s; None or NaN: no usable estimate yet). With an estimated lag, the estimate,
+    0 included (a tracer told of an unknown lag before is told it is known now), or with
+    none yet a lag of unknown size (``(0.0, True)``: the tracer's filter is set for a lag,
+    compensating none); otherwise the lag corrected for, and None when that is none (the
+    tracer keeps its own setting).
+
+    >>> told_lag(LagCorrection.ESTIMATE, 0.0), told_lag(LagCorrection.ESTIMATE, None)
+    ((0.0, False), (0.0, True))
+    >>> told_lag(LagCorrection.DECONVOLVE, 1.0), told_lag(LagCorrection.NONE, 0.0)
+    ((1.0, False), None)
+    """
+    usable = lag_s is not None and math.isfinite(lag_s)
+    if correction == LagCorrection.ESTIMATE:
+        return (float(lag_s), False) if usable and lag_s is not None else (0.0, True)
+    return (float(lag_s), False) if usable and lag_s is not None and lag_s > 0.0 else None
+
+
+def tell_lag(plans: list[list[Task]], told: tuple[float, bool] | None) -> list[list[Task]]:
+    """``plans`` with every trace task carrying ``told`` (:func:`told_lag`); as they are
+    when that is None."""
+    if told is None:
+        return plans
+    lag, unknown = told
+    return [[dataclasses.replace(t, sensor_lag_s=lag, lag_unknown=unknown)
+             if isinstance(t, TraceTask) else t for t in plan] for plan in plans]
 
 
 NOISE_DIFFERENCE = 4

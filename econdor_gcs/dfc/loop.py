@@ -58,7 +58,7 @@ from econdor_gcs.core.adaptive import AdaptiveParams, adaptive_planner
 from econdor_gcs.core.assignment import assign_jobs
 from econdor_gcs.core.fields import Field
 from econdor_gcs.core.geometry import FloatArray
-from econdor_gcs.core.lag import LagCorrection, correct_lag, estimate_lag
+from econdor_gcs.core.lag import LagCorrection, correct_lag, estimate_lag, tell_lag, told_lag
 from econdor_gcs.core.planners import (
     Batch,
     ContourPlanner,
@@ -300,28 +300,14 @@ class Dfc:
         return [dataclasses.replace(r, samples=correct_lag(
             r.samples, sensor.lag_s, LagCorrection(sensor.lag_correction))) for r in reports]
 
-    def _told_lag(self) -> tuple[float, bool] | None:
-        """The sensor lag the onboard tracer is to trace with, as ``(sensor_lag_s,
-        lag_unknown)``: the one the station corrects the samples for (the mission's known
-        lag, or the last usable estimate, 0 included: a tracer told of an unknown lag before
-        is told that it is known now); with an estimated lag and no usable estimate yet, a
-        lag of unknown size (``(0.0, True)``: the tracer's filter is set for a lag,
-        compensating none); None when it corrects for none (the tracer keeps its own
-        setting)."""
-        if self.mission.vehicles.sensor.lag_correction == LagCorrection.ESTIMATE:
-            self._samples()  # brings :attr:`lag_s` up to every sample so far
-            return (self.lag_s, False) if math.isfinite(self.lag_s) else (0.0, True)
-        return (self.lag_s, False) if self.lag_s > 0.0 else None
-
     def _tell_lag(self, plans: list[list[Task]]) -> list[list[Task]]:
-        """``plans`` with every trace task carrying :meth:`_told_lag`; as they are when
-        that is None."""
-        told = self._told_lag()
-        if told is None:
-            return plans
-        lag, unknown = told
-        return [[dataclasses.replace(t, sensor_lag_s=lag, lag_unknown=unknown)
-                 if isinstance(t, TraceTask) else t for t in plan] for plan in plans]
+        """``plans`` with every trace task carrying the sensor lag the onboard tracer is to
+        trace with (:func:`~econdor_gcs.core.lag.told_lag`): the one the station corrects
+        the samples for, the last usable estimate with an estimated lag."""
+        correction = self.mission.vehicles.sensor.lag_correction
+        if correction == LagCorrection.ESTIMATE:
+            self._samples()  # brings :attr:`lag_s` up to every sample so far
+        return tell_lag(plans, told_lag(correction, self.lag_s))
 
     def _positions(self, iteration: int) -> list[tuple[float, float]]:
         """Where the vehicles are when ``iteration`` is planned (recorded ones on replay)."""
