@@ -24,9 +24,9 @@ logic brakes before it, whatever the vehicle is doing). MISSION_START is DENIED,
 STATUSTEXT "Geofence violation for waypoint N", while an item to be flown lies outside it.
 
 Parameters (REAL32): SPEED_MPS, SAMPLE_HZ, SEARCH_RAD_M, TEL_RATE_HZ, NOISE_STD, ALT_M,
-SPEEDUP, LAG_S, POS_STD_M, POS_TAU_S. SAMPLE_HZ and the sensor's (NOISE_STD, LAG_S,
-POS_STD_M, POS_TAU_S: :mod:`sim_vehicle.sensor`) apply from the next mission item (or at
-once when idle).
+SPEEDUP, LAG_S, POS_STD_M, POS_TAU_S (:mod:`sim_vehicle.params`). SAMPLE_HZ and the sensor's
+(NOISE_STD, LAG_S, POS_STD_M, POS_TAU_S: :mod:`sim_vehicle.sensor`) apply from the next
+mission item (or at once when idle).
 """
 
 from __future__ import annotations
@@ -52,10 +52,9 @@ from .body import Sample
 from .fence import Fence
 from .mission_server import FENCE, MISSION, STOCK_COMMANDS, SUPPORTED_COMMANDS, MissionServer
 from .navigator import Activity, ModeFlow, Navigator
+from .params import Parameters
 from .state import (
     GCS_FAILSAFE_ACTIONS,
-    PARAM_NAMES,
-    SENSOR_PARAMS,
     FlightMode,
     VehicleSettings,
     VehicleState,
@@ -77,20 +76,11 @@ ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED
 FAILED = mavlink.MAV_RESULT_FAILED
 UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
-_ZERO_OK = ("NOISE_STD", "LAG_S", "POS_STD_M", "GCS_FS_ACT")
-"""Parameters that may be 0 (a perfect sensor); every other one must be > 0."""
 
 
 def _code(value: float) -> int | None:
     """A command param holding an integer code (magic numbers), or None (NaN, inf)."""
     return int(value) if math.isfinite(value) else None
-
-
-def _param_id(msg: Any) -> str:
-    pid = msg.param_id
-    if isinstance(pid, bytes):
-        pid = pid.decode("ascii", "replace")
-    return str(pid).rstrip("\x00")
 
 
 class Autopilot:
@@ -159,6 +149,7 @@ class Autopilot:
         """The last COMMAND_LONG run (sender, command, params) and its result: a resend of it
         (``confirmation`` > 0) is answered, not run again."""
         self.unhandled: dict[str, int] = {}
+        self.params = Parameters(self.state, self.outbox, self.counters)
 
     # -- the personality's part ----------------------------------------------------------------
 
@@ -547,60 +538,6 @@ class Autopilot:
         mavlink.MAV_CMD_GET_HOME_POSITION: _cmd_home,
     }
 
-    # -- parameters ----------------------------------------------------------------------------
-
-    def _param_msg(self, name: str) -> Any:
-        return mavlink.MAVLink_param_value_message(
-            name.encode(), float(self.state.params[name]), mavlink.MAV_PARAM_TYPE_REAL32,
-            len(PARAM_NAMES), PARAM_NAMES.index(name))
-
-    def _on_param_request_list(self, msg: Any) -> None:
-        for name in PARAM_NAMES:
-            self.outbox.put(self._param_msg(name))
-
-    def _on_param_request_read(self, msg: Any) -> None:
-        if 0 <= msg.param_index < len(PARAM_NAMES):
-            self.outbox.put(self._param_msg(PARAM_NAMES[msg.param_index]))
-            return
-        name = _param_id(msg)
-        if name in self.state.params:
-            self.outbox.put(self._param_msg(name))
-        else:
-            self.counters["rx_unhandled"] += 1
-
-    def _on_param_set(self, msg: Any) -> None:
-        name = _param_id(msg)
-        st = self.state
-        if name not in st.params:
-            self.outbox.statustext(f"unknown parameter {name}", mavlink.MAV_SEVERITY_WARNING)
-            return
-        value = float(msg.param_value)
-        ok = math.isfinite(value) and (value >= 0 if name in _ZERO_OK else value > 0)
-        if name == "GCS_FS_ACT":
-            ok = ok and value in GCS_FAILSAFE_ACTIONS.values()
-        if name == "SPEED_MPS":
-            ok = ok and value <= st.settings.max_speed_mps
-        if name == "SAMPLE_HZ":
-            ok = ok and value <= 1000.0
-        if ok:
-            self.set_param(name, value)
-        else:
-            self.outbox.statustext(f"{name}: rejected {value:g}", mavlink.MAV_SEVERITY_WARNING)
-        self.outbox.put(self._param_msg(name))
-
-    def set_param(self, name: str, value: float) -> None:
-        """Set a parameter (SPEEDUP: the I/O loop re-anchors its clock when it sees it change)."""
-        st = self.state
-        st.params[name] = value
-        if name == "SPEED_MPS":
-            st.speed_mps = value
-        elif name == "SAMPLE_HZ" or name in SENSOR_PARAMS:
-            st.body_dirty = True  # applied at the next item boundary / idle tick
-        elif name == "SEARCH_RAD_M":
-            st.settings.search_radius_m = value
-        elif name == "ALT_M":
-            st.settings.altitude_m = value
-
     _HANDLERS: dict[str, Callable[[Any, Any], None]] = {
         "HEARTBEAT": _on_heartbeat,
         "PING": _on_ping,
@@ -608,7 +545,7 @@ class Autopilot:
         "COMMAND_LONG": _on_command_long,
         "COMMAND_INT": _on_command_int,
         "SET_MODE": _on_set_mode,
-        "PARAM_REQUEST_LIST": _on_param_request_list,
-        "PARAM_REQUEST_READ": _on_param_request_read,
-        "PARAM_SET": _on_param_set,
+        "PARAM_REQUEST_LIST": lambda self, msg: self.params.on_request_list(msg),
+        "PARAM_REQUEST_READ": lambda self, msg: self.params.on_request_read(msg),
+        "PARAM_SET": lambda self, msg: self.params.on_set(msg),
     }
