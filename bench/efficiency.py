@@ -87,6 +87,7 @@ from saved_rows import (  # noqa: E402
     load,
     read_rows,
     restamp,
+    restamped,
 )
 from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
@@ -277,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
              + (f"read from {a.from_json}" if a.from_json else
                 f"in {wall:.0f} s on {a.workers} workers")
              + f", flown at {', '.join(sorted({str(r.get('commit')) for r in runs + surveys}))}"
+             + restamped(runs + surveys)
              + f"; reconstruction {a.reconstruction}, "
              f"adaptive settings {settings or 'the defaults'}. Surveys: every line count from 2 "
              f"up to {max_survey_lines(a.budget)}. Distances: everything flown behind an "

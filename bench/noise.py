@@ -82,7 +82,15 @@ from noise_flights import (  # noqa: E402
 )
 from report import Table, at_budget, stamp  # noqa: E402
 from runs import FIELDS, max_survey_lines, split_planners, split_variant  # noqa: E402
-from saved_rows import append_row, code_of, commit, load, read_rows, restamp  # noqa: E402
+from saved_rows import (  # noqa: E402
+    append_row,
+    code_of,
+    commit,
+    load,
+    read_rows,
+    restamp,
+    restamped,
+)
 from summaries import first_reached, fmt, median, ratio, share_within, stays_reached  # noqa: E402
 from surveys import best_within  # noqa: E402
 
@@ -453,14 +461,6 @@ def figures(out: Path, runs: list[dict[str, Any]], surveys: list[dict[str, Any]]
         plt.close(fig)
         paths.append(path)
     return paths
-
-
-def restamped(rows: list[dict[str, Any]]) -> str:
-    """What the report says of rows restamped (``--restamp``), if any."""
-    at = sorted({str(r["restamped"]) for r in rows if r.get("restamped")})
-    n = sum(1 for r in rows if r.get("restamped"))
-    return (f" ({n} of them checked to fly the same with the code of {', '.join(at)}: "
-            "a sample flown again came out as saved)") if at else ""
 
 
 def fmt_seeds(seeds: list[int]) -> str:

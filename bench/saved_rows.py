@@ -197,6 +197,14 @@ def restamp(path: Path, stale: Sequence[dict[str, Any]], k: int,
                   f"{n} rows restamped at {commit}")
 
 
+def restamped(rows: list[dict[str, Any]]) -> str:
+    """What the report says of rows restamped (``--restamp``), if any."""
+    at = sorted({str(r["restamped"]) for r in rows if r.get("restamped")})
+    n = sum(1 for r in rows if r.get("restamped"))
+    return (f" ({n} of them checked to fly the same with the code of {', '.join(at)}: "
+            "a sample flown again came out as saved)") if at else ""
+
+
 def _key(row: dict[str, Any]) -> tuple[Any, ...]:
     """What tells a saved row from the others: its job (``bench/efficiency.py``), or its
     kind, field, seed, planner and condition (``bench/noise.py``), and its code."""
