@@ -27,7 +27,9 @@ For each field and condition the report gives, medians over the seeds:
 * the iso-line error (m) at the middle level at 2 and 4 km;
 * threshold mode: the distance to an iso-line error <= 0.5 m at its level, as a multiple
   of the shortest survey's that gets there (stays, first), its final iso-line error and
-  how it stopped.
+  how it stopped;
+* for both multiples, the 90 % interval of the median (``summaries.median_interval``:
+  where the median over seeds not flown lies, whatever the distribution).
 
     python bench/noise.py --fields plume --noise 1 --planners adaptive --seeds 900:903
     python bench/noise.py --seeds 900:910 --cache runs/noise-surveys \\
@@ -91,7 +93,15 @@ from saved_rows import (  # noqa: E402
     restamp,
     restamped,
 )
-from summaries import first_reached, fmt, median, ratio, share_within, stays_reached  # noqa: E402
+from summaries import (  # noqa: E402
+    first_reached,
+    fmt,
+    fmt_interval,
+    median,
+    ratio,
+    share_within,
+    stays_reached,
+)
 from surveys import best_within  # noqa: E402
 
 from econdor_lab.study import parse_seeds  # noqa: E402
@@ -137,7 +147,8 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
     seeds = sorted(surveys)
     head = ["planner", *[f"MAE dB @{k:g} km" for k in CURVE_KM], "4 km ≤ 2 km", "falls",
             "× survey to its 4 km MAE, stays (first)", f"≤ {GOAL_MAP}×, stays",
-            "iso m @2 km", "iso m @4 km", "noise found"]
+            "iso m @2 km", "iso m @4 km", "noise found",
+            "4 km MAE × survey: median's 90 % interval"]
     table = Table(head)
     summary = []
     for pl in [*planners, "best survey"]:
@@ -156,7 +167,7 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
             noise = _nanmedian([surveys[s]["scanned"][-1]["noise_std"] for s in seeds])
             table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(seeds)}",
                        "yes" if falls(meds) else "no",
-                       "1", "—", fmt(iso2, ".2f"), fmt(iso4, ".2f"), fmt(noise, ".3f")])
+                       "1", "—", fmt(iso2, ".2f"), fmt(iso4, ".2f"), fmt(noise, ".3f"), "—"])
             continue
         rs = [r for r in runs if r["planner"] == pl and r["seed"] in surveys]
         if not rs:
@@ -184,7 +195,8 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
         table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(rs)}",
                    "yes" if falls(meds) else "no",
                    f"{fmt(median(stays_r), '.2f')} ({fmt(median(first_r), '.2f')})",
-                   f"{within}/{n}", fmt(iso[0], ".2f"), fmt(iso[1], ".2f"), fmt(noise, ".3f")])
+                   f"{within}/{n}", fmt(iso[0], ".2f"), fmt(iso[1], ".2f"), fmt(noise, ".3f"),
+                   fmt_interval(stays_r)])
         summary.append({"planner": pl, "mae_db": meds, "no_worse": no_worse, "runs": len(rs),
                         "ratio_stays": median(stays_r), "ratio_first": median(first_r)})
     return table.lines(md), summary
@@ -194,7 +206,8 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
                     mappers: list[str], md: bool) -> list[str]:
     """Threshold mode under one condition against the shortest survey to 0.5 m."""
     table = Table(["mapper", "runs", "× survey, stays (first)", f"≤ {GOAL_THRESHOLD}×, stays",
-                   "km, stays", "survey km", "final iso m", "pieces missed", "stops"])
+                   "km, stays", "survey km", "final iso m", "pieces missed", "stops",
+                   "iso × survey: median's 90 % interval"])
 
     def ok(row: dict[str, Any]) -> bool:
         return bool(row["iso_target"] <= ISO_TARGET_M)
@@ -220,7 +233,8 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
                    f"{fmt(median(stays_r), '.3f')} ({fmt(median(first_r), '.3f')})",
                    f"{within}/{n}", fmt(median(km), ".2f"), fmt(median(skm), ".2f"),
                    fmt(_nanmedian(final), ".2f"), fmt(sum(missed), ".0f"),
-                   ", ".join(f"{k} {v}" for k, v in sorted(stops.items()))])
+                   ", ".join(f"{k} {v}" for k, v in sorted(stops.items())),
+                   fmt_interval(stays_r, ".3f")])
     return table.lines(md)
 
 
@@ -398,7 +412,9 @@ def main(argv: list[str] | None = None) -> int:
              "run that never gets there is ∞). 'iso m': the iso-line error at the middle "
              "level (the survey: of its best 2 / 4 km estimate by mean iso-line error). "
              "Threshold mode: distance to an iso-line error ≤ 0.5 m at the middle level over "
-             "the shortest survey's that maps it so.",
+             "the shortest survey's that maps it so. 'Median's 90 % interval': where the "
+             "median over seeds not flown lies, with at least 90 % confidence (from the order "
+             "statistics of the seeds' ratios, whatever their distribution).",
              *report(runs, surveys, md,
                      frozenset(parse_seeds(a.fresh)) if a.fresh else frozenset())]
     if a.figures:

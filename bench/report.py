@@ -15,7 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from runs import ROOT
-from summaries import first_reached, fmt, median, ratio, share_within, stays_reached
+from summaries import (
+    first_reached,
+    fmt,
+    fmt_interval,
+    median,
+    ratio,
+    share_within,
+    stays_reached,
+)
 
 TARGETS_DB = (-10.0, -20.0, -30.0)
 ISO_TARGET_M = 0.5
@@ -216,20 +224,25 @@ def threshold_tables(field: str, runs: list[dict[str, Any]], surveys: dict[int, 
                         "median_first": median(first_r), "half_first": half_first,
                         "ahead": sum(x < 1.0 for x in stays_r),
                         "never": sum(math.isinf(x) for x in stays_r),
-                        "median_km": median(stays_km), "survey_km": median(survey_km)})
+                        "median_km": median(stays_km), "survey_km": median(survey_km),
+                        "interval_stays": fmt_interval(stays_r, ".3f")})
     table = Table(["field", "mapper", "runs", "median × survey, stays",
                    f"≤ {GOAL}×, stays", "median × survey, first", f"≤ {GOAL}×, first",
                    "ahead of survey, stays", "never stays ≤ target", "median km, stays",
-                   "median survey km"])
+                   "median survey km", "median's 90 % interval, stays"])
     for s in summary:
         table.add([s["field"], s["mapper"], str(s["runs"]), fmt(s["median_stays"], ".3f"),
                    f"{s['half_stays']}/{s['runs']}", fmt(s["median_first"], ".3f"),
                    f"{s['half_first']}/{s['runs']}", f"{s['ahead']}/{s['runs']}",
-                   str(s["never"]), fmt(s["median_km"], ".3f"), fmt(s["survey_km"], ".3f")])
+                   str(s["never"]), fmt(s["median_km"], ".3f"), fmt(s["survey_km"], ".3f"),
+                   s["interval_stays"]])
     head = [f"Threshold mapping: the distance to a mean iso-line error ≤ {ISO_TARGET_M} m at the "
             "middle level, as a multiple of the best survey's for that seed (the shortest "
             "survey, of every line count, whose estimate gets there). Stays: from that "
             "estimate on, every later one to the end of the run is ≤ the target too; first: "
-            "the first estimate that is. A run that never gets there counts as ∞.", "",
+            "the first estimate that is. A run that never gets there counts as ∞. The "
+            "median's 90 % interval: where the median over seeds not flown lies, with at "
+            "least 90 % confidence (from the order statistics, whatever the distribution).",
+            "",
             *table.lines(md)]
     return head + out, summary

@@ -79,9 +79,41 @@ def median(values: Sequence[float]) -> float:
     return statistics.median(values) if values else math.nan
 
 
+def median_interval(values: Sequence[float], level: float = 0.9) -> tuple[float, float]:
+    """A distribution-free interval for the median of what the runs are drawn from (the
+    median over seeds not flown): ``[x_(k), x_(n+1-k)]`` of the sorted values, ``k`` the
+    largest with ``P(B < k) <= (1 - level) / 2`` for ``B ~ Binomial(n, 1/2)``, so that it
+    covers that median with probability at least ``level`` whatever the distribution
+    (Conover, *Practical Nonparametric Statistics*, 3rd ed., §3.2). Losses (``inf``)
+    count as the largest values. ``(nan, nan)`` when there are too few runs for ``level``.
+
+    >>> median_interval(range(1, 21))   # n = 20: the 6th and 15th (covers 95.9 %)
+    (6, 15)
+    >>> median_interval([1.0, 2.0, 3.0])
+    (nan, nan)
+    """
+    x = sorted(values)
+    n = len(x)
+    tail, k = 0.0, 0
+    while k < n:
+        tail += math.comb(n, k) / 2.0**n  # P(B <= k)
+        if tail > (1.0 - level) / 2.0:
+            break
+        k += 1
+    if k == 0:
+        return math.nan, math.nan
+    return x[k - 1], x[n - k]
+
+
 def share_within(ratios: Sequence[float], goal: float) -> tuple[int, int]:
     """How many of ``ratios`` are ``<= goal``, of how many."""
     return sum(r <= goal for r in ratios), len(ratios)
+
+
+def fmt_interval(values: Sequence[float], spec: str = ".2f") -> str:
+    """:func:`median_interval` of ``values`` for a table: ``lo–hi``, ``—`` when too few."""
+    lo, hi = median_interval(values)
+    return "—" if math.isnan(lo) else f"{fmt(lo, spec)}–{fmt(hi, spec)}"
 
 
 def fmt(x: float, spec: str = ".1f") -> str:

@@ -94,11 +94,13 @@ def block() -> str:
             "the distance the adaptive planner needs to reach the best 4 km survey's MAE, and "
             "threshold mode's distance to a 0.5 m iso-line error, each as a multiple of the "
             "best survey's flown with the same sensor (stays reached; first reached in "
-            "brackets; ∞: not reached within the budget) "
+            "brackets; ∞: not reached within the budget), with the 90 % interval of each "
+            "median (where the median over seeds not flown lies) "
             "([results/noise.md](docs/results/noise.md)):", "",
             "| field, sensor, seeds | adaptive @2 km | adaptive @4 km | best survey @2 km "
-            "| best survey @4 km | adaptive × survey | threshold × survey | threshold iso m |",
-            "|---|---|---|---|---|---|---|---|"]
+            "| best survey @4 km | adaptive × survey | 90 % interval | threshold × survey "
+            "| 90 % interval | threshold iso m |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     text = (RESULTS / noise).read_text(encoding="utf-8")
     field = ""
     for line in text.splitlines():
@@ -117,10 +119,11 @@ def block() -> str:
         try:
             cells = [get("adaptive", "MAE dB @2 km"), get("adaptive", "MAE dB @4 km"),
                      get("best survey", "MAE dB @2 km"), get("best survey", "MAE dB @4 km"),
-                     get("adaptive", "× survey to its 4 km MAE")]
+                     get("adaptive", "× survey to its 4 km MAE"),
+                     get("adaptive", "4 km MAE × survey: median's 90 % interval")]
         except LookupError:
             continue
-        for col in ("× survey, stays", "final iso m"):
+        for col in ("× survey, stays", "iso × survey: median's 90 % interval", "final iso m"):
             try:
                 cells.append(get("adaptive", col))
             except LookupError:
@@ -129,11 +132,13 @@ def block() -> str:
     out += ["", "**Threshold iso-line** (the middle level) — distance to a mean iso-line error "
             "≤ 0.5 m that stays reached, as a multiple of the best survey's, fresh seeds "
             "([results/threshold-fresh.md](docs/results/threshold-fresh.md)):", "",
-            "| field | × best survey (median) | runs ≤ 0.5× |", "|---|---|---|"]
+            "| field | × best survey (median) | median's 90 % interval | runs ≤ 0.5× |",
+            "|---|---|---|---|"]
     for field, name in (("paper", "paper field (eqs. 8–9)"), ("plume", "plumes"),
                         ("authors", "authors' generator")):
         under = (f"Field: {field}",)
         row = [read(Cell(thr, "Threshold mapping", field, "median × survey, stays", under)),
+               read(Cell(thr, "Threshold mapping", field, "median's 90 % interval", under)),
                read(Cell(thr, "Threshold mapping", field, "≤ 0.5×, stays", under))]
         out.append(f"| {name} | " + " | ".join(row) + " |")
     out += ["", "Made by `" + stamp(noise) + "` and `" + stamp(thr) + "`.", END]
