@@ -207,7 +207,7 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
     """Threshold mode under one condition against the shortest survey to 0.5 m."""
     table = Table(["mapper", "runs", "× survey, stays (first)", f"≤ {GOAL_THRESHOLD}×, stays",
                    "km, stays", "survey km", "final iso m", "pieces missed", "stops",
-                   "iso × survey: median's 90 % interval"])
+                   "iso × survey: median's 90 % interval", "× survey, to its own stop"])
 
     def ok(row: dict[str, Any]) -> bool:
         return bool(row["iso_target"] <= ISO_TARGET_M)
@@ -216,7 +216,7 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
         rs = [r for r in runs if r["planner"] == m and r["seed"] in surveys]
         if not rs:
             continue
-        stays_r, first_r, km, skm, final, missed = [], [], [], [], [], []
+        stays_r, first_r, km, skm, final, missed, stop_r = [], [], [], [], [], [], []
         stops: dict[str, int] = {}
         for r in rs:
             sv = surveys[r["seed"]]["to_iso"]["flight_m"]
@@ -226,6 +226,7 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
             km.append(stays / 1000)
             skm.append(sv / 1000)
             final.append(r["rows"][-1]["iso_target"])
+            stop_r.append(r["rows"][-1]["flight_m"] / sv if math.isfinite(sv) else math.nan)
             missed.append(r["rows"][-1]["target_missed"])
             stops[r["stop"]] = stops.get(r["stop"], 0) + 1
         within, n = share_within(stays_r, GOAL_THRESHOLD)
@@ -234,7 +235,7 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
                    f"{within}/{n}", fmt(median(km), ".2f"), fmt(median(skm), ".2f"),
                    fmt(_nanmedian(final), ".2f"), fmt(sum(missed), ".0f"),
                    ", ".join(f"{k} {v}" for k, v in sorted(stops.items())),
-                   fmt_interval(stays_r, ".3f")])
+                   fmt_interval(stays_r, ".3f"), fmt(_nanmedian(stop_r), ".2f")])
     return table.lines(md)
 
 
@@ -414,7 +415,9 @@ def main(argv: list[str] | None = None) -> int:
              "Threshold mode: distance to an iso-line error ≤ 0.5 m at the middle level over "
              "the shortest survey's that maps it so. 'Median's 90 % interval': where the "
              "median over seeds not flown lies, with at least 90 % confidence (from the order "
-             "statistics of the seeds' ratios, whatever their distribution).",
+             "statistics of the seeds' ratios, whatever their distribution). 'To its own stop': "
+             "all threshold mode flew until it stopped by itself (it does not know when the "
+             "error is within the target), over the same survey distance.",
              *report(runs, surveys, md,
                      frozenset(parse_seeds(a.fresh)) if a.fresh else frozenset())]
     if a.figures:

@@ -198,7 +198,7 @@ def threshold_tables(field: str, runs: list[dict[str, Any]], surveys: dict[int, 
         table = Table(["seed", "level", "km, stays", "km, first", "survey km (lines)",
                        "× survey, stays", "× survey, first", "final iso m", "pieces missed",
                        "stop", "flown km"])
-        stays_r, first_r, stays_km, survey_km = [], [], [], []
+        stays_r, first_r, stays_km, survey_km, stop_r = [], [], [], [], []
         for r in mine:
             sv = surveys[r["seed"]]["to_iso"]
             stays = stays_reached(r["rows"], ok, budget_m)
@@ -208,6 +208,8 @@ def threshold_tables(field: str, runs: list[dict[str, Any]], surveys: dict[int, 
             stays_km.append(stays / 1000)
             survey_km.append(sv["flight_m"] / 1000)
             last = r["rows"][-1]
+            if math.isfinite(sv["flight_m"]):  # else no survey to measure its stop by
+                stop_r.append(last["flight_m"] / sv["flight_m"])
             table.add([str(r["seed"]), fmt(r["target"]), fmt(stays / 1000, ".3f"),
                        fmt(first / 1000, ".3f"),
                        f"{fmt(sv['flight_m'] / 1000, '.3f')} ({sv['lines']})",
@@ -225,24 +227,28 @@ def threshold_tables(field: str, runs: list[dict[str, Any]], surveys: dict[int, 
                         "ahead": sum(x < 1.0 for x in stays_r),
                         "never": sum(math.isinf(x) for x in stays_r),
                         "median_km": median(stays_km), "survey_km": median(survey_km),
-                        "interval_stays": fmt_interval(stays_r, ".3f")})
+                        "interval_stays": fmt_interval(stays_r, ".3f"),
+                        "median_stop": median(stop_r) if stop_r else math.nan})
     table = Table(["field", "mapper", "runs", "median × survey, stays",
                    f"≤ {GOAL}×, stays", "median × survey, first", f"≤ {GOAL}×, first",
                    "ahead of survey, stays", "never stays ≤ target", "median km, stays",
-                   "median survey km", "median's 90 % interval, stays"])
+                   "median survey km", "median's 90 % interval, stays",
+                   "median × survey, to its own stop"])
     for s in summary:
         table.add([s["field"], s["mapper"], str(s["runs"]), fmt(s["median_stays"], ".3f"),
                    f"{s['half_stays']}/{s['runs']}", fmt(s["median_first"], ".3f"),
                    f"{s['half_first']}/{s['runs']}", f"{s['ahead']}/{s['runs']}",
                    str(s["never"]), fmt(s["median_km"], ".3f"), fmt(s["survey_km"], ".3f"),
-                   s["interval_stays"]])
+                   s["interval_stays"], fmt(s["median_stop"], ".2f")])
     head = [f"Threshold mapping: the distance to a mean iso-line error ≤ {ISO_TARGET_M} m at the "
             "middle level, as a multiple of the best survey's for that seed (the shortest "
             "survey, of every line count, whose estimate gets there). Stays: from that "
             "estimate on, every later one to the end of the run is ≤ the target too; first: "
             "the first estimate that is. A run that never gets there counts as ∞. The "
             "median's 90 % interval: where the median over seeds not flown lies, with at "
-            "least 90 % confidence (from the order statistics, whatever the distribution).",
+            "least 90 % confidence (from the order statistics, whatever the distribution). "
+            "To its own stop: all it flew until it stopped by itself (it does not know when "
+            "the error is within the target), over the same survey distance.",
             "",
             *table.lines(md)]
     return head + out, summary

@@ -105,6 +105,8 @@ def test_threshold_summary_counts_every_run():
     assert s["median_first"] == pytest.approx(0.2)  # 0.2, 0.2, inf
     assert s["median_stays"] == pytest.approx(0.4)  # 0.2, 0.4, inf
     assert (s["half_stays"], s["half_first"]) == (2, 2)
+    # all each flew until it stopped, over the survey's: 0.3, 0.4, 0.2 (the loss too)
+    assert s["median_stop"] == pytest.approx(0.3)
 
 
 def test_every_results_file_names_a_command_that_runs():
