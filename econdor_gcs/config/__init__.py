@@ -230,6 +230,7 @@ class AdaptiveConfig:
     open_entry: OpenEntry
     probes: bool
     probe_climb: bool
+    probes_at_end: bool
     probe_m: float
     probe_prominence: float
     probe_reach: float

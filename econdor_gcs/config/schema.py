@@ -334,6 +334,7 @@ SCHEMA: dict[str, Section] = {
         "open_entry": _BY_ENUM,
         "probes": None,
         "probe_climb": None,
+        "probes_at_end": None,
         "probe_m": _AREA,
         "probe_prominence": within(0.0, 1.0),
         "probe_reach": _AREA0,

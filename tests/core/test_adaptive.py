@@ -538,6 +538,37 @@ def test_threshold_mode_flies_its_probes_first():
     assert [j.start_m for j in without.jobs] != [j.start_m for j in with_probes.jobs]
 
 
+@pytest.mark.parametrize("at_end", [True, False], ids=["probes-at-end", "stop"])
+def test_threshold_mode_flies_the_probes_left_at_the_end_only_when_asked(at_end):
+    """No cell left to score (the coverage floor set beyond the area, an estimate far from
+    the level) after a line beside a peak short of it: a probe is still on offer. By
+    default it is flown before ``done``; ``probes_at_end: false`` stops there. A sampled
+    crossing left untraced is traced either way (the iso-line is known to be there)."""
+    field = _peak(50.0, 40.0, 40.0)  # 50 at the top: the level 55 is never reached
+    flown = samples_along([(0.0, 52.0), (100.0, 52.0)], field)
+    assert extremum_probes(flown, np.array([55.0]), REGION, 30.0, 1e-4, 3.0)
+    xx, yy = GRID.mesh
+    params = AdaptiveParams(target_levels=(55.0,), explore_m=200.0, model="proxy",
+                            probes_at_end=at_end)
+    ctx = PlanContext(iteration=1, region=REGION, n_vehicles=1, grid=GRID,
+                      estimate=np.full(xx.shape, 10.0), samples=flown,
+                      positions_m=[(100.0, 52.0)])
+    planner = adaptive_planner(params)
+    batch = planner.next_batch(ctx)
+    assert planner.open_cells == 0
+    assert batch.done != at_end
+    if at_end:  # the probe: across the line, through the peak's row
+        a, b = (np.array((t.x_m, t.y_m)) for t in batch.jobs[0].tasks)
+        assert abs(a[0] - 50.0) < 1.0 and abs(b[0] - 50.0) < 1.0 and abs(a[1] - b[1]) > 25.0
+    # the crossing rule stands: the ring at 50 on a field that reaches it, crossed by the
+    # line and untraced, is traced before done with the probes off too
+    ring = _peak(50.0, 52.0, 80.0, sigma=10.0)
+    crossed = samples_along([(0.0, 52.0), (100.0, 52.0)], ring)
+    crossing = adaptive_planner(dataclasses.replace(params, target_levels=(50.0,))).next_batch(
+        dataclasses.replace(ctx, estimate=ring(xx, yy), samples=crossed))
+    assert not crossing.done and isinstance(crossing.jobs[0].tasks[0], TraceTask)
+
+
 def test_a_whole_piece_at_the_edge_is_entered_at_an_end_or_at_its_crossing():
     """A straight iso-line across the area: one whole candidate, 2 m inside the edges at
     both ends, flown from either end; through a sampled crossing it goes first, entered

@@ -187,6 +187,13 @@ class AdaptiveParams:
         :func:`extremum_probes`).
     probe_climb : bool
         Probe the extrema of probes too (a hill-climb); else only those of other lines.
+    probes_at_end : bool
+        Threshold mode: once nowhere is left where the model or the coverage floor says an
+        iso-line could be, fly the probes still on offer before reporting ``done`` (the
+        default); else stop there. On a smooth field, where the model sees beside the
+        tracks and probes wait for the end, those last probes are about a third of the
+        flight; they find a small closed iso-line round a hill top beside a track that
+        nothing else would.
     probe_m : float
         Length of those legs (m), centred on the extremum.
     probe_prominence : float
@@ -271,6 +278,7 @@ class AdaptiveParams:
     open_entry: OpenEntry = OpenEntry.AUTO
     probes: bool = True
     probe_climb: bool = True
+    probes_at_end: bool = True
     probe_m: float = 30.0
     probe_prominence: float = 1e-4
     probe_reach: float = 2.0

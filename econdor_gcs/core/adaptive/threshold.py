@@ -27,7 +27,8 @@ iso-line could still be, under the model (by default the GP posterior with its l
 scale fitted to the samples: its variance shrinks where samples surround a place, which
 the distance proxy cannot see, and over a smooth field's longer length more than over a
 plume's) — and no such crossing or probe is left: the samples themselves still say an
-iso-line is, or may be, there. It is done, too, when open cells are left that no candidate
+iso-line is, or may be, there (with ``probes_at_end`` false, probes left then are not
+flown). It is done, too, when open cells are left that no candidate
 would improve (at the area's edge the model can know more than a pass 0.5 m inside would
 add): planning nothing would only stall the run.
 """
@@ -267,8 +268,10 @@ class ThresholdPlanner(AdaptivePlanner):
         whole_cap_m = 2.0 * (region.width_m + region.height_m) if (
             self._route.active) else 0.0
         # done: nowhere left where the model says an iso-line could be, and no sampled
-        # crossing or extremum left that says one is (or may be) there
-        if self.open_cells == 0 and not any(c.first for c in cands):
+        # crossing or extremum left that says one is (or may be) there (the extrema not
+        # asked for: probes_at_end false)
+        if self.open_cells == 0 and not any(
+                c.first and (p.probes_at_end or c.kind == CandidateKind.TRACE) for c in cands):
             return Batch([], levels_planned=len(levels), done=True)
         picks, per_vehicle = self._plan(context, umap, cands, now, cell_value,
                                         p.threshold_batch_m, near_m=dist)
