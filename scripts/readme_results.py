@@ -14,6 +14,7 @@ column), and the block between the README's ``<!-- results:begin -->`` and
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 import sys
 from dataclasses import dataclass
@@ -28,13 +29,15 @@ BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 class Cell:
     """One value of a results file: the table under the first heading that contains
     ``heading`` (after every heading that contains each of ``after``), the row whose
-    first cell is ``row``, the column headed ``column`` (a prefix is enough)."""
+    first cell is ``row`` (and second ``row2``, if given), the column headed ``column`` (a
+    prefix is enough)."""
 
     file: str
     heading: str
     row: str
     column: str
     after: tuple[str, ...] = ()
+    row2: str = ""
 
 
 def tables_under(text: str, heading: str, after: tuple[str, ...]) -> list[list[list[str]]]:
@@ -71,7 +74,8 @@ def read(cell: Cell) -> str:
     for table in tables_under(path.read_text(encoding="utf-8"), cell.heading, cell.after):
         head = table[0]
         cols = [j for j, h in enumerate(head) if h.startswith(cell.column)]
-        rows = [r for r in table[1:] if r and r[0] == cell.row]
+        rows = [r for r in table[1:] if r and r[0] == cell.row
+                and (not cell.row2 or (len(r) > 1 and r[1] == cell.row2))]
         if cols and rows:
             return rows[0][cols[0]]
     raise LookupError(f"{cell.file}: no cell {cell.row!r} / {cell.column!r} under "
@@ -147,8 +151,52 @@ def block() -> str:
                read(Cell(thr, "Threshold mapping", field, "median × survey, to its own stop",
                          under))]
         out.append(f"| {name} | " + " | ".join(row) + " |")
+    out += end_probes(noise, thr)
     out += ["", "Made by `" + stamp(noise) + "` and `" + stamp(thr) + "`.", END]
     return "\n".join(out)
+
+
+NO_END_PROBES = "adaptive[probes_at_end=false]"
+
+
+def end_probes(noise: str, thr: str) -> list[str]:
+    """Threshold mode with and without the probes left for the end
+    (``adaptive.probes_at_end``), where both were flown."""
+    rows = []
+    for field, name in (("paper", "paper field (eqs. 8–9)"), ("plume", "plumes"),
+                        ("authors", "authors' generator")):
+        under = (f"Field: {field}",)
+        with contextlib.suppress(LookupError):
+            rows += [f"| {name}, noise-free, fresh seeds | {label} | " + " | ".join(
+                read(Cell(thr, "Threshold mapping", field, col, under, mapper))
+                for col in ("median × survey, stays", "median's 90 % interval",
+                            "≤ 0.5×, stays", "median × survey, to its own stop")) + " |"
+                     for mapper, label in (("adaptive", "default"), (NO_END_PROBES, "`false`"))]
+    text = (RESULTS / noise).read_text(encoding="utf-8")
+    field = ""
+    for line in text.splitlines():
+        if line.startswith("## Field: "):
+            field = line.removeprefix("## Field: ").strip()
+        if not (field and line.startswith("### noise 1 (sensor {'noise_std'")):
+            continue
+        heading = line.removeprefix("### ")
+        seeds = heading.split("; ", 1)[1].rstrip(")").split(" ")[0]
+        try:
+            rows += [f"| {field}, noise 1, {seeds} seeds | {label} | " + " | ".join(
+                read(Cell(noise, heading, mapper, col, (f"Field: {field}",)))
+                for col in ("× survey, stays", "iso × survey: median's 90 % interval",
+                            "≤ 0.5×, stays", "× survey, to its own stop")) + " |"
+                     for mapper, label in (("adaptive", "default"), (NO_END_PROBES, "`false`"))]
+        except LookupError:
+            continue
+    if not rows:
+        return []
+    return ["", "**Threshold mode without the probes left for the end** "
+            "(`adaptive.probes_at_end: false`: it stops once nowhere is left where an "
+            "iso-line could be), against the default, as multiples of the best survey's "
+            "distance:", "",
+            "| field, sensor, seeds | `probes_at_end` | × survey, stays | median's 90 % "
+            "interval | runs ≤ 0.5× | to its stop |", "|---|---|---|---|---|---|", *rows]
 
 
 def main(argv: list[str] | None = None) -> int:
