@@ -191,7 +191,7 @@ class AdaptiveParams:
         Threshold mode: once nowhere is left where the model or the coverage floor says an
         iso-line could be, fly the probes still on offer before reporting ``done`` (the
         default); else stop there. On a smooth field, where the model sees beside the
-        tracks and probes wait for the end, those last probes are about a third of the
+        tracks and probes wait for the end, those last probes are about a quarter of the
         flight; they find a small closed iso-line round a hill top beside a track that
         nothing else would.
     probe_m : float
