@@ -17,6 +17,7 @@ import argparse
 import contextlib
 import re
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,6 +91,24 @@ def stamp(file: str) -> str:
     return m.group(1)
 
 
+FIELD_NAMES = (("paper", "paper field (eqs. 8–9)"), ("plume", "plumes"),
+               ("authors", "authors' generator"))
+"""The threshold results' fields, as the README names them."""
+
+
+def conditions(file: str) -> Iterator[tuple[str, str, str, str]]:
+    """The sensor conditions of the noise report: ``(field, heading, condition, seeds)``
+    for each ``### <condition> (sensor ...; <seeds>)`` heading under ``## Field: <field>``."""
+    field = ""
+    for line in (RESULTS / file).read_text(encoding="utf-8").splitlines():
+        if line.startswith("## Field: "):
+            field = line.removeprefix("## Field: ").strip()
+        elif field and line.startswith("### ") and "(sensor " in line:
+            heading = line.removeprefix("### ")
+            condition, rest = heading.split(" (sensor ", 1)
+            yield field, heading, condition, rest.split("; ", 1)[1].rstrip(")")
+
+
 def block() -> str:
     noise, thr = "noise.md", "threshold-fresh.md"
     out = [BEGIN, "<!-- written by scripts/readme_results.py from docs/results; do not edit -->",
@@ -106,18 +125,7 @@ def block() -> str:
             "| best survey @4 km | adaptive × survey | 90 % interval | threshold × survey "
             "| 90 % interval | threshold iso m | threshold to its stop |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    text = (RESULTS / noise).read_text(encoding="utf-8")
-    field = ""
-    for line in text.splitlines():
-        if line.startswith("## Field: "):
-            field = line.removeprefix("## Field: ").strip()
-            continue
-        if not (field and line.startswith("### ") and "(sensor " in line):
-            continue
-        heading = line.removeprefix("### ")
-        condition, rest = heading.split(" (sensor ", 1)
-        seeds = rest.split("; ", 1)[1].rstrip(")")
-
+    for field, heading, condition, seeds in conditions(noise):
         def get(row: str, col: str, key: str = heading, f: str = field) -> str:
             return read(Cell(noise, key, row, col, after=(f"Field: {f}",)))
         label = f"{field}, {'perfect' if condition == 'noise 0' else condition}, {seeds}"
@@ -142,8 +150,7 @@ def block() -> str:
             "| field | × best survey (median) | median's 90 % interval | runs ≤ 0.5× "
             "| to its stop (median) |",
             "|---|---|---|---|---|"]
-    for field, name in (("paper", "paper field (eqs. 8–9)"), ("plume", "plumes"),
-                        ("authors", "authors' generator")):
+    for field, name in FIELD_NAMES:
         under = (f"Field: {field}",)
         row = [read(Cell(thr, "Threshold mapping", field, "median × survey, stays", under)),
                read(Cell(thr, "Threshold mapping", field, "median's 90 % interval", under)),
@@ -163,8 +170,7 @@ def end_probes(noise: str, thr: str) -> list[str]:
     """Threshold mode with and without the probes left for the end
     (``adaptive.probes_at_end``), where both were flown."""
     rows = []
-    for field, name in (("paper", "paper field (eqs. 8–9)"), ("plume", "plumes"),
-                        ("authors", "authors' generator")):
+    for field, name in FIELD_NAMES:
         under = (f"Field: {field}",)
         with contextlib.suppress(LookupError):
             rows += [f"| {name}, noise-free, fresh seeds | {label} | " + " | ".join(
@@ -172,17 +178,11 @@ def end_probes(noise: str, thr: str) -> list[str]:
                 for col in ("median × survey, stays", "median's 90 % interval",
                             "≤ 0.5×, stays", "median × survey, to its own stop")) + " |"
                      for mapper, label in (("adaptive", "default"), (NO_END_PROBES, "`false`"))]
-    text = (RESULTS / noise).read_text(encoding="utf-8")
-    field = ""
-    for line in text.splitlines():
-        if line.startswith("## Field: "):
-            field = line.removeprefix("## Field: ").strip()
-        if not (field and line.startswith("### noise 1 (sensor {'noise_std'")):
+    for field, heading, condition, seeds in conditions(noise):
+        if condition != "noise 1":
             continue
-        heading = line.removeprefix("### ")
-        seeds = heading.split("; ", 1)[1].rstrip(")").split(" ")[0]
         try:
-            rows += [f"| {field}, noise 1, {seeds} seeds | {label} | " + " | ".join(
+            rows += [f"| {field}, noise 1, {seeds.split(' ')[0]} seeds | {label} | " + " | ".join(
                 read(Cell(noise, heading, mapper, col, (f"Field: {field}",)))
                 for col in ("× survey, stays", "iso × survey: median's 90 % interval",
                             "≤ 0.5×, stays", "× survey, to its own stop")) + " |"
