@@ -46,13 +46,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
 import os
 import sys
 import time
 import warnings
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -93,6 +92,7 @@ from summaries import fmt  # noqa: E402
 from surveys import scan_survey  # noqa: E402
 
 from econdor_lab.study import parse_seeds  # noqa: E402
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 
 def figures(out: Path, fields: list[str], planners: list[str], runs: list[dict[str, Any]],
@@ -320,10 +320,7 @@ def fly_jobs(todo: list[tuple[str, str, Job]], workers: int
     with its code and the commit) with its key, as it finishes."""
     if not todo:
         return
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")  # spawned workers: one BLAS thread each
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+    with WorkerPool(workers) as pool:
         fly: dict[str, Callable[[Any], dict[str, Any]]] = {"survey": scan_survey,
                                                             "run": run_planner}
         futs = {pool.submit(fly[kind], j): (k, kind) for k, kind, j in todo}

@@ -14,12 +14,9 @@ from __future__ import annotations
 
 import argparse
 import math
-import multiprocessing
-import os
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from econdor_gcs.config import load_mission  # noqa: E402
 from econdor_lab.study import parse_seeds, run_seed  # noqa: E402
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 VARIANTS = ("textbook", "authors")
 
@@ -61,10 +59,8 @@ def main() -> int:
     p.add_argument("--markdown", action="store_true")
     a = p.parse_args()
     seeds = parse_seeds(a.seeds)
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(a.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with WorkerPool(a.workers) as pool:
         results = list(pool.map(one, [(v, s) for v in VARIANTS for s in seeds]))
     bar = "|" if a.markdown else " "
     print(f"# E-CONDOR, paper setting, {len(seeds)} seeds, {time.perf_counter() - t0:.0f} s\n")

@@ -26,7 +26,6 @@ import argparse
 import math
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +46,7 @@ from econdor_gcs.core.routes import best_lines, gap_lines  # noqa: E402
 from econdor_gcs.core.spline import reconstruct  # noqa: E402
 from econdor_gcs.core.uncertainty import resample_polyline  # noqa: E402
 from econdor_lab.study import parse_seeds  # noqa: E402
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 STEP_M = 0.8
 EXPLORE_M = 10.0
@@ -188,7 +188,7 @@ def main() -> int:
     a = p.parse_args()
     jobs = [(a.field, s, not a.whole_start, a.oracle_ends, a.cache)
             for s in parse_seeds(a.seeds)]
-    with ProcessPoolExecutor(max_workers=a.workers) as pool:
+    with WorkerPool(a.workers) as pool:
         rows = list(pool.map(one, jobs))
     ratios = []
     for seed, ideal_m, survey_m in rows:

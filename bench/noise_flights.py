@@ -7,12 +7,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import multiprocessing
-import os
 import sys
 import time
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +21,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 from runs import mid_level, mission_for, mission_raw, row_of, run_survey, split_variant  # noqa: E402
 from saved_rows import code_fingerprint, code_of, commit, current_code  # noqa: E402
 from surveys import SurveyScan  # noqa: E402
+
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 SPAN = {"plume": 90.0, "paper": 93.0, "authors": 50.0, "front": 100.0}
 """Each field's value range, about: a noise level is given in the plume's units (span 90)
@@ -165,10 +165,7 @@ def fly(jobs: list[tuple[str, tuple[Any, ...]]], workers: int
         ) -> Iterator[tuple[int, dict[str, Any]]]:
     """Fly ``jobs`` (survey scans and planner runs) on ``workers`` processes: each job's
     index and row as it comes in."""
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+    with WorkerPool(workers) as pool:
         futs = {pool.submit(scan_one if kind == "survey" else run_one, job): i
                 for i, (kind, job) in enumerate(jobs)}
         for fut in as_completed(futs):

@@ -30,7 +30,6 @@ import math
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +42,7 @@ from efficiency import mid_level, mission_for  # noqa: E402
 from econdor_gcs.dfc.loop import Dfc  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402
 from econdor_lab.study import parse_seeds  # noqa: E402
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 LAG: dict[str, dict[str, Any]] = {
     "lag-free": {},
@@ -187,7 +187,7 @@ def main() -> int:
         done = {(r["field"], r["seed"], r["planner"], r["variant"]) for r in runs}
         jobs = [j for j in jobs if j[:4] not in done]
         print(f"{len(done)} runs in {a.json}, {len(jobs)} to fly", flush=True)
-    with ProcessPoolExecutor(a.workers) as pool:
+    with WorkerPool(a.workers) as pool:
         for r in pool.map(run_one, jobs):
             runs.append(r)
             print(f"{r['field']} {r['seed']} {r['planner']} {r['variant']}: iso "

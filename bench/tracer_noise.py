@@ -38,7 +38,6 @@ import math
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +51,7 @@ from report import stamp  # noqa: E402
 from runs import mission_for  # noqa: E402
 
 from econdor_lab.study import parse_seeds  # noqa: E402
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 NOISES = (0.0, 1.0, 3.0)
 LAGS_S = (0.0, 0.5, 1.0)
@@ -267,7 +267,7 @@ def main() -> int:
     sensors = (a.sensors.split(",") if a.sensors else
                [sensor_name(*c) for c in itertools.product(NOISES, LAGS_S, GNSS_M)])
     lines = ["# The tracer with a noisy sensor", "", *(stamp(sys.argv) if a.out else [])]
-    with ProcessPoolExecutor(a.workers) as pool:
+    with WorkerPool(a.workers) as pool:
         if a.part in ("traces", "both"):
             jobs = [(f, s, n) for f in fields for s in seeds for n in sensors]
             results = list(pool.map(trace_job, jobs))

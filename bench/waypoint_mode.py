@@ -25,12 +25,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
 import os
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 from econdor_gcs.config import Mission, load_mission, parse_mission  # noqa: E402
 from econdor_gcs.core.tasks import TaskStyle  # noqa: E402
 from econdor_lab.study import parse_seeds, run_seed  # noqa: E402
+from econdor_lab.workers import WorkerPool  # noqa: E402
 
 MISSIONS = ("demo", "paper")
 PLUME = {"model": "plume", "sources": 3, "sigma_min_m": 3.0, "sigma_max_m": 6.0,
@@ -98,8 +97,7 @@ def main() -> None:
     jobs = [(m, s, st.value, a.tolerance_m) for m in missions for s in seeds for st in STYLES]
     t0 = time.perf_counter()
     if a.workers > 1:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(a.workers, mp_context=ctx) as pool:
+        with WorkerPool(a.workers) as pool:
             results = list(pool.map(one, jobs))
     else:
         results = [one(j) for j in jobs]

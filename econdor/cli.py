@@ -165,7 +165,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--out", type=Path, required=True,
                     help="directory for study.csv, summary.json and the figures")
     st.add_argument("--workers", type=_positive_int, default=None,
-                    help="local worker processes (default: number of cores)")
+                    help="local worker processes (default: number of cores); Ctrl-C or "
+                         "SIGTERM stops them, each run keeping its samples")
     st.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
     st.add_argument("--vehicles", type=_positive_int, default=None,
                     help="how many vehicles (default: the mission's vehicles.count)")
@@ -237,6 +238,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
+    from econdor_gcs.app.run_logging import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():  # the workers stop and every run closes its directory
+        return _study(args)
+
+
+def _study(args: argparse.Namespace) -> int:
     from econdor_lab.study import default_workers, parse_seeds, run_study
 
     mission = load_mission(args.mission)

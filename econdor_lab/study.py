@@ -11,12 +11,11 @@ from __future__ import annotations
 
 import csv
 import math
-import multiprocessing
 import os
 import statistics
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +29,8 @@ from econdor_gcs.files.rundir import write_json
 from sim_vehicle.tracer import warm_up
 
 from .inprocess import InProcessExecutor, run_inprocess
+from .workers import WorkerPool
 
-_BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 EXTRA_COLUMNS = ("mae_rel", "isoline_p25_m", "isoline_p50_m", "isoline_p75_m", "forced_levels",
                  "isoline_target_m", "isoline_target_missed", "noise_std")
 STUDY_COLUMNS = ("seed", "planner", *IterationRecord.CSV_COLUMNS, *EXTRA_COLUMNS)
@@ -160,24 +159,12 @@ def run_study(
             results.append(r)
             notify(r)
     else:
-        # One BLAS thread per worker: several processes each spinning up a thread per core
-        # slow the dense solves down many times. Spawned workers read the variables at import.
-        saved = {k: os.environ.get(k) for k in _BLAS_THREAD_VARS}
-        os.environ.update({k: "1" for k in _BLAS_THREAD_VARS})
-        try:
-            ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futs = [pool.submit(run_seed, mission, s, p, str(out)) for s, p in jobs]
-                for fut in as_completed(futs):
-                    r = fut.result()
-                    results.append(r)
-                    notify(r)
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+        with WorkerPool(workers or 1) as pool:
+            futs = [pool.submit(run_seed, mission, s, p, str(out)) for s, p in jobs]
+            for fut in as_completed(futs):
+                r = fut.result()
+                results.append(r)
+                notify(r)
     results.sort(key=lambda r: (PLANNERS.index(r["summary"]["planner"]), r["summary"]["seed"]))
     rows = [row for r in results for row in r["rows"]]
     with (out / "study.csv").open("w", newline="", encoding="utf-8") as f:

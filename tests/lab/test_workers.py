@@ -1,0 +1,78 @@
+"""The worker pool never outlives its parent, and stopping it ends each job through its
+``finally`` blocks."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from econdor_lab.workers import WorkerPool
+from tests.helpers import pool_jobs
+from tests.helpers.vehicles import wait_for
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _marks(d: Path, kind: str) -> set[int]:
+    return {int(p.name.split("-")[1]) for p in d.glob(f"{kind}-*")}
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    # a zombie has ended too (its parent has not reaped it yet)
+    return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+
+
+def test_a_pool_left_normally_runs_every_job():
+    with WorkerPool(2) as pool:
+        assert list(pool.map(pool_jobs.square, range(6))) == [0, 1, 4, 9, 16, 25]
+
+
+def test_a_pool_left_on_an_error_stops_its_jobs_through_their_finally(tmp_path):
+    with pytest.raises(RuntimeError, match="stop here"), WorkerPool(2) as pool:
+        futs = [pool.submit(pool_jobs.hold, str(tmp_path)) for _ in range(4)]
+        started = wait_for(lambda: len(_marks(tmp_path, "started")) == 2 and
+                           _marks(tmp_path, "started"), 60, "both workers' jobs to start")
+        raise RuntimeError("stop here")
+    # both running jobs went through their finally; the two queued never started
+    assert _marks(tmp_path, "cleaned") == started == _marks(tmp_path, "started")
+    assert all(_gone(pid) for pid in started)
+    assert not any(f.done() and not f.cancelled() and f.exception() is None for f in futs)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_workers_end_with_a_parent_killed_outright(tmp_path):
+    """SIGKILL gives the parent no chance to stop anything: the kernel tells the workers."""
+    script = textwrap.dedent(f"""
+        import sys, threading
+        sys.path.insert(0, {str(ROOT)!r})
+        from econdor_lab.workers import WorkerPool
+        from tests.helpers import pool_jobs
+        if __name__ == "__main__":
+            with WorkerPool(2) as pool:
+                for _ in range(2):
+                    pool.submit(pool_jobs.hold, {str(tmp_path)!r})
+                threading.Event().wait()
+    """)
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path,
+                              stderr=subprocess.DEVNULL)
+    try:
+        started = wait_for(lambda: len(_marks(tmp_path, "started")) == 2 and
+                           _marks(tmp_path, "started"), 60, "both workers' jobs to start")
+        parent.kill()
+        parent.wait()
+        wait_for(lambda: all(_gone(pid) for pid in started), 30, "the workers to end")
+        assert _marks(tmp_path, "cleaned") == started
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+        for pid in _marks(tmp_path, "started"):
+            if not _gone(pid):
+                os.kill(pid, signal.SIGKILL)
