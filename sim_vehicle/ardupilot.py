@@ -66,7 +66,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .autopilot import ACCEPTED, DENIED, FAILED, MISSION_RETRIES, Autopilot
+from .autopilot import MISSION_RETRIES, Autopilot
+from .commands import ACCEPTED, DENIED, FAILED
 from .mission_server import MISSION, MissionServer, StoredItem
 from .navigator import ModeFlow
 from .state import FlightMode

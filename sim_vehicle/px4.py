@@ -13,7 +13,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .autopilot import ACCEPTED, DENIED, Autopilot
+from .autopilot import Autopilot
+from .commands import ACCEPTED, DENIED
 from .state import FlightMode
 
 # PX4 main modes and AUTO sub modes

@@ -23,6 +23,8 @@ Pieces, from the bottom up:
     ``MISSION_ITEM_REACHED`` for its last task item.
     The executor runs the flights (upload, start, wait, recover, rounds for the work of lost
     vehicles, the way home) with its parts, all on the station's loop thread:
+    :class:`~.startup.VehicleStartup` (before the first flight: positions, stream rates,
+    the geofence),
     :class:`~.telemetry.StationTelemetry` (what the vehicles send: the router's callbacks,
     sample conversion, flight reports, status rows), :class:`~.sorties.VehicleMissions`
     (each vehicle's missions planned, saved and uploaded, and its geofence),
@@ -69,7 +71,6 @@ import asyncio
 import contextlib
 import functools
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable, Coroutine, Sequence
@@ -78,9 +79,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from econdor_gcs.config import Mission
 from econdor_gcs.core.tasks import FlightReport, SampleLog, Task
-from econdor_gcs.errors import LinkError, ProtocolError, VehicleTimeout
-from econdor_gcs.link.codec import mavlink
-from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M, fence_items
+from econdor_gcs.errors import ProtocolError
 from econdor_gcs.link.router import AIRBORNE_ALT_M, Received, Sample, VehicleLost
 from econdor_gcs.link.vehicles import EVENTS
 from econdor_gcs.station.loop import Station
@@ -88,6 +87,7 @@ from econdor_gcs.station.losses import LINK_TIMEOUT_S, VehicleLosses, run_all
 from econdor_gcs.station.procedures import Commands
 from econdor_gcs.station.recovery import SampleRecovery
 from econdor_gcs.station.sorties import VehicleMissions
+from econdor_gcs.station.startup import VehicleStartup
 from econdor_gcs.station.status import VehicleStatus
 from econdor_gcs.station.telemetry import StationTelemetry, VehicleRow, VehicleState
 
@@ -117,18 +117,6 @@ def _merge(a: FlightReport, b: FlightReport) -> FlightReport:
 
 # --------------------------------------------------------------------------------------------
 # the executor
-
-
-POSITIONS_PER_SAMPLE = 4
-"""Positions asked for per sensor period: a sample between two positions is placed by linear
-interpolation, and an autopilot's positions are its filter's output, which is not a straight
-line between fixes a sensor period apart (docs/experiments/2026-12-04-sitl.md)."""
-
-#: Wall-clock rates asked of the periodic (display) streams; samples are not affected.
-STREAM_WALL_HZ = {
-    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
-    mavlink.MAVLINK_MSG_ID_ATTITUDE: 1.0,
-}
 
 
 class MavlinkExecutor:
@@ -207,6 +195,10 @@ class MavlinkExecutor:
                                        self.vehicle_losses, self._until,
                                        lambda: self.aborted)
         """Every sample a vehicle took brought in after each flight (resends)."""
+        self.startup = VehicleStartup(self.router, self.mission, self.sysids, self.vehicles,
+                                      self.vehicle_missions, self.vehicle_losses, self._until,
+                                      timeout_s)
+        """The vehicles made ready: positions, streams, geofence."""
         self.router.subscribe(Sample, self.telemetry.on_sample)
         self.router.subscribe(Received, lambda r: self.telemetry.on_message(r.sysid, r.msg))
         self.router.subscribe(EVENTS, self._on_event)
@@ -241,61 +233,8 @@ class MavlinkExecutor:
 
     # -- Executor protocol ----------------------------------------------------------------------
     def wait_ready(self) -> None:
-        """Wait until every vehicle has reported a position."""
-        self.station.call(self._wait_positions())
-
-    async def _wait_positions(self) -> None:
-        """Ask for the streams (ArduPilot sends only heartbeats until asked; the request is
-        repeated each second in case it was lost) and wait for a position from everyone."""
-        requested = {"at": -math.inf}
-
-        def ask() -> None:
-            now = time.monotonic()
-            if now - requested["at"] < 1.0:
-                return
-            requested["at"] = now
-            for sysid in self.sysids:
-                if self.router.vehicles[sysid].lat_deg is None:
-                    self.router.request_data_streams(sysid)
-
-        deadline = time.monotonic() + self.timeout_s
-        ask()
-        if not await self._until(lambda: all(self.router.vehicles[s].lat_deg is not None
-                                             for s in self.sysids), on_tick=ask,
-                                 deadline=deadline):
-            missing = [s for s in self.sysids if self.router.vehicles[s].lat_deg is None]
-            raise VehicleTimeout(f"vehicle {missing[0]} sent no position within "
-                                 f"{self.timeout_s:g} s")
-        for v in self.vehicles.values():
-            # this run accounts for the samples from now on (a vehicle that flew for an
-            # earlier run, or for this one before a resume, keeps those to itself)
-            v.synced_ms = max(v.newest_ms, self.router.vehicles[v.sysid].time_boot_ms or 0)
-        await asyncio.gather(*(self._slow_streams(s) for s in self.sysids))
-        fence = fence_items(self.origin, self.mission.region, MISSION_FENCE_MARGIN_M)
-        losses = self.vehicle_losses
-        await run_all([losses.tolerant(v, functools.partial(self.vehicle_missions.upload_fence,
-                                                            v, fence))
-                       for v in self.vehicles.values()])
-
-    async def _slow_streams(self, sysid: int) -> None:
-        """Ask for the positions at the sensor's rate and the display-only streams at a few
-        Hz of *wall* time.
-
-        A sample is placed by interpolating the vehicle's positions at its time
-        (:mod:`.link.pairing`), so GLOBAL_POSITION_INT comes at the mission's sample rate,
-        in vehicle time. At high speed-ups the display streams would otherwise arrive at up
-        to 50 Hz per message and vehicle, and ten vehicles then flood the endpoint while the
-        DFC reconstructs. Intervals are in vehicle (sim) time, hence the speed-up factor. A
-        vehicle that does not support the command keeps its default rates.
-        """
-        speedup = self.mission.vehicles.speedup
-        with contextlib.suppress(LinkError):
-            await self.router.set_message_interval(
-                sysid, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-                1.0 / (POSITIONS_PER_SAMPLE * self.mission.vehicles.sample_rate_hz))
-        for message_id, wall_hz in STREAM_WALL_HZ.items():
-            with contextlib.suppress(LinkError):
-                await self.router.set_message_interval(sysid, message_id, speedup / wall_hz)
+        """Wait until every vehicle has reported a position (:class:`.startup.VehicleStartup`)."""
+        self.station.call(self.startup.run())
 
     def clock_rate(self) -> float:
         """The vehicles' achieved speed-up (:meth:`.telemetry.StationTelemetry.clock_rate`)."""
