@@ -98,9 +98,11 @@ from summaries import (  # noqa: E402
     fmt,
     fmt_interval,
     median,
+    median_measured,
     ratio,
     share_within,
     stays_reached,
+    stop_ratio,
 )
 from surveys import best_within  # noqa: E402
 
@@ -136,11 +138,6 @@ def falls(medians: list[float]) -> bool:
     return all(b <= a for a, b in zip(m, m[1:], strict=False))
 
 
-def _nanmedian(xs: list[float]) -> float:
-    v = [x for x in xs if not math.isnan(x)]
-    return median(v) if v else math.nan
-
-
 def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
               planners: list[str], md: bool) -> tuple[list[str], list[dict[str, Any]]]:
     """Mapping the whole field under one condition (module docstring)."""
@@ -154,17 +151,17 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
     for pl in [*planners, "best survey"]:
         if pl == "best survey":
             got = {k: [best_mae_within(surveys[s], k * 1000) for s in seeds] for k in CURVE_KM}
-            meds = [_nanmedian([r["mae_db"] if r else math.nan for r in got[k]])
+            meds = [median_measured([r["mae_db"] if r else math.nan for r in got[k]])
                     for k in CURVE_KM]
             no_worse = sum(1 for a, b in zip(got[2.0], got[4.0], strict=True)
                            if a and b and b["mae_db"] <= a["mae_db"])
-            iso2 = _nanmedian([r["iso"][1] if r else math.nan for r in
+            iso2 = median_measured([r["iso"][1] if r else math.nan for r in
                                (best_within(surveys[s]["scanned"], 2000, "iso_mean")
                                 for s in seeds)])
-            iso4 = _nanmedian([r["iso"][1] if r else math.nan for r in
+            iso4 = median_measured([r["iso"][1] if r else math.nan for r in
                                (best_within(surveys[s]["scanned"], 4000, "iso_mean")
                                 for s in seeds)])
-            noise = _nanmedian([surveys[s]["scanned"][-1]["noise_std"] for s in seeds])
+            noise = median_measured([surveys[s]["scanned"][-1]["noise_std"] for s in seeds])
             table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(seeds)}",
                        "yes" if falls(meds) else "no",
                        "1", "—", fmt(iso2, ".2f"), fmt(iso4, ".2f"), fmt(noise, ".3f"), "—"])
@@ -173,7 +170,7 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
         if not rs:
             continue
         at = {k: [at_budget(r["rows"], k * 1000) for r in rs] for k in CURVE_KM}
-        meds = [_nanmedian([x["mae_db"] if x else math.nan for x in at[k]]) for k in CURVE_KM]
+        meds = [median_measured([x["mae_db"] if x else math.nan for x in at[k]]) for k in CURVE_KM]
         no_worse = sum(1 for a, b in zip(at[2.0], at[4.0], strict=True)
                        if a and b and b["mae_db"] <= a["mae_db"])
         stays_r, first_r = [], []
@@ -190,8 +187,8 @@ def map_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any]],
             stays_r.append(ratio(stays_reached(r["rows"], ok, BUDGET_M), sv))
             first_r.append(ratio(first_reached(r["rows"], ok, BUDGET_M), sv))
         within, n = share_within(stays_r, GOAL_MAP)
-        iso = [_nanmedian([x["iso"][1] if x else math.nan for x in at[k]]) for k in (2.0, 4.0)]
-        noise = _nanmedian([r["rows"][-1]["noise_std"] for r in rs])
+        iso = [median_measured([x["iso"][1] if x else math.nan for x in at[k]]) for k in (2.0, 4.0)]
+        noise = median_measured([r["rows"][-1]["noise_std"] for r in rs])
         table.add([pl, *[fmt(m) for m in meds], f"{no_worse}/{len(rs)}",
                    "yes" if falls(meds) else "no",
                    f"{fmt(median(stays_r), '.2f')} ({fmt(median(first_r), '.2f')})",
@@ -226,16 +223,16 @@ def threshold_table(runs: list[dict[str, Any]], surveys: dict[int, dict[str, Any
             km.append(stays / 1000)
             skm.append(sv / 1000)
             final.append(r["rows"][-1]["iso_target"])
-            stop_r.append(r["rows"][-1]["flight_m"] / sv if math.isfinite(sv) else math.nan)
+            stop_r.append(stop_ratio(r["rows"][-1]["flight_m"], sv))
             missed.append(r["rows"][-1]["target_missed"])
             stops[r["stop"]] = stops.get(r["stop"], 0) + 1
         within, n = share_within(stays_r, GOAL_THRESHOLD)
         table.add([m.removesuffix(":threshold"), str(len(rs)),
                    f"{fmt(median(stays_r), '.3f')} ({fmt(median(first_r), '.3f')})",
                    f"{within}/{n}", fmt(median(km), ".2f"), fmt(median(skm), ".2f"),
-                   fmt(_nanmedian(final), ".2f"), fmt(sum(missed), ".0f"),
+                   fmt(median_measured(final), ".2f"), fmt(sum(missed), ".0f"),
                    ", ".join(f"{k} {v}" for k, v in sorted(stops.items())),
-                   fmt_interval(stays_r, ".3f"), fmt(_nanmedian(stop_r), ".2f")])
+                   fmt_interval(stays_r, ".3f"), fmt(median_measured(stop_r), ".2f")])
     return table.lines(md)
 
 
@@ -466,7 +463,7 @@ def figures(out: Path, runs: list[dict[str, Any]], surveys: list[dict[str, Any]]
                     continue
                 arr = np.array(curves, dtype=float)
                 ok = np.sum(np.isfinite(arr), axis=0) * 2 > arr.shape[0]
-                med = [_nanmedian(list(col)) if k else math.nan
+                med = [median_measured(list(col)) if k else math.nan
                        for col, k in zip(arr.T, ok, strict=True)]
                 ax.plot(grid / 1000, med, style, color=colour,
                         label=f"{label}, noise {noise:g} ({len(curves)} seeds)")

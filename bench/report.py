@@ -20,9 +20,11 @@ from summaries import (
     fmt,
     fmt_interval,
     median,
+    median_measured,
     ratio,
     share_within,
     stays_reached,
+    stop_ratio,
 )
 
 TARGETS_DB = (-10.0, -20.0, -30.0)
@@ -99,11 +101,6 @@ def stalled(r: dict[str, Any]) -> bool:
     return final > min(TARGETS_DB) and (half is None or half["mae_db"] - final < 1.0)
 
 
-def _nanmedian(values: list[float]) -> float:
-    v = [x for x in values if not math.isnan(x)]
-    return median(v) if v else math.nan
-
-
 def field_tables(field: str, planners: list[str], runs: list[dict[str, Any]],
                  surveys: dict[int, dict[str, Any]], budgets: list[float], budget_m: float,
                  md: bool) -> list[str]:
@@ -158,11 +155,11 @@ def field_tables(field: str, planners: list[str], runs: list[dict[str, Any]],
         for b in budgets:
             got = best(b, "mae_db") if pl == "best survey" else [at_budget(r["rows"], b)
                                                                 for r in rs]
-            cells.append(fmt(_nanmedian([x["mae_db"] if x else math.nan for x in got])))
+            cells.append(fmt(median_measured([x["mae_db"] if x else math.nan for x in got])))
         for b in budgets:
             got = best(b, "iso") if pl == "best survey" else [at_budget(r["rows"], b)
                                                              for r in rs]
-            cells.append(fmt(_nanmedian([x["iso_mean"] if x else math.nan for x in got]), ".2f"))
+            cells.append(fmt(median_measured([x["iso_mean"] if x else math.nan for x in got]), ".2f"))
         cells.append("—" if pl == "best survey" else f"{sum(stalled(r) for r in rs)}/{len(rs)}")
         if plume:
             for b in (budgets[0], budgets[-1]):
@@ -172,7 +169,7 @@ def field_tables(field: str, planners: list[str], runs: list[dict[str, Any]],
                 cells.append(f"{sum(m)} of {3 * len(m)}")
         wall = ([surveys[s]["wall_s"] / max(1, surveys[s]["runs"]) for s in seeds]
                 if pl == "best survey" else [r["wall_s"] for r in rs])
-        cells.append(fmt(_nanmedian(wall), ".1f"))
+        cells.append(fmt(median_measured(wall), ".1f"))
         table.add(cells)
     out += ["", "The estimate at each budget (the last one made within it; the best survey: the "
             "best of every line count that fits), median over the seeds; iso m: the mean "
@@ -208,8 +205,7 @@ def threshold_tables(field: str, runs: list[dict[str, Any]], surveys: dict[int, 
             stays_km.append(stays / 1000)
             survey_km.append(sv["flight_m"] / 1000)
             last = r["rows"][-1]
-            if math.isfinite(sv["flight_m"]):  # else no survey to measure its stop by
-                stop_r.append(last["flight_m"] / sv["flight_m"])
+            stop_r.append(stop_ratio(last["flight_m"], sv["flight_m"]))
             table.add([str(r["seed"]), fmt(r["target"]), fmt(stays / 1000, ".3f"),
                        fmt(first / 1000, ".3f"),
                        f"{fmt(sv['flight_m'] / 1000, '.3f')} ({sv['lines']})",
@@ -228,7 +224,7 @@ def threshold_tables(field: str, runs: list[dict[str, Any]], surveys: dict[int, 
                         "never": sum(math.isinf(x) for x in stays_r),
                         "median_km": median(stays_km), "survey_km": median(survey_km),
                         "interval_stays": fmt_interval(stays_r, ".3f"),
-                        "median_stop": median(stop_r) if stop_r else math.nan})
+                        "median_stop": median_measured(stop_r)})
     table = Table(["field", "mapper", "runs", "median × survey, stays",
                    f"≤ {GOAL}×, stays", "median × survey, first", f"≤ {GOAL}×, first",
                    "ahead of survey, stays", "never stays ≤ target", "median km, stays",

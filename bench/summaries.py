@@ -79,6 +79,22 @@ def median(values: Sequence[float]) -> float:
     return statistics.median(values) if values else math.nan
 
 
+def median_measured(values: Sequence[float]) -> float:
+    """The median over the values measured (NaN: not measured, left out); NaN for none.
+
+    >>> median_measured([1.0, math.nan, 3.0])
+    2.0
+    """
+    measured = [v for v in values if not math.isnan(v)]
+    return statistics.median(measured) if measured else math.nan
+
+
+def stop_ratio(flown_m: float, survey_m: float) -> float:
+    """All a run flew to its own stop over the best survey's distance; NaN (not measured)
+    where no survey got there."""
+    return flown_m / survey_m if math.isfinite(survey_m) else math.nan
+
+
 def median_interval(values: Sequence[float], level: float = 0.9) -> tuple[float, float]:
     """A distribution-free interval for the median of what the runs are drawn from (the
     median over seeds not flown): ``[x_(k), x_(n+1-k)]`` of the sorted values, ``k`` the

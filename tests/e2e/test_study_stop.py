@@ -3,12 +3,12 @@ in one line, exits non-zero, leaves no worker running, and every interrupted run
 the samples it had."""
 
 import csv
-import os
 import signal
 import subprocess
 import sys
 from pathlib import Path
 
+from tests.helpers.pool_jobs import process_gone
 from tests.helpers.vehicles import wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -17,14 +17,6 @@ ROOT = Path(__file__).resolve().parents[2]
 def _children(pid: int) -> set[int]:
     path = Path(f"/proc/{pid}/task/{pid}/children")
     return {int(c) for c in path.read_text().split()} if path.exists() else set()
-
-
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
 
 
 def _samples(run: Path) -> int:
@@ -55,7 +47,7 @@ def test_a_study_stopped_by_sigterm_stops_its_workers_and_keeps_every_run(tmp_pa
     assert proc.returncode == 130
     assert err.strip().splitlines()[-1] == "econdor: interrupted"
     assert "leaked" not in err  # the pool's queues released, not left to the tracker
-    wait_for(lambda: all(_gone(p) for p in workers), 30, "the workers to end")
+    wait_for(lambda: all(process_gone(p) for p in workers), 30, "the workers to end")
     runs = sorted((out / "runs").glob("*"))
     assert runs and all((r / "run.json").exists() and _samples(r) > 0 for r in runs)
     assert not (out / "summary.json").exists()

@@ -1,4 +1,5 @@
-"""Jobs for the worker pool's tests (spawned workers import them by name)."""
+"""Jobs for the worker pool's tests (spawned workers import them by name), and whether a
+process has ended."""
 
 import os
 import threading
@@ -19,3 +20,13 @@ def hold(directory: str) -> int:
 
 def square(x: int) -> int:
     return x * x
+
+
+def process_gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (a zombie has too: its parent has not reaped it yet)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    stat = Path(f"/proc/{pid}/stat")
+    return stat.exists() and stat.read_text().split()[2] == "Z"

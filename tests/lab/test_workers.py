@@ -12,6 +12,7 @@ import pytest
 
 from econdor_lab.workers import WorkerPool
 from tests.helpers import pool_jobs
+from tests.helpers.pool_jobs import process_gone
 from tests.helpers.vehicles import wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -19,15 +20,6 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def _marks(d: Path, kind: str) -> set[int]:
     return {int(p.name.split("-")[1]) for p in d.glob(f"{kind}-*")}
-
-
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    # a zombie has ended too (its parent has not reaped it yet)
-    return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
 
 
 def test_a_pool_left_normally_runs_every_job():
@@ -43,7 +35,7 @@ def test_a_pool_left_on_an_error_stops_its_jobs_through_their_finally(tmp_path):
         raise RuntimeError("stop here")
     # both running jobs went through their finally; the two queued never started
     assert _marks(tmp_path, "cleaned") == started == _marks(tmp_path, "started")
-    assert all(_gone(pid) for pid in started)
+    assert all(process_gone(pid) for pid in started)
     assert not any(f.done() and not f.cancelled() and f.exception() is None for f in futs)
 
 
@@ -68,11 +60,11 @@ def test_workers_end_with_a_parent_killed_outright(tmp_path):
                            _marks(tmp_path, "started"), 60, "both workers' jobs to start")
         parent.kill()
         parent.wait()
-        wait_for(lambda: all(_gone(pid) for pid in started), 30, "the workers to end")
+        wait_for(lambda: all(process_gone(pid) for pid in started), 30, "the workers to end")
         assert _marks(tmp_path, "cleaned") == started
     finally:
         if parent.poll() is None:
             parent.kill()
         for pid in _marks(tmp_path, "started"):
-            if not _gone(pid):
+            if not process_gone(pid):
                 os.kill(pid, signal.SIGKILL)
