@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from efficiency import mid_level, mission_for  # noqa: E402
+from runs import mid_level, mission_for  # noqa: E402
 
 from econdor_gcs.dfc.loop import Dfc  # noqa: E402
 from econdor_lab.inprocess import InProcessExecutor  # noqa: E402

@@ -320,3 +320,20 @@ def test_the_median_interval_covers_the_median_of_what_the_runs_are_drawn_from(n
         lo, hi = median_interval(draws.tolist())
         hits += lo <= true_median <= hi
     assert 0.9 <= hits / trials < 0.99
+
+
+@pytest.mark.slow
+def test_every_bench_script_imports():
+    """A bench whose imports moved away fails at once, not when someone next runs it
+    (``bench/sensor.py`` took ``mid_level`` from a module that no longer had it): one
+    process loads every script as its own ``__main__`` would, short of running it."""
+    scripts = sorted(str(p) for p in (ROOT / "bench").glob("*.py"))
+    code = ("import runpy, sys\n"
+            "sys.path[0] = sys.argv[1]  # as `python bench/x.py` has it\n"
+            "for path in sys.argv[2:]:\n"
+            "    runpy.run_path(path, run_name='bench_import_check')\n")
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-c", code, str(ROOT / "bench"), *scripts], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
