@@ -25,6 +25,7 @@ from tests.helpers.web import (
     canvas_digest,
     confirm_control,
     estimate_iteration,
+    estimate_shown,
     positions_of,
     require_chromium,
     vehicle_positions,
@@ -56,9 +57,9 @@ def _watch(page: Any, proc: EcondorProcess, timeout_s: float) -> dict[str, Any]:
         seen["positions"].append(positions_of(rows))
         for sysid, cells in rows.items():
             seen["flight_time"][sysid] = cells.get("flight-time", "")
-        it = estimate_iteration(page)
+        it, digest, painted = estimate_shown(page)
         if it is not None and it not in seen["estimates"]:
-            seen["estimates"][it] = (canvas_digest(page), canvas_coloured_fraction(page))
+            seen["estimates"][it] = (digest, painted)
         title = page.text_content("#pieces-title") or ""
         if "(flying)" in title:
             pieces = page.eval_on_selector_all(

@@ -175,21 +175,34 @@ def estimate_iteration(page: Any) -> int | None:
     return int(text) if text not in (None, "") else None
 
 
+_CANVAS_SEEN = """c => {
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let h = 0x811c9dc5, n = 0;
+    for (let i = 0; i < d.length; i++) { h ^= d[i]; h = Math.imul(h, 0x01000193) >>> 0; }
+    for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++;
+    return [c.dataset.iteration || "", h.toString(16) + ':' + c.width + 'x' + c.height,
+            n / (d.length / 4)]; }"""
+"""What a canvas shows, read at once: its ``data-iteration``, a hash (FNV-1a) of its pixels
+and the share of them painted (not transparent)."""
+
+
 def canvas_digest(page: Any, selector: str = "#estimate") -> str:
     """A hash (FNV-1a, in the page) of a canvas's pixels: what a person sees there."""
-    return str(page.eval_on_selector(selector, """c => {
-        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-        let h = 0x811c9dc5;
-        for (let i = 0; i < d.length; i++) { h ^= d[i]; h = Math.imul(h, 0x01000193) >>> 0; }
-        return h.toString(16) + ':' + c.width + 'x' + c.height; }"""))
+    return str(page.eval_on_selector(selector, _CANVAS_SEEN)[1])
+
+
+def estimate_shown(page: Any) -> tuple[int | None, str, float]:
+    """The estimate layer's iteration, :func:`canvas_digest` and
+    :func:`canvas_coloured_fraction`, read in one evaluation: the page cannot draw the next
+    iteration between them (two reads could pair one iteration's number with the next one's
+    pixels)."""
+    it, digest, painted = page.eval_on_selector("#estimate", _CANVAS_SEEN)
+    return (int(it) if it else None), str(digest), float(painted)
 
 
 def canvas_coloured_fraction(page: Any, selector: str = "#estimate") -> float:
     """Share of a canvas's pixels that are painted (not transparent)."""
-    return float(page.eval_on_selector(selector, """c => {
-        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-        let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++;
-        return n / (d.length / 4); }"""))
+    return float(page.eval_on_selector(selector, _CANVAS_SEEN)[2])
 
 
 def confirm_control(page: Any, button: str) -> None:
