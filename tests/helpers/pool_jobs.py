@@ -10,8 +10,8 @@ def hold(directory: str) -> int:
     """Mark this worker started, wait until told to stop, and mark it cleaned up on the way
     out (the ``finally`` a run directory closes in)."""
     d = Path(directory)
-    (d / f"started-{os.getpid()}").write_text("")
-    try:
+    try:  # the mark inside: a signal while it is written still finds the finally
+        (d / f"started-{os.getpid()}").write_text("")
         threading.Event().wait()  # forever: only a signal ends it
     finally:
         (d / f"cleaned-{os.getpid()}").write_text("")
