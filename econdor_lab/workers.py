@@ -5,8 +5,8 @@ shutting it down (SIGTERM or SIGKILL from a scheduler's time limit, a ``kill`` o
 study): they wait on their call queue for good, or finish the job they hold and the one
 queued behind it. :class:`WorkerPool` is that executor with three more rules:
 
-- **Each worker dies with its parent.** On Linux a worker asks the kernel for SIGTERM when
-  its parent ends (``prctl(PR_SET_PDEATHSIG)``), however the parent ended.
+- **Each worker dies with its parent**, however the parent ended
+  (:func:`econdor_gcs.lifetime.die_with_parent`).
 - **A worker told to stop ends its job cleanly.** SIGTERM in a worker raises
   :class:`WorkerTerminated` (a :class:`KeyboardInterrupt`) inside the job it is running,
   so the job's ``finally`` blocks run (a run directory closes with every sample it
@@ -23,22 +23,20 @@ core slow the dense solves down many times.
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import multiprocessing
 import os
 import signal
-import sys
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from types import FrameType, TracebackType
 from typing import Any, TypeVar
 
+from econdor_gcs.lifetime import die_with_parent
+
 __all__ = ["WorkerPool", "WorkerTerminated"]
 
 T = TypeVar("T")
 
-_PR_SET_PDEATHSIG = 1
 _BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -59,19 +57,9 @@ def _on_sigterm(signum: int, frame: FrameType | None) -> None:
     os._exit(128 + signum)
 
 
-def _die_with_parent() -> None:
-    """SIGTERM to this process when its parent ends (Linux; elsewhere nothing)."""
-    if not sys.platform.startswith("linux"):
-        return
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-
-
 def _init_worker(parent_pid: int) -> None:
     signal.signal(signal.SIGTERM, _on_sigterm)
-    _die_with_parent()
-    if os.getppid() != parent_pid:  # the parent ended before the request was made
+    if not die_with_parent(parent_pid):  # the parent ended before the request was made
         os._exit(128 + signal.SIGTERM)
 
 

@@ -4,6 +4,7 @@
                 [--autopilot px4|ardupilot] [--companion] [--prearm-s S]
                 [--gcs-failsafe rtl|hold|off] [--gcs-failsafe-s S]
                 [--speedup X] [--home LAT,LON,ALT] [--seed S] [--count N --sysid-base B]
+                [--parent-pid PID]
 
 ``--autopilot`` picks the personality (PX4 or ArduCopter habits, see
 :mod:`sim_vehicle.px4` and :mod:`sim_vehicle.ardupilot`); without ``--companion`` the vehicle
@@ -13,7 +14,10 @@ with it a companion computer runs the onboard tracer.
 One process per vehicle. With ``--count N`` this process launches N child ``sim-vehicle``
 processes (system ids B..B+N-1, B defaults to ``--sysid``) and waits for them; for ``udpin``
 and ``tcpin`` endpoints vehicle i listens on PORT+i (PORT 0: each picks an ephemeral port).
-SIGTERM / SIGINT stop the vehicle(s) cleanly with exit status 0.
+SIGTERM / SIGINT stop the vehicle(s) cleanly with exit status 0. With ``--parent-pid`` (the
+ground station that starts it: ``econdor run``) a vehicle gets that SIGTERM when the parent
+ends, however it ends (Linux), and does not start if it has ended already; the children of
+``--count`` end with their launcher the same way.
 
 At start each vehicle prints one line on stderr:
 ``sim-vehicle SYSID: ready on KIND:HOST:PORT`` (the actually bound local address for
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import subprocess
 import sys
@@ -32,6 +37,7 @@ import time
 from typing import Any
 
 from econdor_gcs.errors import EcondorError
+from econdor_gcs.lifetime import die_with_parent
 
 
 def _home(text: str) -> tuple[float, float, float]:
@@ -117,6 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--signing-key", default=None, metavar="FILE",
                    help="MAVLink 2 signing: 64 hex characters (the secret) or a passphrase "
                         "(SHA-256, as MAVProxy does); unsigned messages are then ignored")
+    p.add_argument("--parent-pid", type=int, default=None, metavar="PID",
+                   help="end with process PID (the ground station that started this "
+                        "vehicle), however it ends; Linux")
     p.add_argument("--reject-command", type=int, action="append", default=[],
                    metavar="CMD", help="(testing) refuse mission items with this MAV_CMD")
     return p
@@ -130,6 +139,8 @@ def _run_one(args: argparse.Namespace) -> int:
     from .tracer import warm_up
     from .transport import parse_endpoint
 
+    if args.parent_pid is not None and not die_with_parent(args.parent_pid):
+        raise EcondorError(f"--parent-pid {args.parent_pid}: that process has ended")
     mission = load_mission(args.mission)
     ep = parse_endpoint(args.connect)
     if args.seed is not None and args.seed < 0:
@@ -176,6 +187,8 @@ def _run_many(args: argparse.Namespace) -> int:
 
     from .transport import parse_endpoint
 
+    if args.parent_pid is not None and not die_with_parent(args.parent_pid):
+        raise EcondorError(f"--parent-pid {args.parent_pid}: that process has ended")
     load_mission(args.mission)  # fail fast, once, with one line
     ep = parse_endpoint(args.connect)
     base = args.sysid_base if args.sysid_base is not None else args.sysid
@@ -196,7 +209,8 @@ def _run_many(args: argparse.Namespace) -> int:
     for i in range(args.count):
         port = ep.port if ep.kind == "udpout" or ep.port == 0 else ep.port + i
         cmd = [sys.executable, "-m", "sim_vehicle.cli", "--sysid", str(base + i),
-               "--mission", args.mission, "--connect", f"{ep.kind}:{ep.host}:{port}"]
+               "--mission", args.mission, "--connect", f"{ep.kind}:{ep.host}:{port}",
+               "--parent-pid", str(os.getpid())]
         if args.speedup is not None:
             cmd += ["--speedup", repr(args.speedup)]
         if args.home is not None:

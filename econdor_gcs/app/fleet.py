@@ -1,7 +1,8 @@
 """Start and stop a fleet of simulated vehicles (``sim-vehicle`` processes) for ``econdor run``.
 
 One process per vehicle, system ids 1..N, each with its log in ``LOG_DIR/v{sysid}.log``.
-:meth:`Fleet.stop` always ends them: SIGTERM, wait, then SIGKILL. Each vehicle is a
+:meth:`Fleet.stop` always ends them: SIGTERM, wait, then SIGKILL; and each ends with the
+station's process however that ends (``sim-vehicle --parent-pid``), killed outright too. Each vehicle is a
 :class:`VehicleKind`: a PX4 or ArduPilot personality, with or without the companion computer
 that runs the contour tracer (``econdor run --autopilot ardupilot,px4+companion``).
 """
@@ -60,7 +61,7 @@ class Fleet:
         for i, sysid in enumerate(range(first_sysid, first_sysid + count)):
             cmd = [*sim_vehicle_command(), "--sysid", str(sysid), "--mission",
                    str(self.mission_path), "--connect", connect,
-                   *kinds[i % len(kinds)].args()]
+                   "--parent-pid", str(os.getpid()), *kinds[i % len(kinds)].args()]
             if speedup is not None:
                 cmd += ["--speedup", repr(float(speedup))]
             if seed is not None:
