@@ -2,9 +2,10 @@
 
 One process per vehicle, system ids 1..N, each with its log in ``LOG_DIR/v{sysid}.log``.
 :meth:`Fleet.stop` always ends them: SIGTERM, wait, then SIGKILL; and each ends with the
-station's process however that ends (``sim-vehicle --parent-pid``), killed outright too. Each vehicle is a
-:class:`VehicleKind`: a PX4 or ArduPilot personality, with or without the companion computer
-that runs the contour tracer (``econdor run --autopilot ardupilot,px4+companion``).
+station's process however that ends, killed outright too (``sim-vehicle --parent-pid``).
+Each vehicle is a :class:`VehicleKind`: a PX4 or ArduPilot personality, with or without the
+companion computer that runs the contour tracer (``econdor run --autopilot
+ardupilot,px4+companion``).
 """
 
 from __future__ import annotations
