@@ -18,12 +18,13 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 import pytest
+
+from tests.helpers.vehicles import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM_ARGS = [
@@ -107,16 +108,15 @@ class EcondorProcess:
         self.cmd = [sys.executable, "-m", "econdor", *args]
         self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=subprocess.STDOUT,
                                      cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        deadline = time.monotonic() + timeout_s
-        while True:
-            m = URL_RE.search(self.output())
-            if m:
-                self.url = m[1]
-                break
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                self.close()
-                raise RuntimeError(f"no 'web:' line from {' '.join(self.cmd)}:\n{self.output()}")
-            time.sleep(0.05)
+        try:  # the line, or the process's end without it
+            seen = wait_for(lambda: URL_RE.search(self.output()) or self.proc.poll() is not None,
+                            timeout_s, "the 'web:' line", interval=0.05)
+        except TimeoutError:
+            seen = None
+        if not isinstance(seen, re.Match):
+            self.close()
+            raise RuntimeError(f"no 'web:' line from {' '.join(self.cmd)}:\n{self.output()}")
+        self.url = seen[1]
 
     def output(self) -> str:
         return Path(self.log.name).read_text(errors="replace")
