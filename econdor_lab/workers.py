@@ -10,7 +10,8 @@ queued behind it. :class:`WorkerPool` is that executor with three more rules:
 - **A worker told to stop ends its job cleanly.** SIGTERM in a worker raises
   :class:`WorkerTerminated` (a :class:`KeyboardInterrupt`) inside the job it is running,
   so the job's ``finally`` blocks run (a run directory closes with every sample it
-  received); then the worker exits. An idle worker exits at once.
+  received); then the worker exits. Further SIGTERMs while those blocks run are ignored.
+  An idle worker exits at once.
 - **Leaving the pool on an exception stops it**: queued jobs are cancelled and the
   running ones are stopped as above (SIGTERM; SIGKILL for a worker still alive after
   ``stop_timeout_s``), rather than waited for. Leaving it normally waits for every job,
@@ -51,6 +52,8 @@ _terminating = False
 
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
     global _terminating
+    if _terminating:  # told already: the job is on its way out through its finally blocks
+        return  # (the executor sends every worker SIGTERM again once one of them has ended)
     _terminating = True
     if _in_job:
         raise WorkerTerminated()

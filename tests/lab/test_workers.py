@@ -39,6 +39,28 @@ def test_a_pool_left_on_an_error_stops_its_jobs_through_their_finally(tmp_path):
     assert not any(f.done() and not f.cancelled() and f.exception() is None for f in futs)
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_second_sigterm_does_not_cut_a_jobs_finally_short(tmp_path):
+    """When one worker ends, the executor sends SIGTERM to every worker again: a job already
+    on its way out through its ``finally`` must still finish it."""
+    os.mkfifo(tmp_path / "release")
+    with pytest.raises(RuntimeError, match="stop here"), WorkerPool(1) as pool:
+        fut = pool.submit(pool_jobs.hold_through_cleanup, str(tmp_path))
+        (pid,) = wait_for(lambda: _marks(tmp_path, "started"), 60, "the job to start")
+        os.kill(pid, signal.SIGTERM)
+        wait_for(lambda: _marks(tmp_path, "cleaning"), 60, "the job's finally to begin")
+        os.kill(pid, signal.SIGTERM)
+        wait_for(lambda: not pool_jobs.signal_pending(pid, signal.SIGTERM), 60,
+                 "the second SIGTERM to be delivered")
+        fd = os.open(tmp_path / "release", os.O_RDWR)  # never blocks, reader or none
+        os.write(fd, b"go")
+        os.close(fd)
+        wait_for(lambda: process_gone(pid), 60, "the worker to end")
+        raise RuntimeError("stop here")
+    assert _marks(tmp_path, "cleaned") == {pid}
+    assert not fut.done() or fut.cancelled() or fut.exception() is not None
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
 def test_workers_end_with_a_parent_killed_outright(tmp_path):
     """SIGKILL gives the parent no chance to stop anything: the kernel tells the workers."""
