@@ -238,13 +238,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from econdor_gcs.app.run_logging import sigterm_as_interrupt
-
-    with sigterm_as_interrupt():  # the workers stop and every run closes its directory
-        return _study(args)
-
-
-def _study(args: argparse.Namespace) -> int:
     from econdor_lab.study import default_workers, parse_seeds, run_study
 
     mission = load_mission(args.mission)
@@ -443,14 +436,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "run":
         _check_run_args(parser, args)
-    try:
-        return COMMANDS[args.command](args)
-    except EcondorError as exc:
-        print(f"econdor: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("econdor: interrupted", file=sys.stderr)
-        return 130
+    from econdor_gcs.lifetime import sigterm_as_interrupt
+
+    # SIGTERM stops a command as Ctrl-C does (a study's workers stop, every run closes its
+    # directory), and a second stop signal does not cut that short
+    with sigterm_as_interrupt():
+        try:
+            return COMMANDS[args.command](args)
+        except EcondorError as exc:
+            print(f"econdor: error: {exc}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            print("econdor: interrupted", file=sys.stderr)
+            return 130
 
 
 if __name__ == "__main__":

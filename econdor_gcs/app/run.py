@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from econdor_gcs.app.run_failures import checked_disk, refusals, write_partial
-from econdor_gcs.app.run_logging import log_station, logging_to, sigterm_as_interrupt
+from econdor_gcs.app.run_logging import log_station, logging_to
 from econdor_gcs.config import Mission
 from econdor_gcs.core.tasks import (
     SampleLog,
@@ -36,6 +36,7 @@ from econdor_gcs.errors import (
 from econdor_gcs.files.layout import RunDirMode, disk_error, writing
 from econdor_gcs.files.rundir import RunDir
 from econdor_gcs.files.runlog import RunLog, Severity
+from econdor_gcs.lifetime import sigterm_as_interrupt
 from econdor_gcs.link.forward import Forwarder
 from econdor_gcs.link.items import MISSION_FENCE_MARGIN_M
 from econdor_gcs.link.router import (
@@ -178,7 +179,8 @@ class _MavlinkRun:
 
         o = self.opts
         replay = read_checkpoint(self.out) if self.resume else []
-        with contextlib.ExitStack() as stack:
+        # the stop signals' scope holds the clean-up too: a second Ctrl-C must not cut it
+        with sigterm_as_interrupt(), contextlib.ExitStack() as stack:
             self.rd = RunDir(self.out, o.mode, grid=self.mission.grid, received=True)
             stack.callback(self.rd.close)
             self.runlog = RunLog(self.out / "log.jsonl")
@@ -197,7 +199,7 @@ class _MavlinkRun:
             stack.callback(self._close_outputs)
             log_station(self.station.router, self.runlog)
             try:
-                with sigterm_as_interrupt(), logging_to(self.runlog):
+                with logging_to(self.runlog):
                     return self._fly(replay)
             except (EcondorError, KeyboardInterrupt, OSError) as exc:
                 failure = self._fail(exc)

@@ -1,14 +1,11 @@
-"""The run's own log (``log.jsonl``) fed from the station, and SIGTERM taken as Ctrl-C:
-the plumbing :func:`econdor_gcs.app.run.run_mission` wraps a run in."""
+"""The run's own log (``log.jsonl``) fed from the station: the plumbing
+:func:`econdor_gcs.app.run.run_mission` wraps a run in."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import signal
-import threading
 from collections.abc import Iterator
-from typing import Any
 
 from econdor_gcs.files.runlog import RunLog, Severity
 from econdor_gcs.link.codec import MAVLinkMessage, mavlink
@@ -25,26 +22,6 @@ from econdor_gcs.link.router import (
 )
 from econdor_gcs.link.vehicles import EVENTS
 from econdor_gcs.station.flight import StatusAssembler
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, delivered like Ctrl-C so every ``finally`` runs."""
-
-
-def _on_sigterm(signum: int, frame: Any) -> None:
-    raise Terminated()
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.signal(signal.SIGTERM, _on_sigterm)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 def log_station(router: Router, runlog: RunLog) -> None:
