@@ -7,6 +7,8 @@ usage errors exit 2 (argparse). No traceback for a user's mistake.
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -442,7 +444,15 @@ def main(argv: list[str] | None = None) -> int:
     # directory), and a second stop signal does not cut that short
     with sigterm_as_interrupt():
         try:
-            return COMMANDS[args.command](args)
+            code = COMMANDS[args.command](args)
+            sys.stdout.flush()  # (a reader gone shows here, not as Python exits)
+            return code
+        except BrokenPipeError:
+            # the reader of the output went away (``econdor import m.waypoints | head -1``):
+            # stop quietly, as a Unix tool ended by SIGPIPE does (a study stops its
+            # workers on the way out, every run keeping its samples)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 128 + signal.SIGPIPE
         except EcondorError as exc:
             print(f"econdor: error: {exc}", file=sys.stderr)
             return 1

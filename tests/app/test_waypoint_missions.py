@@ -7,6 +7,9 @@ import argparse
 import json
 import math
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -317,6 +320,22 @@ def test_import_names_the_plan_key_at_fault(tmp_path, edit, message):
     with pytest.raises(EcondorError, match=rf"bad\.plan: {message}" if message[0] != "\\"
                        else rf"bad{message}"):
         read_mission_file(bad)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
+def test_import_cli_whose_reader_went_away_stops_quietly(tmp_path):
+    """``econdor import m.waypoints | head -1``: the reader closes the pipe; the command
+    ends as a Unix tool ended by SIGPIPE does (128 + 13), with no traceback."""
+    path = tmp_path / "m.waypoints"
+    path.write_text(WPL_OK)
+    proc = subprocess.Popen([sys.executable, "-m", "econdor", "import", str(path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # gone before the command writes a line
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert proc.wait(timeout=60) == 128 + signal.SIGPIPE, err
+    assert err == ""
 
 
 def test_import_cli_says_what_the_file_holds(tmp_path, capsys):
