@@ -46,6 +46,8 @@ def test_a_second_signal_during_the_clean_up_does_not_cut_it_short(tmp_path):
         station.send_signal(signal.SIGTERM)
         wait_for(lambda: _stopping(out / "log.jsonl") or station.poll() is not None, 60,
                  "the clean-up to begin", interval=0.001)
+        # the second signals reach a station still cleaning up (else this tests nothing)
+        assert station.poll() is None, "the clean-up was over before the second signal"
         station.send_signal(signal.SIGTERM)
         station.send_signal(signal.SIGINT)
         _, err = station.communicate(timeout=60)
