@@ -132,8 +132,30 @@ class Station:
         except Exception as exc:  # noqa: BLE001 - logged and kept: closing goes on regardless
             self.close_error = f"closing the GCS endpoint failed: {exc!r}"
             log.error("%s", self.close_error)
+        try:  # what an interrupted wait left on the loop ends before the loop does
+            asyncio.run_coroutine_threadsafe(_end_other_tasks(CLOSE_TASKS_S), self.loop).result(
+                CLOSE_TASKS_S + 1.0)
+        except Exception as exc:  # noqa: BLE001 - logged: closing goes on regardless
+            log.error("ending the station's tasks failed: %r", exc)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self._thread.join(5.0)
         if not self._thread.is_alive():
             self.loop.close()
         self._started = False
+
+
+CLOSE_TASKS_S = 2.0
+"""How long :meth:`Station.close` waits for the tasks it cancels to end."""
+
+
+async def _end_other_tasks(timeout_s: float) -> None:
+    """Cancel every task on the running loop but this one and wait for them to end: a
+    coroutine whose wait was interrupted (Ctrl-C during :meth:`Station.call`) is still
+    on the loop, and a loop closed under it leaves "Task was destroyed but it is
+    pending!" on stderr."""
+    me = asyncio.current_task()
+    rest = [t for t in asyncio.all_tasks() if t is not me]
+    for t in rest:
+        t.cancel()
+    if rest:
+        await asyncio.wait(rest, timeout=timeout_s)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import socket
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -85,6 +87,27 @@ def test_station_close_reports_a_router_that_fails_to_close(
         station.close()
     assert station.close_error == "closing the GCS endpoint failed: OSError('device gone')"
     assert station.close_error in caplog.text
+
+
+def test_station_close_ends_what_an_interrupted_wait_left_on_its_loop(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Ctrl-C during ``Station.call`` leaves its coroutine on the loop: closing the station
+    ends it before the loop closes (a loop closed under it prints "Task was destroyed but
+    it is pending!" after the run's one line)."""
+    station = Station("udpin:127.0.0.1:0")
+    station.start()
+    started = threading.Event()
+
+    async def wait_forever() -> None:
+        started.set()
+        await asyncio.Event().wait()
+
+    left = asyncio.run_coroutine_threadsafe(wait_forever(), station.loop)
+    assert started.wait(10)
+    with caplog.at_level(logging.ERROR):
+        station.close()
+    assert left.cancelled()
+    assert "destroyed" not in caplog.text
 
 
 class _IcmpSocket:
