@@ -28,6 +28,15 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   no transfer running is answered MAV_MISSION_ERROR. For the first
   :data:`NO_SPACE_AFTER_BOOT_S` of its time it refuses every upload with
   MAV_MISSION_NO_SPACE (its mission storage is not ready yet).
+* A mission upload is written into the stored mission as it comes (``AP_Mission``: the
+  mission is truncated to the new count when the transfer begins, each item replaces the one
+  stored at its place), so an upload that ends early (a refused item, the 8 s timeout) leaves
+  the new items taken so far, then the old ones up to the new count (seen on SITL: a 5-item
+  mission, then a 3-item upload given items 0 and 1 and left, reads back as home, the new
+  item 1, the old item 2). A GCS's MISSION_ACK does not end a transfer (SITL went on
+  requesting after MISSION_ACK(OPERATION_CANCELLED)); MISSION_CLEAR_ALL does, and empties the
+  mission. While a transfer of a type runs, a download of that type is refused with
+  MAV_MISSION_DENIED.
 * Flying a mission: GUIDED, arm, NAV_TAKEOFF (param7 = altitude *above home*), then AUTO; or
   arm and MAV_CMD_MISSION_START with param1 = param2 = 0 (anything else is DENIED: "first-item/
   last item not supported"), which enters AUTO and resumes at the current item, or from item 1
@@ -54,7 +63,8 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   the shipped one does (``arming:is_armed() and vehicle:get_likely_flying()``).
 
 Not imitated: the RC throttle that real ArduCopter wants before AUTO takes off (``auto_armed``;
-there is no pilot here), failsafes, fences, parameters other than ours.
+there is no pilot here), failsafes, fences, parameters other than ours; a mission flown while
+an upload writes into it flies on with the items it had when it started.
 """
 
 from __future__ import annotations
@@ -161,6 +171,11 @@ class ArduPilotMissionServer(MissionServer):
         return sim_s / max(self.speedup(), 1e-9)
 
     def _on_count(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        up = self.upload
+        if up is not None and up.mission_type == self._mtype(msg) and up.peer != peer:
+            # ``MissionItemProtocol::handle_mission_count``: only the GCS uploading may
+            # start its transfer again
+            return [self._ack(peer, mavlink.MAV_MISSION_DENIED, self._mtype(msg))]
         if self.sim_time() < NO_SPACE_AFTER_BOOT_S and msg.count > 0:
             return [self._ack(peer, mavlink.MAV_MISSION_NO_SPACE, self._mtype(msg))]
         self.timeout_s = self._wall(UPLOAD_RETRY_S)
@@ -168,6 +183,8 @@ class ArduPilotMissionServer(MissionServer):
         replies = super()._on_count(msg, peer, now)
         if self.upload is not None:
             self.upload_began_s = self.sim_time()
+            if self.upload.mission_type == MISSION:  # truncated to the new count at once
+                self.stores[MISSION] = self.stores[MISSION][:self.upload.count]
         return replies
 
     def _on_item(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
@@ -181,7 +198,37 @@ class ArduPilotMissionServer(MissionServer):
             return [self._ack(peer, mavlink.MAV_MISSION_DENIED, mtype)]
         self._last_item_wall = now
         self.timeout_s = self._wall(UPLOAD_RETRY_S)
-        return super()._on_item(msg, peer, now)
+        taken = len(up.items)
+        replies = super()._on_item(msg, peer, now)
+        if mtype == MISSION and self.upload is up and len(up.items) > taken:
+            self._write_in_place(up.items[-1])
+        return replies
+
+    def _write_in_place(self, item: StoredItem) -> None:
+        """Store one item of a running mission upload at its place (ArduPilot writes each
+        item as it comes; item 0 stays home)."""
+        items = list(self.stores[MISSION])
+        if item.seq < len(items):
+            items[item.seq] = item
+        else:
+            items.append(item)
+        self.stores[MISSION] = self.stored(MISSION, items)
+
+    def _on_ack(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        return []  # a GCS's MISSION_ACK does not end ArduPilot's transfer: it times out
+
+    def _on_request_list(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        if self._receiving(self._mtype(msg)):
+            return [self._ack(peer, mavlink.MAV_MISSION_DENIED, self._mtype(msg))]
+        return super()._on_request_list(msg, peer, now)
+
+    def _on_request(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        if self._receiving(self._mtype(msg)):
+            return [self._ack(peer, mavlink.MAV_MISSION_DENIED, self._mtype(msg))]
+        return super()._on_request(msg, peer, now)
+
+    def _receiving(self, mtype: int) -> bool:
+        return self.upload is not None and self.upload.mission_type == mtype
 
     def poll(self, now: float) -> list[Any]:
         up = self.upload

@@ -365,3 +365,61 @@ def test_the_station_places_the_samples_of_the_pause_because_the_copter_held_its
     else:
         assert set(sent) - placed_ms == set(in_pause)
         assert pairer.dropped == {pairing.DropReason.GAP: len(in_pause), **after}
+
+
+def _waypoints(n, y_m):
+    """``n`` mission items: home, then waypoints at ``y_m`` north, 10 m apart east."""
+    wp = mavlink.MAV_CMD_NAV_WAYPOINT
+    return [item_int(0, wp, *ll(0.0, 0.0), 10.0),
+            *[item_int(s, wp, *ll(10.0 * s, y_m), 10.0) for s in range(1, n)]]
+
+
+def test_an_upload_left_part_way_leaves_the_new_items_over_the_old_ones():
+    """As seen on SITL: a 5-item mission, then a 3-item upload that stops after item 1 and
+    times out, reads back as home, the new item 1 and the old item 2 (ArduPilot writes each
+    item as it comes, and truncates at the count)."""
+    ap = make(ArduCopterAutopilot)
+    old, new = _waypoints(5, 20.0), _waypoints(3, 40.0)
+    upload(ap, old, request="MISSION_REQUEST")
+    count(ap, 3, now=1.0)
+    for it in new[:2]:
+        ap.receive(rx(it), 1.0)
+    drain(ap)
+    ap.poll(1.0 + 8.1)
+    assert drain(ap)[-1].type == mavlink.MAV_MISSION_OPERATION_CANCELLED
+    back = download(ap)
+    assert [(m.x, m.y) for m in back[1:]] == [(new[1].x, new[1].y), (old[2].x, old[2].y)]
+
+
+def test_a_refused_item_leaves_the_items_before_it_in_the_mission():
+    ap = make(ArduCopterAutopilot)
+    old = _waypoints(4, 20.0)
+    upload(ap, old, request="MISSION_REQUEST")
+    new = _waypoints(4, 40.0)
+    new[2] = item_int(2, mavlink.MAV_CMD_WAYPOINT_USER_1, *ll(20.0, 40.0), 10.0)
+    count(ap, 4)
+    for it in new[:3]:
+        ap.receive(rx(it), 0.0)
+    assert drain(ap)[-1].type == mavlink.MAV_MISSION_UNSUPPORTED and ap.server.upload is None
+    back = download(ap)
+    assert [(m.x, m.y) for m in back[1:]] == [(new[1].x, new[1].y), (old[2].x, old[2].y),
+                                             (old[3].x, old[3].y)]
+
+
+def test_a_gcs_cancel_does_not_end_the_transfer_and_downloads_are_denied_meanwhile():
+    """SITL went on requesting the item after the GCS's MISSION_ACK(OPERATION_CANCELLED), and
+    refused a download with MAV_MISSION_DENIED until the transfer ended."""
+    ap = make(ArduCopterAutopilot, speedup=1.0)
+    count(ap, 3)
+    ap.receive(rx(mavlink.MAVLink_mission_ack_message(
+        1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, 0)), 0.0)
+    assert ap.server.upload is not None
+    ap.receive(rx(mavlink.MAVLink_mission_request_list_message(1, 1, 0)), 0.0)
+    [ack] = drain(ap)
+    assert (ack.get_type(), ack.type) == ("MISSION_ACK", mavlink.MAV_MISSION_DENIED)
+    ap.poll(1.1)
+    assert [m.get_type() for m in drain(ap)] == ["MISSION_REQUEST"]
+    # MISSION_CLEAR_ALL ends it (and empties the mission)
+    ap.receive(rx(mavlink.MAVLink_mission_clear_all_message(1, 1, 0)), 2.0)
+    assert drain(ap)[-1].type == mavlink.MAV_MISSION_ACCEPTED
+    assert ap.server.upload is None and ap.server.mission == []

@@ -140,10 +140,10 @@ def test_ardupilot_refuses_to_arm_until_its_prearm_checks_pass():
 def test_ardupilot_mission_protocol_habits():
     ap = make(ArduCopterAutopilot)
     trace = item_int(3, 31000, *ll(50, 50), 10, p1=42.0, p2=10, p4=7)
-    # a stock ArduPilot refuses the contour item ...
+    # a stock ArduPilot refuses the contour item (and keeps the items before it) ...
     upload(ap, [*copter_mission(), trace], expect=mavlink.MAV_MISSION_UNSUPPORTED,
            request="MISSION_REQUEST")
-    assert ap.server.mission == []
+    assert [it.seq for it in ap.server.mission] == [0, 1, 2]
     # ... with a companion computer it is accepted
     upload(make(ArduCopterAutopilot, companion=True), [*copter_mission(), trace],
            request="MISSION_REQUEST")
@@ -375,7 +375,8 @@ def test_only_a_companion_takes_the_sensor_lag_item(cls):
     mission = [*copter_mission()[:2], lag_item(2, 0.75)]
     stock = make(cls)
     upload(stock, mission, expect=mavlink.MAV_MISSION_UNSUPPORTED, request=request)
-    assert stock.server.mission == []
+    # ArduPilot keeps the items before the refused one (it writes each as it comes)
+    assert len(stock.server.mission) == (2 if cls is ArduCopterAutopilot else 0)
     companion = make(cls, companion=True)
     upload(companion, mission, request=request)
     assert companion.server.mission[2].param1 == 0.75
