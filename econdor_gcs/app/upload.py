@@ -23,9 +23,11 @@ from __future__ import annotations
 import argparse
 import math
 import struct
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from econdor_gcs.errors import EcondorError, MissionRejected
 from econdor_gcs.files.autopilot_files import MissionFile, is_global_frame, is_home_item, read_mission_file
@@ -34,6 +36,9 @@ from econdor_gcs.link.autopilots import ARDUPILOT_POSITION_COMMANDS, AutopilotKi
 from econdor_gcs.link.codec import mavlink
 from econdor_gcs.link.items import INT_TO_FLOAT_FRAME, SENSOR_LAG_COMMAND, MissionItemSpec
 from econdor_gcs.link.router import Router
+
+if TYPE_CHECKING:
+    from econdor_gcs.station.loop import Station
 
 __all__ = ["Mismatch", "compare_items", "upload_cli", "upload_verified"]
 
@@ -175,6 +180,22 @@ async def upload_verified(router: Router, sysid: int, mfile: MissionFile,
     return UploadResult(sysid, kind, counts, home_replaced)
 
 
+def _clear_partial(station: Station, sysid: int) -> str:
+    """After an upload that failed: an ArduPilot left with part of it over its old mission
+    (it writes each item as it comes) gets its mission cleared, so that nothing flies a mix
+    of two missions. Returns what to add to the error ("" when nothing was left)."""
+    try:
+        cleared = station.call(station.router.clear_partial_mission(sysid), timeout_s=10.0)
+    except Exception as exc:  # noqa: BLE001 - reported, with what the vehicle now holds
+        if mavlink.MAV_MISSION_TYPE_MISSION not in station.router.vehicles[sysid].partial_missions:
+            return ""
+        return ("; its mission is now part this one, part the one before (ArduPilot stores "
+                f"items as they come), and clearing it failed ({exc}): clear it before flying")
+    if not cleared:
+        return ""
+    return "; its mission was cleared (ArduPilot had stored part of this one over the one before)"
+
+
 def upload_cli(args: argparse.Namespace) -> int:
     """``econdor upload PATH --connect udpin:HOST:PORT [--sysid N] [--start] [--timeout S]``."""
     from econdor_gcs.station.loop import Station
@@ -201,7 +222,13 @@ def upload_cli(args: argparse.Namespace) -> int:
             if exc.command in (mavlink.MAV_CMD_WAYPOINT_USER_1, SENSOR_LAG_COMMAND):
                 hint = (" (a stock autopilot flies contours as waypoints: export with "
                         "--style waypoints)")
-            raise EcondorError(f"{exc}{hint}") from None
+            raise EcondorError(f"{exc}{hint}{_clear_partial(station, sysid)}") from None
+        except EcondorError as exc:
+            raise EcondorError(f"{exc}{_clear_partial(station, sysid)}") from None
+        except KeyboardInterrupt:
+            if note := _clear_partial(station, sysid):
+                print(f"econdor: vehicle {sysid}:{note.removeprefix(';')}", file=sys.stderr)
+            raise
         parts = [f"{n} {name} item{'' if n == 1 else 's'}" for name, n in result.counts.items()]
         note = " (item 0 replaced by its home, as ArduPilot does)" if result.home_replaced else ""
         print(f"vehicle {sysid} ({result.autopilot.value}): uploaded and verified "

@@ -82,7 +82,14 @@ class CommandVocabulary:
                              no_space_wait_s: float = NO_SPACE_WAIT_S) -> int:
         """Upload a mission; return the number of items.  One mission transfer per vehicle at a
         time (later calls wait). A whole mission refused with MAV_MISSION_NO_SPACE is sent
-        again for up to ``no_space_wait_s`` (an autopilot that has just booted)."""
+        again for up to ``no_space_wait_s`` (an autopilot that has just booted).
+
+        An upload the station leaves after the vehicle began to take it (no answer, an error,
+        the caller cancelled) is cancelled with MISSION_ACK(OPERATION_CANCELLED), as the
+        mission protocol says. One that ends part-way on an ArduPilot, which writes each item
+        into its mission as it comes and does not act on that cancel, is kept in
+        :attr:`~.vehicles.VehicleLink.partial_missions`: its mission is now part new, part old
+        (:meth:`clear_mission` empties it)."""
         loop = asyncio.get_running_loop()
         give_up = loop.time() + no_space_wait_s
         async with self._lock(sysid):
@@ -91,12 +98,34 @@ class CommandVocabulary:
                                           timeout_s=timeout_s, retries=retries,
                                           legacy_items=legacy_items)
                 try:
-                    return int(await self.run_protocol(sysid, machine))
+                    n = int(await self.run_protocol(sysid, machine))
                 except MissionRejected as exc:
+                    self._left_part_way(sysid, machine, cancel=False)
                     if exc.result != mavlink.MAV_MISSION_NO_SPACE or exc.seq is not None \
                             or loop.time() + NO_SPACE_RETRY_S > give_up:
                         raise
+                except BaseException:
+                    self._left_part_way(sysid, machine, cancel=True)
+                    raise
+                else:
+                    self._vehicle(sysid).partial_missions.discard(mission_type)
+                    return n
                 await asyncio.sleep(NO_SPACE_RETRY_S)
+
+    def _left_part_way(self, sysid: int, machine: MissionUploader, *, cancel: bool) -> None:
+        """The upload ``machine`` ended without success: if the vehicle had begun to take it,
+        cancel it (unless the vehicle ended it itself, ``cancel`` False) and note an
+        ArduPilot's partial mission."""
+        if not machine.requested:
+            return
+        link = self.vehicles.get(sysid)
+        if cancel:
+            self.send(sysid, mavlink.MAVLink_mission_ack_message(
+                sysid, self._compid(sysid), mavlink.MAV_MISSION_OPERATION_CANCELLED,
+                machine.mission_type))
+        if link is not None and link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA \
+                and machine.mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
+            link.partial_missions.add(machine.mission_type)
 
     async def download_mission(self, sysid: int, *, mission_type: int = 0,
                                timeout_s: float = DEFAULT_TIMEOUT_S,
@@ -113,6 +142,26 @@ class CommandVocabulary:
             machine = MissionClear(sysid, self._compid(sysid), mission_type,
                                    timeout_s=timeout_s, retries=retries)
             await self.run_protocol(sysid, machine)
+        partial = self._vehicle(sysid).partial_missions
+        for t in (list(partial) if mission_type == mavlink.MAV_MISSION_TYPE_ALL
+                  else [mission_type]):
+            partial.discard(t)
+
+    async def clear_partial_mission(self, sysid: int, *, timeout_s: float = DEFAULT_TIMEOUT_S,
+                                    retries: int = DEFAULT_RETRIES) -> bool:
+        """If the last mission upload to ``sysid`` ended part-way on an autopilot that keeps
+        what it took (:attr:`~.vehicles.VehicleLink.partial_missions`), clear its mission
+        (MISSION_CLEAR_ALL also ends ArduPilot's transfer if it still runs) and return True;
+        False when there was nothing to clear. Waits for an upload still ending (the
+        mission lock)."""
+        mission = mavlink.MAV_MISSION_TYPE_MISSION
+        async with self._lock(sysid):
+            if mission not in self._vehicle(sysid).partial_missions:
+                return False
+            await self.run_protocol(sysid, MissionClear(
+                sysid, self._compid(sysid), mission, timeout_s=timeout_s, retries=retries))
+            self._vehicle(sysid).partial_missions.discard(mission)
+            return True
 
     # -- commands ---------------------------------------------------------------------------
     async def command(self, sysid: int, cmd: int, *params: float,

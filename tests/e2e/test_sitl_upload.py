@@ -123,3 +123,35 @@ def test_plan_fence_is_enforced_by_the_autopilot(tmp_path):
             for p in watch.of("GLOBAL_POSITION_INT") if p.lat]
     fence_east_m = m.region.xmax + 10.0  # export's --fence-margin-m
     assert fence_east_m - 15.0 < max(east) < fence_east_m + 10.0
+
+
+def test_a_refused_upload_leaves_no_mix_of_two_missions(tmp_path, capsys):
+    """ArduCopter writes each item of an upload as it comes: a contour item refused at item 2
+    would leave the new items 0-1 over the old mission, truncated to the new count (seen:
+    home, takeoff, then the old item 2). `econdor upload` clears it and says so; read back
+    with pymavlink, the mission is empty."""
+    from pymavlink import mavutil
+
+    wpl = export(tmp_path, "wpl", "first.waypoints")[0]
+    contour = tmp_path / "contour.waypoints"
+    contour.write_text("QGC WPL 110\n0\t1\t0\t16\t0\t0\t0\t0\t47.397742\t8.545594\t488\t1\n"
+                       "1\t0\t3\t22\t0\t0\t0\t0\t47.397742\t8.545594\t20\t1\n"
+                       "2\t0\t3\t31000\t42\t10\t0\t3\t47.3979\t8.5459\t20\t1\n")
+    sitl = Sitl(tmp_path / "sitl", speedup=SPEEDUP)
+    with sitls(sitl):
+        connect = ["--connect", f"tcp:127.0.0.1:{sitl.port}", "--timeout", "30"]
+        assert econdor(["upload", str(wpl), *connect]) == 0
+        capsys.readouterr()
+        assert econdor(["upload", str(contour), *connect, "--force"]) == 1
+        assert capsys.readouterr().err.strip().endswith(
+            "; its mission was cleared (ArduPilot had stored part of this one over the one "
+            "before)")
+        gcs = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.port}", source_system=255,
+                                         source_component=190)
+        try:
+            assert gcs.wait_heartbeat(timeout=30) is not None
+            gcs.mav.mission_request_list_send(sitl.sysid, 1, mavlink.MAV_MISSION_TYPE_MISSION)
+            count = gcs.recv_match(type="MISSION_COUNT", blocking=True, timeout=10)
+            assert count is not None and count.count == 0
+        finally:
+            gcs.close()

@@ -92,9 +92,10 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
         assert err.count("\n") == 0
         assert "vehicle 1: the mission read back differs from the file: item 3 z: sent 15.0, " \
                "got back 16.0" in err
-    # a stock autopilot refuses contour items: the error says what to do
+    # a stock autopilot refuses contour items: the error says what to do, and the items
+    # before the refused one, which ArduPilot had stored over its old mission, are cleared
     with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
-                        companion=False):
+                        companion=False) as v:
         contour = tmp_path / "c.waypoints"
         contour.write_text(
             "QGC WPL 110\n0\t1\t3\t16\t0\t0\t0\t0\t47.397742\t8.545594\t0\t1\n"
@@ -105,7 +106,9 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err == ("econdor: error: vehicle 1 rejected mission item 2: "
                        "MAV_MISSION_UNSUPPORTED (a stock autopilot flies contours as "
-                       "waypoints: export with --style waypoints)")
+                       "waypoints: export with --style waypoints); its mission was cleared "
+                       "(ArduPilot had stored part of this one over the one before)")
+        assert v.server.mission == [] and v.server.counters["uploads"] == 0
         # a mission without a home item would lose its first item on ArduPilot
         headless = tmp_path / "h.waypoints"
         headless.write_text("QGC WPL 110\n"
@@ -114,3 +117,39 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
                      "--timeout", "10"]) == 1
         assert "replaces item 0 with its home, and item 0 of this mission is command 22" in \
             capsys.readouterr().err
+
+
+def test_an_upload_interrupted_part_way_leaves_an_ardupilot_no_mix_of_two_missions(
+        tmp_path, capsys):
+    """Ctrl-C while ArduPilot takes the items: it has written the first ones over its old
+    mission (and would go on asking for 8 s); the station clears its mission and says so."""
+    import _thread
+    import threading
+
+    path = exported(tmp_path, "wpl")
+    port = free_port()
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
+                        companion=False) as v:
+        asked = v.server._request
+
+        def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
+            return asked(up) if len(up.items) < 2 else \
+                mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
+
+        v.server._request = stall
+
+        def interrupt():
+            wait_for(lambda: v.server.upload is not None and len(v.server.upload.items) == 2,
+                     20, "the first two items taken")
+            _thread.interrupt_main()
+
+        t = threading.Thread(target=interrupt, daemon=True)
+        t.start()
+        code = main(["upload", str(path), "--connect", f"udpin:127.0.0.1:{port}",
+                     "--timeout", "10"])
+        t.join()
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 130
+        assert err == ["econdor: vehicle 1: its mission was cleared (ArduPilot had stored "
+                       "part of this one over the one before)", "econdor: interrupted"]
+        assert v.server.mission == [] and v.server.upload is None

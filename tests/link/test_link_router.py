@@ -192,6 +192,52 @@ def test_mission_transfer_and_commands_over_udp_with_loss():
     run(main())
 
 
+class _StallingVehicle(FakeUdpVehicle):
+    """Takes items 0 and 1 of an upload and then stops asking; ``autopilot`` in its
+    HEARTBEAT."""
+
+    def __init__(self, sysid: int, autopilot: int) -> None:
+        super().__init__(sysid)
+        self.autopilot = autopilot
+
+    def heartbeat(self) -> None:
+        self.send(mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, self.autopilot, 0, 4, mavlink.MAV_STATE_ACTIVE, 3))
+
+    def handle(self, msg) -> list:
+        if msg.get_type() == "MISSION_ITEM_INT" and msg.seq >= 1:
+            return []
+        return super().handle(msg)
+
+
+@pytest.mark.parametrize("autopilot", [mavlink.MAV_AUTOPILOT_PX4,
+                                       mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA])
+def test_an_upload_left_part_way_is_cancelled_and_an_ardupilots_partial_mission_cleared(
+        autopilot):
+    """The mission protocol's cancel (MISSION_ACK OPERATION_CANCELLED) goes out when the
+    station gives up on an upload the vehicle began to take; an ArduPilot, which keeps the
+    items it took and ignores that cancel, is noted as holding a partial mission until it is
+    cleared."""
+    async def main():
+        async with Router(ENDPOINT) as router:
+            v = await _StallingVehicle(1, autopilot).start(router.local_address)
+            v.heartbeat()
+            await router.wait_for_vehicles([1], timeout_s=3.0)
+            items = build_mission(ORIGIN, [TraceTask(50.0, 20.0, 30.0, 10.0, 0.0, 1)], 25.0)
+            with pytest.raises(VehicleTimeout, match="no request after item 1"):
+                await router.upload_mission(1, items, timeout_s=0.05, retries=2)
+            cancel = await v.wait_for("MISSION_ACK")
+            assert cancel.type == mavlink.MAV_MISSION_OPERATION_CANCELLED
+            ardupilot = autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+            assert router.vehicles[1].partial_missions == ({0} if ardupilot else set())
+            assert await router.clear_partial_mission(1, timeout_s=0.2) == ardupilot
+            assert [m.get_type() for m in v.got].count("MISSION_CLEAR_ALL") == ardupilot
+            assert router.vehicles[1].partial_missions == set()
+            v.close()
+
+    run(main())
+
+
 def test_run_protocol_times_out_against_a_mute_vehicle():
     async def main():
         async with Router(ENDPOINT) as router:
