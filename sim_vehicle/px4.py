@@ -5,6 +5,16 @@ the boot mode), AUTO.MISSION, AUTO.RTL, AUTO.LAND, AUTO.TAKEOFF. ``base_mode`` a
 CUSTOM_MODE_ENABLED, plus SAFETY_ARMED when armed and AUTO|GUIDED|STABILIZE (all modes here
 are auto modes). DO_SET_MODE takes param2 = main mode (AUTO = 4), param3 = AUTO sub mode.
 Arming in AUTO.MISSION starts the mission. Telemetry streams from boot.
+
+Its mission protocol (``MavlinkMissionManager`` in ``src/modules/mavlink/mavlink_mission.cpp``,
+:class:`Px4MissionServer`): an upload goes to the storage not in use and becomes the mission
+only when complete, so one that ends early leaves the mission as it was. While it takes an
+upload it refuses a new MISSION_COUNT with MAV_MISSION_ERROR ("busy") once it has an item
+(before that it asks for item 0 again), from any other GCS at once; it ends the transfer on
+the uploading GCS's MISSION_ACK(OPERATION_CANCELLED) (no other ACK), ignores
+MISSION_CLEAR_ALL and download requests ("busy"), asks again for the missing item every
+0.25 s and gives up 5 s after it last heard from the GCS, with a STATUSTEXT and no
+MISSION_ACK.
 """
 
 from __future__ import annotations
@@ -13,8 +23,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from .autopilot import Autopilot
+from .autopilot import MISSION_RETRIES, MISSION_RETRY_S, Autopilot
 from .commands import ACCEPTED, DENIED
+from .mission_server import MissionServer
 from .state import FlightMode
 
 # PX4 main modes and AUTO sub modes
@@ -40,6 +51,54 @@ PX4_MODE_NAMES = {
 PX4_FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # "1.14.0 release"
 
 
+def _busy(text: str) -> Any:
+    return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_CRITICAL, text.encode(), 0, 0)
+
+
+class Px4MissionServer(MissionServer):
+    """The mission protocol as PX4 speaks it while an upload runs (the module docstring);
+    its retry timing is the base server's (a request again every 0.25 s, for 5 s)."""
+
+    def _on_count(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        up = self.upload
+        if up is None:
+            return super()._on_count(msg, peer, now)
+        up.retries = 0  # any COUNT counts as hearing from the GCS: the transfer goes on
+        if peer != up.peer or up.items:
+            return [self._ack(peer, mavlink.MAV_MISSION_ERROR, self._mtype(msg))]
+        up.deadline = now + self.timeout_s  # its request was lost: again, from item 0
+        return [self._request(up)]
+
+    def _on_ack(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        if msg.type == mavlink.MAV_MISSION_OPERATION_CANCELLED:
+            return super()._on_ack(msg, peer, now)
+        return []
+
+    def _on_clear(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        if self.upload is not None:
+            return [_busy("WPM: IGN CLEAR CMD: Busy")]
+        return super()._on_clear(msg, peer, now)
+
+    def _on_request_list(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        if self.upload is not None:
+            return [_busy("Mission download request ignored, already active")]
+        return super()._on_request_list(msg, peer, now)
+
+    def _on_item(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        up = self.upload
+        if up is not None and up.peer == peer and msg.seq != len(up.items):
+            return []  # an item it did not ask for is ignored; its own request repeats
+        return super()._on_item(msg, peer, now)
+
+    def poll(self, now: float) -> list[Any]:
+        up = self.upload
+        if up is not None and now >= up.deadline and up.retries >= self.max_retries:
+            self.upload = None
+            self.counters["uploads_failed"] += 1
+            return [_busy("Operation timeout")]  # and no MISSION_ACK
+        return super().poll(now)
+
+
 class Px4Autopilot(Autopilot):
     """PX4 personality (v1.14 habits; see the module docstring)."""
 
@@ -47,6 +106,10 @@ class Px4Autopilot(Autopilot):
     autopilot_type = mavlink.MAV_AUTOPILOT_PX4
     flight_sw_version = PX4_FLIGHT_SW_VERSION
     boot_mode = FlightMode.HOLD
+
+    def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:
+        return Px4MissionServer(timeout_s=MISSION_RETRY_S, max_retries=MISSION_RETRIES,
+                                accepted_commands=accepted_commands)
 
     def custom_mode(self) -> int:
         return PX4_MODES[self.state.mode]

@@ -86,10 +86,13 @@ class CommandVocabulary:
 
         An upload the station leaves after the vehicle began to take it (no answer, an error,
         the caller cancelled) is cancelled with MISSION_ACK(OPERATION_CANCELLED), as the
-        mission protocol says. One that ends part-way on an ArduPilot, which writes each item
-        into its mission as it comes and does not act on that cancel, is kept in
-        :attr:`~.vehicles.VehicleLink.partial_missions`: its mission is now part new, part old
-        (:meth:`clear_mission` empties it)."""
+        mission protocol says: PX4 refuses every new count (MAV_MISSION_ERROR) while it
+        takes an upload until that cancel, or 5 s without a word, ends it; a count refused
+        so is followed by the cancel too (the first may have been lost). One that ends
+        part-way on an ArduPilot, which writes each item into its mission as it comes and
+        does not act on that cancel, is kept in
+        :attr:`~.vehicles.VehicleLink.partial_missions`: its mission is now part new, part
+        old (:meth:`clear_mission` empties it)."""
         loop = asyncio.get_running_loop()
         give_up = loop.time() + no_space_wait_s
         async with self._lock(sysid):
@@ -101,6 +104,10 @@ class CommandVocabulary:
                     n = int(await self.run_protocol(sysid, machine))
                 except MissionRejected as exc:
                     self._left_part_way(sysid, machine, cancel=False)
+                    if exc.seq is None and exc.result == mavlink.MAV_MISSION_ERROR:
+                        # PX4 refuses a count so while it takes an upload (ours, left part
+                        # way, whose cancel was lost): cancel it, so the next one is taken
+                        self._cancel(sysid, mission_type)
                     if exc.result != mavlink.MAV_MISSION_NO_SPACE or exc.seq is not None \
                             or loop.time() + NO_SPACE_RETRY_S > give_up:
                         raise
@@ -120,9 +127,7 @@ class CommandVocabulary:
             return
         link = self.vehicles.get(sysid)
         if cancel:
-            self.send(sysid, mavlink.MAVLink_mission_ack_message(
-                sysid, self._compid(sysid), mavlink.MAV_MISSION_OPERATION_CANCELLED,
-                machine.mission_type))
+            self._cancel(sysid, machine.mission_type)
         if link is not None and link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA \
                 and machine.mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
             link.partial_missions.add(machine.mission_type)
@@ -146,6 +151,13 @@ class CommandVocabulary:
         for t in (list(partial) if mission_type == mavlink.MAV_MISSION_TYPE_ALL
                   else [mission_type]):
             partial.discard(t)
+
+    def _cancel(self, sysid: int, mission_type: int) -> None:
+        """MISSION_ACK(OPERATION_CANCELLED): the mission protocol's word that the station
+        gives up the upload of ``mission_type`` it began (PX4 ends it; ArduPilot ignores it
+        and times out)."""
+        self.send(sysid, mavlink.MAVLink_mission_ack_message(
+            sysid, self._compid(sysid), mavlink.MAV_MISSION_OPERATION_CANCELLED, mission_type))
 
     async def clear_partial_mission(self, sysid: int, *, timeout_s: float = DEFAULT_TIMEOUT_S,
                                     retries: int = DEFAULT_RETRIES) -> bool:

@@ -168,7 +168,11 @@ class MissionUploader(_Machine):
     ended, so after the station starts an upload again, the answer to the last item of the
     attempt before can arrive when the new transfer is running. Only when no request follows
     within the timeout is such an answer the vehicle's verdict (a vehicle with no transfer
-    running), and the upload fails with it (``stale_acks`` counts the others).
+    running), and the upload fails with it (``stale_acks`` counts the others). A request
+    for an item other than 0 before item 0 was asked for belongs to an earlier transfer
+    (PX4 goes on asking for the items of one it has not given up, and refuses the new count
+    with ERROR) and is not answered: the new mission's items must not complete the old
+    transfer.
     """
 
     what = "mission upload"
@@ -210,6 +214,8 @@ class MissionUploader(_Machine):
             if not self._mine(msg, self.mission_type):
                 return
             seq = msg.seq
+            if not self.requested and seq != 0:
+                return  # a transfer begins at item 0: this request is of an earlier one
             if not 0 <= seq < len(self.items):
                 self._fail(ProtocolError(
                     f"vehicle {self.target_system} requested mission item {seq} of a "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -153,3 +154,52 @@ def test_an_upload_interrupted_part_way_leaves_an_ardupilot_no_mix_of_two_missio
         assert err == ["econdor: vehicle 1: its mission was cleared (ArduPilot had stored "
                        "part of this one over the one before)", "econdor: interrupted"]
         assert v.server.mission == [] and v.server.upload is None
+
+
+def test_an_upload_left_part_way_on_px4_is_cancelled_so_the_next_one_is_taken():
+    """PX4 refuses every new count while it takes an upload (MAV_MISSION_ERROR, "busy"):
+    the station's MISSION_ACK(OPERATION_CANCELLED) for the upload it gave up frees it at
+    once; when that cancel is lost, the refused count is followed by a cancel, and the
+    next try is taken."""
+    from econdor_gcs.errors import MissionRejected, VehicleTimeout
+    from econdor_gcs.station.loop import Station
+
+    port = free_port()
+    items = read_mission_file(exported(Path(tempfile.mkdtemp()), "wpl")).items
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="px4") as v:
+        asked = v.server._request
+
+        def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
+            return asked(up) if len(up.items) < 2 else \
+                mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
+
+        station = Station(f"udpin:127.0.0.1:{port}", heartbeat_timeout_s=10.0)
+        try:
+            station.start()
+            router = station.router
+            station.call(router.wait_for_vehicles([1], 10.0))
+            def upload(mission=items):
+                return station.call(router.upload_mission(1, list(mission), timeout_s=0.3,
+                                                          retries=2))
+
+            send = router.send
+            for lose_the_cancel in (False, True):
+                v.server._request = stall
+                if lose_the_cancel:
+                    router.send = lambda sysid, msg: None if msg.get_type() == "MISSION_ACK" \
+                        else send(sysid, msg)
+                with pytest.raises(VehicleTimeout):
+                    upload()
+                router.send = send
+                v.server._request = asked
+                if not lose_the_cancel:
+                    wait_for(lambda: v.server.upload is None, 5, "the cancel taken")
+                # another mission: none of its items may complete the transfer left
+                other = items[:-1]
+                if lose_the_cancel:  # still busy: refused, and cancelled by the station
+                    with pytest.raises(MissionRejected, match="MAV_MISSION_ERROR"):
+                        upload(other)
+                assert upload(other) == len(other)
+                assert [it.seq for it in v.server.mission] == [it.seq for it in other]
+        finally:
+            station.close()

@@ -18,6 +18,7 @@ from sim_vehicle.ardupilot import (
 from sim_vehicle.px4 import PX4_MODES, Px4Autopilot
 from sim_vehicle.state import FlightMode
 from tests.helpers.autopilot import (
+    DECODER,
     MISSION,
     command,
     copter_mission,
@@ -425,3 +426,51 @@ def test_the_tracer_traces_with_the_lag_the_item_tells_from_then_on(monkeypatch)
     upload(ap, [lag_item(0, 0.5), trace])
     assert command(ap, mavlink.MAV_CMD_MISSION_START)[0] == mavlink.MAV_RESULT_ACCEPTED
     run_until(ap, lambda ms: ("TraceTask", 0.5, False) in told)
+
+
+def _px4_count(ap, n, now=0.0, peer=(255, 190)):
+    gcs = mavlink.MAVLink(None, srcSystem=peer[0], srcComponent=peer[1])
+    ap.receive(DECODER.decode(bytearray(
+        mavlink.MAVLink_mission_count_message(1, 1, n, 0).pack(gcs))), now)
+    return ap.outbox.drain(now)
+
+
+def test_px4_is_busy_with_an_upload_until_the_gcs_cancels_it():
+    """PX4 (``MavlinkMissionManager``, read in its source): once it has an item of an
+    upload, a new count is refused with MAV_MISSION_ERROR (it keeps asking for the next
+    item), as is any other GCS's; a clear and a download are ignored as busy; the
+    uploading GCS's MISSION_ACK(OPERATION_CANCELLED) ends the transfer, its old mission
+    kept; then a count is taken."""
+    ap = make(Px4Autopilot)
+    old = copter_mission()
+    upload(ap, old)
+    assert [m.get_type() for m in _px4_count(ap, 3)] == ["MISSION_REQUEST_INT"]
+    # a count again before any item: its request was lost, it asks for item 0 again
+    [again] = _px4_count(ap, 3)
+    assert (again.get_type(), again.seq) == ("MISSION_REQUEST_INT", 0)
+    ap.receive(rx(old[0]), 0.0)
+    ap.outbox.drain(0.0)
+    for peer in ((255, 190), (255, 191)):
+        [busy] = _px4_count(ap, 3, peer=peer)
+        assert (busy.get_type(), busy.type) == ("MISSION_ACK", mavlink.MAV_MISSION_ERROR)
+    ap.receive(rx(mavlink.MAVLink_mission_clear_all_message(1, 1, 0)), 0.0)
+    ap.receive(rx(mavlink.MAVLink_mission_request_list_message(1, 1, 0)), 0.0)
+    assert [m.get_type() for m in ap.outbox.drain(0.0)] == ["STATUSTEXT", "STATUSTEXT"]
+    assert ap.server.upload is not None and len(ap.server.mission) == len(old)
+    ap.receive(rx(mavlink.MAVLink_mission_ack_message(
+        1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, 0)), 0.0)
+    assert ap.server.upload is None and len(ap.server.mission) == len(old)
+    assert [m.get_type() for m in _px4_count(ap, 3)] == ["MISSION_REQUEST_INT"]
+
+
+def test_px4_gives_up_an_upload_with_a_statustext_and_no_ack():
+    ap = make(Px4Autopilot)
+    _px4_count(ap, 3)
+    out = []
+    for k in range(1, 40):
+        ap.poll(k * 0.26)
+        out += ap.outbox.drain(0.0)
+    assert ap.server.upload is None
+    assert [m.get_type() for m in out].count("MISSION_REQUEST_INT") == 20
+    assert out[-1].get_type() == "STATUSTEXT" and "Operation timeout" in str(out[-1].text)
+    assert not [m for m in out if m.get_type() == "MISSION_ACK"]
