@@ -171,6 +171,10 @@ class VehicleMissions:
                 text = (f"vehicle {v.sysid}: {what} did not finish within {self.timeout_s:g} s"
                         if isinstance(exc, TimeoutError) else str(exc))
                 if attempt == UPLOAD_ATTEMPTS or self.losses.silent_s(v) > SILENT_S:
+                    if mission_type in self.router.vehicles[v.sysid].partial_missions:
+                        text += (" (it holds part of this mission over the one before, as "
+                                 "ArduPilot stores items as they come: clear it, or upload "
+                                 "another, before flying it in AUTO)")
                     raise VehicleTimeout(text) from None
                 log.warning("%s; the vehicle heartbeats: uploading it again", text)
 

@@ -614,3 +614,28 @@ def test_an_upload_refused_again_and_again_fails() -> None:
     with pytest.raises(MissionRejected, match="rejected mission item 3"):
         asyncio.run(ex.vehicle_missions.plan_and_upload(ex.vehicles[1], [Waypoint(5.0, 0.0)] * 3, 1, 0))
     assert len(sent) == UPLOAD_ATTEMPTS
+
+
+def test_a_mission_upload_that_never_finishes_says_when_an_ardupilot_holds_part_of_it() -> None:
+    """Every attempt runs out of answers while the vehicle heartbeats; the last error says
+    so, and, when the router noted that the vehicle (an ArduPilot) took part of the upload
+    over its mission, says that too."""
+    router = FakeRouter()
+    attempts: list[int] = []
+
+    async def upload_mission(sysid: int, items: Any, **kw: Any) -> int:
+        attempts.append(sysid)
+        raise VehicleTimeout(f"vehicle {sysid} did not answer mission upload (no request "
+                             "after item 2)")
+
+    router.upload_mission = upload_mission  # type: ignore[attr-defined]
+    ex = MavlinkExecutor(SimpleNamespace(router=router), _mission(), [1])  # type: ignore[arg-type]
+    v = ex.vehicles[1]
+    items = build_mission(_mission().origin, [Waypoint(5.0, 0.0)], 30.0)
+    with pytest.raises(VehicleTimeout) as clean:
+        asyncio.run(ex.vehicle_missions.upload(v, items))
+    assert len(attempts) == UPLOAD_ATTEMPTS and "holds part" not in str(clean.value)
+    router.vehicles[1].partial_missions.add(mavlink.MAV_MISSION_TYPE_MISSION)
+    with pytest.raises(VehicleTimeout, match="it holds part of this mission over the one "
+                                             "before, as ArduPilot stores items as they come"):
+        asyncio.run(ex.vehicle_missions.upload(v, items))
