@@ -28,15 +28,17 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   no transfer running is answered MAV_MISSION_ERROR. For the first
   :data:`NO_SPACE_AFTER_BOOT_S` of its time it refuses every upload with
   MAV_MISSION_NO_SPACE (its mission storage is not ready yet).
-* A mission upload is written into the stored mission as it comes (``AP_Mission``: the
-  mission is truncated to the new count when the transfer begins, each item replaces the one
-  stored at its place), so an upload that ends early (a refused item, the 8 s timeout) leaves
-  the new items taken so far, then the old ones up to the new count (seen on SITL: a 5-item
-  mission, then a 3-item upload given items 0 and 1 and left, reads back as home, the new
-  item 1, the old item 2). A GCS's MISSION_ACK does not end a transfer (SITL went on
-  requesting after MISSION_ACK(OPERATION_CANCELLED)); MISSION_CLEAR_ALL does, and empties the
-  mission. While a transfer of a type runs, a download of that type is refused with
-  MAV_MISSION_DENIED.
+* A mission or rally upload is written into the stored items as it comes (the mission or
+  rally points are truncated to the new count when the transfer begins, each item replaces
+  the one stored at its place; :data:`IN_PLACE_TYPES`), so an upload that ends early (a
+  refused item, the 8 s timeout) leaves the new items taken so far, then the old ones up to
+  the new count (seen on SITL: a 5-item mission, then a 3-item upload given items 0 and 1
+  and left, reads back as home, the new item 1, the old item 2; 3 rally points, then a
+  2-point upload left after point 0, read back as the new point 0 and the old point 1). A
+  fence upload replaces the fence only when it completes. A GCS's MISSION_ACK does not end a
+  transfer (SITL went on requesting after MISSION_ACK(OPERATION_CANCELLED));
+  MISSION_CLEAR_ALL does, and empties the mission. While a transfer of a type runs, a
+  download of that type is refused with MAV_MISSION_DENIED.
 * Flying a mission: GUIDED, arm, NAV_TAKEOFF (param7 = altitude *above home*), then AUTO; or
   arm and MAV_CMD_MISSION_START with param1 = param2 = 0 (anything else is DENIED: "first-item/
   last item not supported"), which enters AUTO and resumes at the current item, or from item 1
@@ -78,7 +80,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from .autopilot import MISSION_RETRIES, Autopilot
 from .commands import ACCEPTED, DENIED, FAILED
-from .mission_server import MISSION, MissionServer, StoredItem
+from .mission_server import MISSION, RALLY, MissionServer, StoredItem
 from .navigator import ModeFlow
 from .state import FlightMode
 
@@ -117,6 +119,10 @@ UPLOAD_PAUSE_S = 3.0
 """Seconds of its time from an upload's MISSION_COUNT during which, while the upload runs, it
 sends no GLOBAL_POSITION_INT (the gaps seen on SITL during uploads between iterations: about
 3 s)."""
+IN_PLACE_TYPES = frozenset({MISSION, RALLY})
+"""Mission types ArduPilot writes as the items come (``MissionItemProtocol_Waypoints`` and
+``_Rally``); a fence upload is kept apart and replaces the fence only when complete (seen on
+SITL: a fence upload left after item 0 left the old fence whole)."""
 NO_SPACE_AFTER_BOOT_S = 3.0
 """Seconds of its time after boot during which it answers every upload NO_SPACE (seen on
 ArduCopter SITL: about 2.8 s)."""
@@ -183,8 +189,9 @@ class ArduPilotMissionServer(MissionServer):
         replies = super()._on_count(msg, peer, now)
         if self.upload is not None:
             self.upload_began_s = self.sim_time()
-            if self.upload.mission_type == MISSION:  # truncated to the new count at once
-                self.stores[MISSION] = self.stores[MISSION][:self.upload.count]
+            mtype = self.upload.mission_type
+            if mtype in IN_PLACE_TYPES:  # truncated to the new count at once
+                self.stores[mtype] = self.stores[mtype][:self.upload.count]
         return replies
 
     def _on_item(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
@@ -200,19 +207,19 @@ class ArduPilotMissionServer(MissionServer):
         self.timeout_s = self._wall(UPLOAD_RETRY_S)
         taken = len(up.items)
         replies = super()._on_item(msg, peer, now)
-        if mtype == MISSION and self.upload is up and len(up.items) > taken:
-            self._write_in_place(up.items[-1])
+        if mtype in IN_PLACE_TYPES and self.upload is up and len(up.items) > taken:
+            self._write_in_place(mtype, up.items[-1])
         return replies
 
-    def _write_in_place(self, item: StoredItem) -> None:
-        """Store one item of a running mission upload at its place (ArduPilot writes each
-        item as it comes; item 0 stays home)."""
-        items = list(self.stores[MISSION])
+    def _write_in_place(self, mtype: int, item: StoredItem) -> None:
+        """Store one item of a running mission or rally upload at its place (ArduPilot
+        writes each item as it comes; the mission's item 0 stays home)."""
+        items = list(self.stores[mtype])
         if item.seq < len(items):
             items[item.seq] = item
         else:
             items.append(item)
-        self.stores[MISSION] = self.stored(MISSION, items)
+        self.stores[mtype] = self.stored(mtype, items)
 
     def _on_ack(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
         return []  # a GCS's MISSION_ACK does not end ArduPilot's transfer: it times out

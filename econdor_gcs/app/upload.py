@@ -180,20 +180,27 @@ async def upload_verified(router: Router, sysid: int, mfile: MissionFile,
     return UploadResult(sysid, kind, counts, home_replaced)
 
 
+_WHAT = {mavlink.MAV_MISSION_TYPE_MISSION: "mission", mavlink.MAV_MISSION_TYPE_RALLY: "rally points"}
+
+
 def _clear_partial(station: Station, sysid: int) -> str:
-    """After an upload that failed: an ArduPilot left with part of it over its old mission
-    (it writes each item as it comes) gets its mission cleared, so that nothing flies a mix
-    of two missions. Returns what to add to the error ("" when nothing was left)."""
+    """After an upload that failed: an ArduPilot left with part of it over what it had (it
+    writes mission items and rally points as they come) gets them cleared, so that nothing
+    flies a mix of two. Returns what to add to the error ("" when nothing was left)."""
     try:
-        cleared = station.call(station.router.clear_partial_mission(sysid), timeout_s=10.0)
+        cleared = station.call(station.router.clear_partial_missions(sysid), timeout_s=10.0)
     except Exception as exc:  # noqa: BLE001 - reported, with what the vehicle now holds
-        if mavlink.MAV_MISSION_TYPE_MISSION not in station.router.vehicles[sysid].partial_missions:
+        left = station.router.vehicles[sysid].partial_missions
+        if not left:
             return ""
-        return ("; its mission is now part this one, part the one before (ArduPilot stores "
-                f"items as they come), and clearing it failed ({exc}): clear it before flying")
+        names = " and ".join(_WHAT.get(t, str(t)) for t in sorted(left))
+        return (f"; its {names} now part this upload, part what it had (ArduPilot stores "
+                f"items as they come), and clearing failed ({exc}): clear them before flying")
     if not cleared:
         return ""
-    return "; its mission was cleared (ArduPilot had stored part of this one over the one before)"
+    names = " and ".join(_WHAT.get(t, str(t)) for t in cleared)
+    return (f"; its {names} {'was' if len(cleared) == 1 and cleared[0] == 0 else 'were'} "
+            "cleared (ArduPilot had stored part of this upload over what it had)")
 
 
 def upload_cli(args: argparse.Namespace) -> int:

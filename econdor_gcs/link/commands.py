@@ -34,6 +34,10 @@ NO_SPACE_WAIT_S = 10.0
 """How long an upload refused whole with MAV_MISSION_NO_SPACE is tried again: ArduCopter
 answers so until its mission storage is ready, about 3 s of its own time after boot."""
 NO_SPACE_RETRY_S = 0.25
+ARDUPILOT_IN_PLACE = frozenset({mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_RALLY})
+"""Mission types ArduPilot writes as the items come: an upload left part-way leaves the new
+items over the old (seen on SITL for the mission and the rally points; its fence is replaced
+only when an upload completes)."""
 
 
 class Machine(Protocol):
@@ -129,7 +133,7 @@ class CommandVocabulary:
         if cancel:
             self._cancel(sysid, machine.mission_type)
         if link is not None and link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA \
-                and machine.mission_type == mavlink.MAV_MISSION_TYPE_MISSION:
+                and machine.mission_type in ARDUPILOT_IN_PLACE:
             link.partial_missions.add(machine.mission_type)
 
     async def download_mission(self, sysid: int, *, mission_type: int = 0,
@@ -159,21 +163,22 @@ class CommandVocabulary:
         self.send(sysid, mavlink.MAVLink_mission_ack_message(
             sysid, self._compid(sysid), mavlink.MAV_MISSION_OPERATION_CANCELLED, mission_type))
 
-    async def clear_partial_mission(self, sysid: int, *, timeout_s: float = DEFAULT_TIMEOUT_S,
-                                    retries: int = DEFAULT_RETRIES) -> bool:
-        """If the last mission upload to ``sysid`` ended part-way on an autopilot that keeps
-        what it took (:attr:`~.vehicles.VehicleLink.partial_missions`), clear its mission
-        (MISSION_CLEAR_ALL also ends ArduPilot's transfer if it still runs) and return True;
-        False when there was nothing to clear. Waits for an upload still ending (the
-        mission lock)."""
-        mission = mavlink.MAV_MISSION_TYPE_MISSION
+    async def clear_partial_missions(self, sysid: int, *,
+                                     timeout_s: float = DEFAULT_TIMEOUT_S,
+                                     retries: int = DEFAULT_RETRIES) -> list[int]:
+        """Clear each mission type whose last upload to ``sysid`` ended part-way on an
+        autopilot that keeps what it took (:attr:`~.vehicles.VehicleLink.partial_missions`;
+        MISSION_CLEAR_ALL also ends ArduPilot's transfer if it still runs); return the types
+        cleared, in order. Waits for an upload still ending (the mission lock)."""
+        cleared: list[int] = []
         async with self._lock(sysid):
-            if mission not in self._vehicle(sysid).partial_missions:
-                return False
-            await self.run_protocol(sysid, MissionClear(
-                sysid, self._compid(sysid), mission, timeout_s=timeout_s, retries=retries))
-            self._vehicle(sysid).partial_missions.discard(mission)
-            return True
+            partial = self._vehicle(sysid).partial_missions
+            for mtype in sorted(partial):
+                await self.run_protocol(sysid, MissionClear(
+                    sysid, self._compid(sysid), mtype, timeout_s=timeout_s, retries=retries))
+                partial.discard(mtype)
+                cleared.append(mtype)
+        return cleared
 
     # -- commands ---------------------------------------------------------------------------
     async def command(self, sysid: int, cmd: int, *params: float,

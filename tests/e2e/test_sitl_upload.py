@@ -144,8 +144,8 @@ def test_a_refused_upload_leaves_no_mix_of_two_missions(tmp_path, capsys):
         capsys.readouterr()
         assert econdor(["upload", str(contour), *connect, "--force"]) == 1
         assert capsys.readouterr().err.strip().endswith(
-            "; its mission was cleared (ArduPilot had stored part of this one over the one "
-            "before)")
+            "; its mission was cleared (ArduPilot had stored part of this upload over what it "
+            "had)")
         gcs = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.port}", source_system=255,
                                          source_component=190)
         try:

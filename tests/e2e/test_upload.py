@@ -108,7 +108,7 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
         assert err == ("econdor: error: vehicle 1 rejected mission item 2: "
                        "MAV_MISSION_UNSUPPORTED (a stock autopilot flies contours as "
                        "waypoints: export with --style waypoints); its mission was cleared "
-                       "(ArduPilot had stored part of this one over the one before)")
+                       "(ArduPilot had stored part of this upload over what it had)")
         assert v.server.mission == [] and v.server.counters["uploads"] == 0
         # a mission without a home item would lose its first item on ArduPilot
         headless = tmp_path / "h.waypoints"
@@ -120,28 +120,36 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
             capsys.readouterr().err
 
 
+@pytest.mark.parametrize("what", ["mission", "rally points"])
 def test_an_upload_interrupted_part_way_leaves_an_ardupilot_no_mix_of_two_missions(
-        tmp_path, capsys):
-    """Ctrl-C while ArduPilot takes the items: it has written the first ones over its old
-    mission (and would go on asking for 8 s); the station clears its mission and says so."""
+        tmp_path, capsys, what):
+    """Ctrl-C while ArduPilot takes the items (of the mission, or of the rally points, which
+    it also writes as they come): it has written the first ones over what it had (and would
+    go on asking for 8 s); the station clears them and says so."""
     import _thread
+    import json
     import threading
 
-    path = exported(tmp_path, "wpl")
+    path = exported(tmp_path, "plan")
+    doc = json.loads(path.read_text())
+    doc["rallyPoints"]["points"] *= 3  # three rally points
+    path.write_text(json.dumps(doc))
+    mtype = (mavlink.MAV_MISSION_TYPE_MISSION if what == "mission"
+             else mavlink.MAV_MISSION_TYPE_RALLY)
     port = free_port()
     with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
                         companion=False) as v:
         asked = v.server._request
 
         def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
-            return asked(up) if len(up.items) < 2 else \
+            return asked(up) if len(up.items) < 2 or up.mission_type != mtype else \
                 mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
 
         v.server._request = stall
 
         def interrupt():
-            wait_for(lambda: v.server.upload is not None and len(v.server.upload.items) == 2,
-                     20, "the first two items taken")
+            wait_for(lambda: v.server.upload is not None and len(v.server.upload.items) == 2
+                     and v.server.upload.mission_type == mtype, 20, "the first two items taken")
             _thread.interrupt_main()
 
         t = threading.Thread(target=interrupt, daemon=True)
@@ -151,9 +159,12 @@ def test_an_upload_interrupted_part_way_leaves_an_ardupilot_no_mix_of_two_missio
         t.join()
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 130
-        assert err == ["econdor: vehicle 1: its mission was cleared (ArduPilot had stored "
-                       "part of this one over the one before)", "econdor: interrupted"]
-        assert v.server.mission == [] and v.server.upload is None
+        verb = "was" if what == "mission" else "were"
+        assert err == [f"econdor: vehicle 1: its {what} {verb} cleared (ArduPilot had stored "
+                       "part of this upload over what it had)", "econdor: interrupted"]
+        assert v.server.stores[mtype] == [] and v.server.upload is None
+        if what == "rally points":  # the mission and the fence went up whole before
+            assert v.server.mission and v.server.stores[mavlink.MAV_MISSION_TYPE_FENCE]
 
 
 def test_an_upload_left_part_way_on_px4_is_cancelled_so_the_next_one_is_taken():

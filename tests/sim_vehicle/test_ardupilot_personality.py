@@ -423,3 +423,39 @@ def test_a_gcs_cancel_does_not_end_the_transfer_and_downloads_are_denied_meanwhi
     ap.receive(rx(mavlink.MAVLink_mission_clear_all_message(1, 1, 0)), 2.0)
     assert drain(ap)[-1].type == mavlink.MAV_MISSION_ACCEPTED
     assert ap.server.upload is None and ap.server.mission == []
+
+
+def test_rally_points_are_written_as_they_come_and_a_fence_only_when_complete():
+    """As seen on SITL: 3 rally points, then a 2-point upload left after point 0, read back
+    as the new point 0 and the old point 1; a fence upload left part-way leaves the old
+    fence whole."""
+    ap = make(ArduCopterAutopilot, speedup=1.0)
+    server = ap.server
+
+    def points(mtype, cmd, lats, n=None):  # a square's corners (a fence polygon)
+        lons = [85450000, 85450000, 85470000, 85470000]
+        return [mavlink.MAVLink_mission_item_int_message(
+            1, 1, s, mavlink.MAV_FRAME_GLOBAL_INT, cmd, 0, 1, float(n or len(lats)), 0, 0, 0,
+            lat, lons[s], 20.0, mtype) for s, lat in enumerate(lats)]
+
+    def last_ack():
+        return [m for m in drain(ap) if m.get_type() == "MISSION_ACK"][-1].type
+
+    for mtype, cmd in ((mavlink.MAV_MISSION_TYPE_RALLY, mavlink.MAV_CMD_NAV_RALLY_POINT),
+                       (mavlink.MAV_MISSION_TYPE_FENCE,
+                        mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION)):
+        old = points(mtype, cmd, [473970000, 473990000, 473990100, 473970100])
+        ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, len(old), mtype)), 0.0)
+        for it in old:
+            ap.receive(rx(it), 0.0)
+        assert last_ack() == mavlink.MAV_MISSION_ACCEPTED
+        new = points(mtype, cmd, [473971000, 473991000, 473991100], n=3)
+        ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, 3, mtype)), 1.0)
+        ap.receive(rx(new[0]), 1.0)
+        ap.poll(1.0 + 8.1)
+        assert last_ack() == mavlink.MAV_MISSION_OPERATION_CANCELLED
+        stored = [it.x for it in server.stores[mtype]]
+        if mtype == mavlink.MAV_MISSION_TYPE_RALLY:
+            assert stored == [new[0].x, old[1].x, old[2].x]
+        else:
+            assert stored == [it.x for it in old]
