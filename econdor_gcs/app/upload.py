@@ -199,8 +199,9 @@ def _clear_partial(station: Station, sysid: int) -> str:
     if not cleared:
         return ""
     names = " and ".join(_WHAT.get(t, str(t)) for t in cleared)
-    return (f"; its {names} {'was' if len(cleared) == 1 and cleared[0] == 0 else 'were'} "
-            "cleared (ArduPilot had stored part of this upload over what it had)")
+    verb = "was" if cleared == [mavlink.MAV_MISSION_TYPE_MISSION] else "were"
+    return (f"; its {names} {verb} cleared (ArduPilot had stored part of this upload over "
+            "what it had)")
 
 
 def upload_cli(args: argparse.Namespace) -> int:

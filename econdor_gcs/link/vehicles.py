@@ -261,9 +261,9 @@ class VehicleLink:
     mission_reached: int | None = None
     partial_missions: set[int] = field(default_factory=set)
     """Mission types whose last upload ended part-way on an autopilot that stores items as
-    they come (ArduPilot's mission): its stored mission of that type is now the new items it
-    took, then the ones it had before (up to the new count). Forgotten when an upload or a
-    clear of that type succeeds."""
+    they come (ArduPilot's mission and rally points): what it stores of that type is now the
+    new items it took, then the ones it had before (up to the new count). Forgotten when an
+    upload or a clear of that type succeeds."""
     clock_first: tuple[float, int] | None = None
     """(our time, ``time_boot_ms``) of its first position, ..."""
     clock_last: tuple[float, int] | None = None
