@@ -38,7 +38,9 @@ The habits a ground station meets, as ArduCopter has them (read in ArduPilot's
   fence upload replaces the fence only when it completes. A GCS's MISSION_ACK does not end a
   transfer (SITL went on requesting after MISSION_ACK(OPERATION_CANCELLED));
   MISSION_CLEAR_ALL does, and empties the mission. While a transfer of a type runs, a
-  download of that type is refused with MAV_MISSION_DENIED.
+  download of that type is refused with MAV_MISSION_DENIED. While the vehicle flies its
+  mission (AUTO), MISSION_CLEAR_ALL is refused with MAV_MISSION_ERROR and the mission kept
+  (seen on SITL in flight).
 * Flying a mission: GUIDED, arm, NAV_TAKEOFF (param7 = altitude *above home*), then AUTO; or
   arm and MAV_CMD_MISSION_START with param1 = param2 = 0 (anything else is DENIED: "first-item/
   last item not supported"), which enters AUTO and resumes at the current item, or from item 1
@@ -155,11 +157,14 @@ class ArduPilotMissionServer(MissionServer):
     """
 
     def __init__(self, home: tuple[float, float, float], sim_time: Callable[[], float],
-                 speedup: Callable[[], float], **kwargs: Any) -> None:
+                 speedup: Callable[[], float],
+                 mission_running: Callable[[], bool] = lambda: False, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.home = home
         self.sim_time = sim_time
         self.speedup = speedup
+        self.mission_running = mission_running
+        """Whether the vehicle flies its mission now (``AP_Mission``'s MISSION_RUNNING)."""
         self._last_item_wall = 0.0
         self.upload_began_s: float | None = None
         """Its time (s) when the latest upload began (None: none yet)."""
@@ -223,6 +228,13 @@ class ArduPilotMissionServer(MissionServer):
 
     def _on_ack(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
         return []  # a GCS's MISSION_ACK does not end ArduPilot's transfer: it times out
+
+    def _on_clear(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
+        mtype = self._mtype(msg)
+        if mtype in (MISSION, mavlink.MAV_MISSION_TYPE_ALL) and self.mission_running():
+            # ``AP_Mission::clear`` refuses while the mission runs
+            return [self._ack(peer, mavlink.MAV_MISSION_ERROR, mtype)]
+        return super()._on_clear(msg, peer, now)
 
     def _on_request_list(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
         if self._receiving(self._mtype(msg)):
@@ -305,8 +317,8 @@ class ArduCopterAutopilot(Autopilot):
     def make_server(self, accepted_commands: frozenset[int]) -> MissionServer:
         return ArduPilotMissionServer(
             self.state.home, lambda: self.state.body.t_s, lambda: self.state.params["SPEEDUP"],
-            timeout_s=UPLOAD_RETRY_S, max_retries=MISSION_RETRIES, request_int=False,
-            accepted_commands=accepted_commands)
+            lambda: self.state.mission_active, timeout_s=UPLOAD_RETRY_S,
+            max_retries=MISSION_RETRIES, request_int=False, accepted_commands=accepted_commands)
 
     @property
     def answers_sample_commands(self) -> bool:

@@ -11,7 +11,7 @@ from econdor_gcs.core.tasks import SAMPLE_COUNT_COMMAND
 from econdor_gcs.errors import MissionRejected
 from econdor_gcs.link.items import change_speed_item, rtl_item
 from econdor_gcs.link.transfer import MissionUploader
-from sim_vehicle.ardupilot import NO_SPACE_AFTER_BOOT_S, ArduCopterAutopilot
+from sim_vehicle.ardupilot import COPTER_GUIDED, NO_SPACE_AFTER_BOOT_S, ArduCopterAutopilot
 from sim_vehicle.px4 import Px4Autopilot
 from sim_vehicle.state import VehicleSettings
 from tests.helpers.autopilot import (
@@ -21,6 +21,7 @@ from tests.helpers.autopilot import (
     download,
     ll,
     make,
+    run_until,
     rx,
     upload,
 )
@@ -459,3 +460,25 @@ def test_rally_points_are_written_as_they_come_and_a_fence_only_when_complete():
             assert stored == [new[0].x, old[1].x, old[2].x]
         else:
             assert stored == [it.x for it in old]
+
+
+def test_the_mission_cannot_be_cleared_while_it_is_flown():
+    """Seen on SITL: in AUTO, flying its mission, MISSION_CLEAR_ALL is answered
+    MAV_MISSION_ERROR and the mission is kept; once the mission has ended it is cleared."""
+    ap = make(ArduCopterAutopilot, prearm_s=0.0)
+    upload(ap, [item_int(0, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(0, 0), current=1),
+                item_int(1, mavlink.MAV_CMD_NAV_TAKEOFF, alt=10),
+                item_int(2, mavlink.MAV_CMD_NAV_WAYPOINT, *ll(40, 0), 10)],
+           request="MISSION_REQUEST")
+    ap.set_mode(COPTER_GUIDED)
+    command(ap, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert command(ap, mavlink.MAV_CMD_MISSION_START, 0)[0] == mavlink.MAV_RESULT_ACCEPTED
+    run_until(ap, lambda ms: ap.state.alt_rel_m > 5.0)
+    clear = rx(mavlink.MAVLink_mission_clear_all_message(1, 1, 0))
+    ap.receive(clear, 0.0)
+    [ack] = [m for m in drain(ap) if m.get_type() == "MISSION_ACK"]
+    assert ack.type == mavlink.MAV_MISSION_ERROR and len(ap.server.mission) == 3
+    run_until(ap, lambda ms: ap.state.mission_complete)
+    ap.receive(clear, 0.0)
+    [ack] = [m for m in drain(ap) if m.get_type() == "MISSION_ACK"]
+    assert ack.type == mavlink.MAV_MISSION_ACCEPTED and ap.server.mission == []
