@@ -194,8 +194,10 @@ def _clear_partial(station: Station, sysid: int) -> str:
         if not left:
             return ""
         names = " and ".join(_WHAT.get(t, str(t)) for t in sorted(left))
-        return (f"; its {names} now part this upload, part what it had (ArduPilot stores "
-                f"items as they come), and clearing failed ({exc}): clear them before flying")
+        verb = "is" if left == {mavlink.MAV_MISSION_TYPE_MISSION} else "are"
+        return (f"; its {names} {verb} now part this upload, part what it had (ArduPilot "
+                f"stores items as they come), and clearing failed ({exc}): clear "
+                f"{'it' if verb == 'is' else 'them'} before flying")
     if not cleared:
         return ""
     names = " and ".join(_WHAT.get(t, str(t)) for t in cleared)

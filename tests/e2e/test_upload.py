@@ -214,3 +214,45 @@ def test_an_upload_left_part_way_on_px4_is_cancelled_so_the_next_one_is_taken():
                 assert [it.seq for it in v.server.mission] == [it.seq for it in other]
         finally:
             station.close()
+
+
+def test_an_upload_interrupted_while_an_ardupilot_flies_its_mission_says_it_is_left_mixed(
+        tmp_path, capsys):
+    """In flight (AUTO), ArduPilot refuses to clear its mission: after an upload interrupted
+    part-way the station says the mission is a mix and must be cleared before it is flown."""
+    import _thread
+    import threading
+
+    path = exported(tmp_path, "wpl")
+    port = free_port()
+    with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
+                        companion=False, prearm_s=1.0, speedup=5.0) as v:
+        connect = ["--connect", f"udpin:127.0.0.1:{port}", "--timeout", "10"]
+        assert main(["upload", str(path), *connect, "--start"]) == 0
+        wait_for(lambda: v.state.mission_active and v.state.alt_rel_m > 5.0, 20, "in flight")
+        capsys.readouterr()
+        asked = v.server._request
+
+        def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
+            return asked(up) if len(up.items) < 2 else \
+                mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
+
+        v.server._request = stall
+
+        def interrupt():
+            wait_for(lambda: v.server.upload is not None and len(v.server.upload.items) == 2,
+                     20, "the first two items taken")
+            _thread.interrupt_main()
+
+        t = threading.Thread(target=interrupt, daemon=True)
+        t.start()
+        assert main(["upload", str(path), *connect]) == 130
+        t.join()
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 2 and err[1] == "econdor: interrupted"
+        assert err[0].startswith("econdor: vehicle 1: its mission is now part this upload, "
+                                 "part what it had (ArduPilot stores items as they come), "
+                                 "and clearing failed (")
+        assert "MAV_MISSION_ERROR" in err[0] and err[0].endswith("clear it before flying")
+        assert v.state.mission_active and len(v.server.mission) == len(read_mission_file(
+            path).items)
