@@ -120,15 +120,44 @@ def test_upload_refusals_and_differences_are_one_line(tmp_path, capsys):
             capsys.readouterr().err
 
 
+def _stall_after_two_items(v, mtype: int | None = None):
+    """Make vehicle ``v`` ask for items 0 and 1 of an upload (of ``mission_type`` ``mtype``;
+    any if None) and then send nothing the station waits for; returns its own asking."""
+    asked = v.server._request
+
+    def stall(up):
+        if len(up.items) < 2 or (mtype is not None and up.mission_type != mtype):
+            return asked(up)
+        return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
+
+    v.server._request = stall
+    return asked
+
+
+def _interrupt_once_two_items_are_taken(v, mtype: int | None = None):
+    """Ctrl-C (in the main thread, where the command runs) once ``v`` holds two items of an
+    upload still running; returns the thread, to join."""
+    import _thread
+    import threading
+
+    def interrupt():
+        wait_for(lambda: (up := v.server.upload) is not None and len(up.items) == 2
+                 and (mtype is None or up.mission_type == mtype), 20,
+                 "the first two items taken")
+        _thread.interrupt_main()
+
+    t = threading.Thread(target=interrupt, daemon=True)
+    t.start()
+    return t
+
+
 @pytest.mark.parametrize("what", ["mission", "rally points"])
 def test_an_upload_interrupted_part_way_leaves_an_ardupilot_no_mix_of_two_missions(
         tmp_path, capsys, what):
     """Ctrl-C while ArduPilot takes the items (of the mission, or of the rally points, which
     it also writes as they come): it has written the first ones over what it had (and would
     go on asking for 8 s); the station clears them and says so."""
-    import _thread
     import json
-    import threading
 
     path = exported(tmp_path, "plan")
     doc = json.loads(path.read_text())
@@ -139,21 +168,8 @@ def test_an_upload_interrupted_part_way_leaves_an_ardupilot_no_mix_of_two_missio
     port = free_port()
     with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
                         companion=False) as v:
-        asked = v.server._request
-
-        def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
-            return asked(up) if len(up.items) < 2 or up.mission_type != mtype else \
-                mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
-
-        v.server._request = stall
-
-        def interrupt():
-            wait_for(lambda: v.server.upload is not None and len(v.server.upload.items) == 2
-                     and v.server.upload.mission_type == mtype, 20, "the first two items taken")
-            _thread.interrupt_main()
-
-        t = threading.Thread(target=interrupt, daemon=True)
-        t.start()
+        _stall_after_two_items(v, mtype)
+        t = _interrupt_once_two_items_are_taken(v, mtype)
         code = main(["upload", str(path), "--connect", f"udpin:127.0.0.1:{port}",
                      "--timeout", "10"])
         t.join()
@@ -178,24 +194,19 @@ def test_an_upload_left_part_way_on_px4_is_cancelled_so_the_next_one_is_taken():
     port = free_port()
     items = read_mission_file(exported(Path(tempfile.mkdtemp()), "wpl")).items
     with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="px4") as v:
-        asked = v.server._request
-
-        def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
-            return asked(up) if len(up.items) < 2 else \
-                mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
-
         station = Station(f"udpin:127.0.0.1:{port}", heartbeat_timeout_s=10.0)
         try:
             station.start()
             router = station.router
             station.call(router.wait_for_vehicles([1], 10.0))
+
             def upload(mission=items):
                 return station.call(router.upload_mission(1, list(mission), timeout_s=0.3,
                                                           retries=2))
 
             send = router.send
             for lose_the_cancel in (False, True):
-                v.server._request = stall
+                asked = _stall_after_two_items(v)
                 if lose_the_cancel:
                     router.send = lambda sysid, msg: None if msg.get_type() == "MISSION_ACK" \
                         else send(sysid, msg)
@@ -220,9 +231,6 @@ def test_an_upload_interrupted_while_an_ardupilot_flies_its_mission_says_it_is_l
         tmp_path, capsys):
     """In flight (AUTO), ArduPilot refuses to clear its mission: after an upload interrupted
     part-way the station says the mission is a mix and must be cleared before it is flown."""
-    import _thread
-    import threading
-
     path = exported(tmp_path, "wpl")
     port = free_port()
     with inproc_vehicle(connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
@@ -231,21 +239,8 @@ def test_an_upload_interrupted_while_an_ardupilot_flies_its_mission_says_it_is_l
         assert main(["upload", str(path), *connect, "--start"]) == 0
         wait_for(lambda: v.state.mission_active and v.state.alt_rel_m > 5.0, 20, "in flight")
         capsys.readouterr()
-        asked = v.server._request
-
-        def stall(up):  # asks for items 0 and 1, then sends nothing the station waits for
-            return asked(up) if len(up.items) < 2 else \
-                mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"busy", 0, 0)
-
-        v.server._request = stall
-
-        def interrupt():
-            wait_for(lambda: v.server.upload is not None and len(v.server.upload.items) == 2,
-                     20, "the first two items taken")
-            _thread.interrupt_main()
-
-        t = threading.Thread(target=interrupt, daemon=True)
-        t.start()
+        _stall_after_two_items(v)
+        t = _interrupt_once_two_items_are_taken(v)
         assert main(["upload", str(path), *connect]) == 130
         t.join()
         err = capsys.readouterr().err.strip().splitlines()
