@@ -209,7 +209,7 @@ class TracerParams:
     lost_offset_m: float = 6.0
     lost_time_s: float = 3.0
     reacquire_radius_m: float = 8.0
-    max_reacquire: int = 2
+    max_reacquire: int = 4
     min_loop_radius_m: float = 3.0
     budget_factor: float = 4.0
     edge_skip_m: float = 4.0

@@ -416,7 +416,9 @@ def test_a_contour_lost_at_a_saddle_is_taken_up_where_it_was_last_held(
     held and on slowly follows it to the west edge, then traces the other way from the
     entry to the north edge. Searching where the vehicle is instead (``recover_m = 0``,
     the tracer before) loses it for good after ~70 m; the trace then goes back to its
-    entry and traces the other way, to the north edge, and the west is left untraced.
+    entry and traces the other way, to the north edge, and the west is left untraced
+    (with the two searches in a row that tracer had: given four, it searches on in the
+    saddle until it meets its own track, 76 m traced, and the trace ends there).
     (Without the edge walk, so that the trace ends at the west edge: with it, it walks
     on to the next piece.)"""
     from econdor_gcs.config import parse_mission
@@ -430,7 +432,8 @@ def test_a_contour_lost_at_a_saddle_is_taken_up_where_it_was_last_held(
     body = SimBody(truth, mission.region, 50.0, 75.5)  # arriving from the south
     events: list[str] = []
     samples, outcome = drain(trace_contour(body, TraceTask(level, 50.0, 80.5, 3.0, 0.0, 0),
-                                           TracerParams(recover_m=recover_m, edge_walk_m=0.0),
+                                           TracerParams(recover_m=recover_m, edge_walk_m=0.0,
+                                                        max_reacquire=4 if recover_m else 2),
                                            events.append))
     assert outcome.status == "boundary"
     traced = np.array([(s.x_m, s.y_m, s.value) for s in samples if s.phase == Phase.TRACE])
