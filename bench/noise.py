@@ -48,7 +48,9 @@ other code is flown again and left out of the tables (``--any-code`` keeps it, a
 report names the commits it was flown at). ``--restamp K`` lets the selected stale rows
 stand after a change that cannot touch them: K of them are flown again, and only if every
 one comes out as saved are they all stamped with the current code
-(:func:`saved_rows.restamp`; the report names the commits they were checked at). A
+(:func:`saved_rows.restamp`; the report names the commits they were checked at).
+``--again`` flies the selected stale rows again, each its own job, and drops the rows it
+replaced (cut off, it goes on from the rows already flown). A
 planner written ``adaptive[key=value,...]`` is the adaptive planner with those settings
 (variants measured against the default in the same run).
 """
@@ -92,6 +94,7 @@ from saved_rows import (  # noqa: E402
     read_rows,
     restamp,
     restamped,
+    write_rows,
 )
 from summaries import (  # noqa: E402
     first_reached,
@@ -304,6 +307,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--restamp", type=int, default=0, metavar="K",
                    help="with --json: fly K of the selected rows of other code again and, if "
                         "each comes out as saved, stamp them all with this code")
+    p.add_argument("--again", action="store_true",
+                   help="with --json: fly every selected saved row of other code again (its "
+                        "own job, nothing else), then drop the rows this replaced")
     p.add_argument("--fresh", default="",
                    help="seeds reported apart as fresh (not looked at while tuning), e.g. 920:940")
     p.add_argument("--markdown", action="store_true")
@@ -343,6 +349,40 @@ def selection(a: argparse.Namespace) -> Selection:
     return parse_seeds(a.seeds), a.fields.split(","), conditions, labels
 
 
+def _name(r: dict[str, Any]) -> tuple[Any, ...]:
+    return r["kind"], r["field"], r["seed"], r.get("planner", ""), r["noise"], r["variant"]
+
+
+def stale_rows(path: Path, sel: Selection) -> list[dict[str, Any]]:
+    """The selected rows saved in ``path`` that were flown with other code (its sensor the
+    same), but for those a current row already replaces."""
+    rows = read_rows(path)
+    replaced = {_name(r) for r in rows if current(r)}
+    return [r for r in rows if not current(r) and _name(r) not in replaced
+            and r.get("sensor") == condition_sensor(r["field"], r["noise"], r["variant"])
+            and selected(r, *sel)]
+
+
+def fly_again(path: Path, stale: list[dict[str, Any]], cache: str | None,
+              workers: int) -> int:
+    """``--again``: fly each of the ``stale`` rows' own job again, appending the new row
+    as it comes in (a run cut off goes on from there), then drop from ``path`` every row
+    of other code that a current row replaces."""
+    print(f"{len(stale)} saved rows of other code to fly again", file=sys.stderr, flush=True)
+    for _, r in fly([job_again(r, cache) for r in stale], workers):
+        append_row(path, r)
+        last = r["rows"][-1] if r["kind"] == "run" else r["scanned"][-1]
+        print(f"{r['field']} {condition_name(r['noise'], r['variant'])} seed {r['seed']} "
+              f"{r.get('planner', 'survey')}: {last['mae_db']:.1f} dB at "
+              f"{last['flight_m']:.0f} m", file=sys.stderr, flush=True)
+    rows = read_rows(path)
+    replaced = {_name(r) for r in rows if current(r)}
+    kept = [r for r in rows if current(r) or _name(r) not in replaced]
+    write_rows(path, kept)
+    print(f"{len(rows) - len(kept)} rows of other code replaced", file=sys.stderr)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     md = a.markdown or a.out is not None
@@ -351,18 +391,17 @@ def main(argv: list[str] | None = None) -> int:
     if src:
         saved = load(src, current, a.any_code, "flown with other code or another sensor")
     t0 = time.perf_counter()
-    if a.restamp:
+    if a.restamp or a.again:
         if not a.json:
-            print("noise.py: --restamp needs --json (the rows to check)", file=sys.stderr)
+            print(f"noise.py: --{'restamp' if a.restamp else 'again'} needs --json (the "
+                  "saved rows)", file=sys.stderr)
             return 2
-        rows = read_rows(Path(a.json))
-        seeds, fields, conditions, labels = selection(a)
-        stale = [r for r in rows if not current(r) and r.get("sensor") == condition_sensor(
-            r["field"], r["noise"], r["variant"]) and selected(r, seeds, fields, conditions,
-                                                               labels)]
+        stale = stale_rows(Path(a.json), selection(a))
         if not stale:
-            print("noise.py: no selected row of other code to restamp", file=sys.stderr)
+            print("noise.py: no selected row of other code", file=sys.stderr)
             return 2
+        if a.again:
+            return fly_again(Path(a.json), stale, a.cache, a.workers)
         ok, line = restamp(Path(a.json), stale, a.restamp,
                            lambda picked: fly_in_order([job_again(r, a.cache) for r in picked], a.workers),
                            lambda r: code_of(r["kind"]),

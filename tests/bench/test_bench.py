@@ -205,6 +205,23 @@ def test_noise_rows_of_other_code_or_sensor_are_set_aside(tmp_path, capsys):
     assert "0 planner runs and 3 survey scans" in text and "abc" in text
 
 
+def test_same_flight_takes_last_bits_as_the_same_and_any_count_or_key_as_not():
+    """Figures within ``FLOAT_RTOL`` (another machine's arithmetic) and NaN beside NaN are
+    the same flight; another sample count, a missing key or a timing-free figure moved by
+    a millionth are not; timings and stamps never count."""
+    a = {"kind": "run", "rows": [{"mae": 14.465390592845988, "iso": [8.131080983663978,
+                                                                     float("nan")],
+                                  "samples": 457}], "wall_s": 1.0, "commit": "c0"}
+    same = {"kind": "run", "rows": [{"mae": 14.46539059284019, "iso": [8.131080983643963,
+                                                                       float("nan")],
+                                     "samples": 457}], "wall_s": 7.0, "commit": "c1"}
+    assert saved_rows.same_flight(a, same)
+    row = a["rows"][0]
+    for other in ({**row, "samples": 458}, {**row, "mae": row["mae"] * (1 + 1e-6)},
+                  {**row, "iso": [8.131080983663978, 0.0]}, {"mae": row["mae"]}):
+        assert not saved_rows.same_flight(a, {**a, "rows": [other]})
+
+
 def test_restamp_lets_stale_rows_stand_only_when_flown_again_they_come_out_the_same(tmp_path):
     """``--restamp``: of the stale rows, a spread sample is flown again; only if every one
     comes out as saved (timings and stamps aside) do they all get the current code, the
@@ -227,10 +244,12 @@ def test_restamp_lets_stale_rows_stand_only_when_flown_again_they_come_out_the_s
         return [{**r, "rows": [{"mae": r["rows"][0]["mae"] + shift, "flight_m": 100.0}],
                  "wall_s": 9.0, "code": "new", "commit": "c1"} for r in picked]
 
-    ok, line = saved_rows.restamp(path, stale, 2, lambda p: fly(p, 1e-9), lambda r: "new", "c1")
+    ok, line = saved_rows.restamp(path, stale, 2, lambda p: fly(p, 1e-6), lambda r: "new", "c1")
     assert not ok and "differs" in line
     assert saved_rows.read_rows(path) == stale
-    ok, line = saved_rows.restamp(path, stale, 2, fly, lambda r: "new", "c1")
+    # another machine's last bits of arithmetic are the same flight
+    ok, line = saved_rows.restamp(path, stale, 2, lambda p: fly(p, 1e-13), lambda r: "new",
+                                  "c1")
     assert ok and "6 rows restamped at c1" in line
     assert flown == [[1, 4], [1, 4]]  # spread over the rows, not the first ones
     back = saved_rows.read_rows(path)
@@ -337,3 +356,41 @@ def test_every_bench_script_imports():
     proc = subprocess.run([sys.executable, "-c", code, str(ROOT / "bench"), *scripts], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+def test_noise_again_flies_exactly_the_stale_saved_rows_and_replaces_them(
+        tmp_path, monkeypatch, capsys):
+    """``noise.py --again``: the selected saved rows of other code are flown again, each by
+    its own job (not every job the selection names), appended as they come in, and the rows
+    they replace dropped; a row already replaced (a cut-off run going on) is not flown."""
+    import noise
+    import noise_flights
+
+    def row(seed: int, planner: str, code: str) -> dict:
+        return {"kind": "run", "field": "plume", "seed": seed, "noise": 1.0, "variant": "",
+                "planner": planner, "sensor": noise_flights.condition_sensor("plume", 1.0, ""),
+                "rows": [{"mae_db": -1.0, "flight_m": 10.0}], "code": code, "commit": "c0"}
+
+    now = saved_rows.run_code()
+    path = tmp_path / "rows.jsonl.gz"
+    saved = [row(900, "adaptive", "old"), row(901, "adaptive", "old"),
+             row(901, "adaptive", now), row(902, "econdor", "old")]
+    for r in saved:
+        saved_rows.append_row(path, r)
+    flown: list[tuple] = []
+
+    def fly(jobs, workers):
+        for i, (kind, job) in enumerate(jobs):
+            flown.append(job)
+            yield i, {**row(job[1], job[2], now), "rows": [{"mae_db": -2.0, "flight_m": 9.0}]}
+
+    monkeypatch.setattr(noise, "fly", fly)
+    argv = ["--json", str(path), "--fields", "plume", "--noise", "1", "--seeds", "900:903",
+            "--planners", "adaptive", "--again"]
+    assert noise.main(argv) == 0
+    assert flown == [("plume", 900, "adaptive", 1.0, "")]
+    back = saved_rows.read_rows(path)
+    assert sorted((r["seed"], r["planner"], r["code"] == now) for r in back) == [
+        (900, "adaptive", True), (901, "adaptive", True), (902, "econdor", False)]
+    assert noise.main(argv) == 2  # nothing left of other code
+    assert "no selected row of other code" in capsys.readouterr().err
