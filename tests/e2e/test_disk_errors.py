@@ -50,9 +50,11 @@ def test_a_disk_that_fills_up_mid_run_is_one_line_and_keeps_what_arrived(
     the samples of the flight that could not be recorded and ``summary.json``."""
     out = tmp_path / "run"
 
-    def flying_2() -> bool:
+    def flying_2() -> bool:  # planned, and both vehicles' missions saved (iter01_v*)
         log = out / "log.jsonl"
-        return log.exists() and "iteration 2 planned" in log.read_text()
+        return (log.exists() and "iteration 2 planned" in log.read_text()
+                and all((out / "missions" / f"iter01_v{v}.tasks.json").exists()
+                        for v in (1, 2)))
 
     with FullDisk(out, when=flying_2) as disk:
         code = cli.main(["run", str(mission_path), "--out", str(out), "--quiet"])
