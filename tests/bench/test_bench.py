@@ -381,6 +381,7 @@ def test_noise_again_flies_exactly_the_stale_saved_rows_and_replaces_them(
 
     def fly(jobs, workers):
         for i, (kind, job) in enumerate(jobs):
+            assert kind == "run"
             flown.append(job)
             yield i, {**row(job[1], job[2], now), "rows": [{"mae_db": -2.0, "flight_m": 9.0}]}
 
