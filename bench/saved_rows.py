@@ -172,8 +172,7 @@ def _same(a: Any, b: Any) -> bool:
         return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, list) and isinstance(b, list):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
-    if (isinstance(a, float) and isinstance(b, int | float) and not isinstance(b, bool)
-            or isinstance(b, float) and isinstance(a, int) and not isinstance(a, bool)):
+    if all(isinstance(x, int | float) and not isinstance(x, bool) for x in (a, b)):
         if math.isnan(a) or math.isnan(b):
             return math.isnan(a) and math.isnan(b)
         return math.isclose(a, b, rel_tol=FLOAT_RTOL, abs_tol=FLOAT_RTOL)
