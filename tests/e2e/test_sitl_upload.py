@@ -31,11 +31,13 @@ def export(tmp: Path, fmt: str, out: str, *extra: str) -> list[Path]:
 
 
 def fly(path: Path, sitl: Sitl, watch: Watch, timeout_s: float = 60.0) -> None:
-    """Upload, verify, start; then the watcher sees its last item reached and the landing."""
+    """Upload, verify, start; then the watcher sees its last item reached and the landing
+    (of this flight: messages from before the upload do not count)."""
+    since = watch.mark()
     assert econdor(["upload", str(path), "--connect", f"tcp:127.0.0.1:{sitl.port}",
                     "--sysid", str(sitl.sysid), "--start", "--timeout", "30"]) == 0
     last = len(read_mission_file(path).items) - 1
-    watch.wait(lambda w: w.landed_after(last), timeout_s, f"item {last} reached and landing")
+    watch.wait(lambda w: w.landed_after(last, since), timeout_s, f"item {last} reached and landing")
 
 
 def test_exported_plan_and_wpl_fly_to_the_end_and_land(tmp_path, capsys):

@@ -251,10 +251,16 @@ class Watch:
                                    f"(last heartbeat {hb}, texts {texts})")
             time.sleep(0.05)
 
-    def landed_after(self, seq: int) -> bool:
+    def mark(self) -> int:
+        """Where the messages kept so far end: ``landed_after(seq, since=mark)`` looks only at
+        what came after (a second flight of the same mission is not the first one's landing)."""
+        with self._lock:
+            return len(self.messages)
+
+    def landed_after(self, seq: int, since: int = 0) -> bool:
         """Item ``seq`` reached, then a disarmed heartbeat: the mission flown and landed."""
         with self._lock:
-            msgs = list(self.messages)
+            msgs = self.messages[since:]
         reached = [i for i, m in enumerate(msgs)
                    if m.get_type() == "MISSION_ITEM_REACHED" and m.seq == seq]
         if not reached:
