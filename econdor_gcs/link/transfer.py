@@ -168,11 +168,20 @@ class MissionUploader(_Machine):
     ended, so after the station starts an upload again, the answer to the last item of the
     attempt before can arrive when the new transfer is running. Only when no request follows
     within the timeout is such an answer the vehicle's verdict (a vehicle with no transfer
-    running), and the upload fails with it (``stale_acks`` counts the others). A request
-    for an item other than 0 before item 0 was asked for belongs to an earlier transfer
-    (PX4 goes on asking for the items of one it has not given up, and refuses the new count
-    with ERROR) and is not answered: the new mission's items must not complete the old
-    transfer.
+    running), and the upload fails with it (``stale_acks`` counts the others).
+
+    A request before item 0 was asked for that is not for item 0 of this transfer (another
+    item, or another mission type) belongs to a transfer the vehicle began earlier with
+    this station (one that died part-way, or whose cancel was lost): PX4 goes on asking for
+    its items while it hears counts, refuses the new count with ERROR once it has an item,
+    and answers one before that by asking for item 0 of the old transfer, in the old
+    transfer's mission type. It is not answered (the new items must not complete the old
+    transfer): the station cancels that transfer (MISSION_ACK(OPERATION_CANCELLED), in the
+    request's mission type) and counts again, once per count sent
+    (``stale_transfers`` counts them). An old transfer of the same type the vehicle asked
+    item 0 of takes this transfer's items up to its own count: a request beyond this count,
+    or an ACCEPTED before the last item was asked for, starts this one again the same way
+    (a cancel, then the count), at most ``retries`` times.
     """
 
     what = "mission upload"
@@ -191,6 +200,9 @@ class MissionUploader(_Machine):
         self.legacy_items = legacy_items
         self.requested: set[int] = set()
         self.stale_acks = 0
+        self.stale_transfers = 0
+        self._stale_ended = False  # a stale transfer cancelled since the last count
+        self._restarts_left = retries  # progress does not renew these
         self._last_seq: int | None = None
         self._invalid: MAVLinkMessage | None = None
 
@@ -200,6 +212,35 @@ class MissionUploader(_Machine):
 
     def _start(self, now: float) -> None:
         self._send(self._count_msg(), now)
+
+    def _end_stale(self, msg: MAVLinkMessage, now: float) -> None:
+        """Cancel the earlier transfer ``msg`` asks for an item of, and count again."""
+        if self._stale_ended:
+            return  # its requests sent before the cancel arrived
+        self._stale_ended = True
+        self._count_again(now, getattr(msg, "mission_type", 0) or 0)
+
+    def _count_again(self, now: float, cancel_type: int | None) -> None:
+        """Start this transfer again from the count, after cancelling the vehicle's transfer
+        of ``cancel_type`` (``None``: it has none running)."""
+        self.stale_transfers += 1
+        self.requested.clear()
+        self._last_seq = None
+        self._invalid = None  # an ERROR to the count was the old transfer's "busy"
+        if cancel_type is not None:
+            self._outbox.append(mavlink.MAVLink_mission_ack_message(
+                self.target_system, self.target_component,
+                mavlink.MAV_MISSION_OPERATION_CANCELLED, cancel_type))
+        self._send(self._count_msg(), now)
+
+    def _took_ours_into_another(self, now: float, what: str) -> None:
+        """The vehicle ran our items into a transfer of another count (an earlier one of this
+        station's it asked item 0 of): count again, at most ``retries`` times."""
+        if self._restarts_left == 0:
+            self._fail(ProtocolError(f"vehicle {self.target_system} {what}"))
+            return
+        self._restarts_left -= 1
+        self._count_again(now, self.mission_type)
 
     def _waiting_for(self) -> str:
         if self._last_seq is None:
@@ -211,15 +252,15 @@ class MissionUploader(_Machine):
     def _on_message(self, msg: MAVLinkMessage, now: float) -> None:
         kind = msg.get_type()
         if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
+            seq = msg.seq
+            if not self.requested and (seq != 0 or not self._mine(msg, self.mission_type)):
+                self._end_stale(msg, now)  # a transfer begins at item 0 of its own type
+                return
             if not self._mine(msg, self.mission_type):
                 return
-            seq = msg.seq
-            if not self.requested and seq != 0:
-                return  # a transfer begins at item 0: this request is of an earlier one
             if not 0 <= seq < len(self.items):
-                self._fail(ProtocolError(
-                    f"vehicle {self.target_system} requested mission item {seq} of a "
-                    f"{len(self.items)}-item mission"))
+                self._took_ours_into_another(
+                    now, f"requested mission item {seq} of a {len(self.items)}-item mission")
                 return
             item = self.items[seq]
             if kind == "MISSION_REQUEST" and self.legacy_items:
@@ -236,9 +277,13 @@ class MissionUploader(_Machine):
                 return
             if msg.type == mavlink.MAV_MISSION_ACCEPTED:
                 # An ACCEPTED before the last item was asked for is a stale answer (e.g. to an
-                # earlier clear); an empty mission is accepted right after the count.
+                # earlier clear), or, once items were asked for, the end of a shorter
+                # transfer that took them; an empty mission is accepted right after the count.
                 if not self.items or (len(self.items) - 1) in self.requested:
                     self._succeed(len(self.items))
+                elif self.requested:
+                    self._took_ours_into_another(
+                        now, f"accepted {len(self.requested)} of {len(self.items)} items")
                 return
             if msg.type in MAYBE_STALE_RESULTS:
                 self.stale_acks += 1
@@ -250,6 +295,8 @@ class MissionUploader(_Machine):
         if self._invalid is not None:
             self._refused(self._invalid)
         else:
+            if not self.requested:
+                self._stale_ended = False  # the count again: a stale request may follow
             super()._retry(now)
 
     def _refused(self, msg: MAVLinkMessage) -> None:

@@ -233,12 +233,61 @@ def test_upload_empty_mission():
     assert up.error is None and up.result == 0 and vehicle.mission == []
 
 
-def test_uploader_ignores_stale_accept_and_other_mission_types():
+def test_uploader_ignores_a_stale_accept_and_cancels_a_transfer_of_another_type():
+    """Before item 0 is asked for, an ACCEPTED is a stale answer; a request of another
+    mission type (or for another item) is the vehicle's earlier transfer with this station:
+    cancelled (in its type), then the count again, once per count sent."""
     up = MissionUploader(SYSID, 1, sample_items(), timeout_s=1.0)
     assert [m.get_type() for m in up.poll(0.0)] == ["MISSION_COUNT"]
     up.receive(mavlink.MAVLink_mission_ack_message(255, 190, 0, 0), 0.1)
-    up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, 0, 1), 0.1)  # fence
-    assert not up.done and up.poll(0.2) == []
+    assert not up.done and up.poll(0.1) == []
+    fence = mavlink.MAV_MISSION_TYPE_FENCE
+    up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, 0, fence), 0.1)
+    cancel, count = up.poll(0.1)
+    assert (cancel.get_type(), cancel.type, cancel.mission_type) == (
+        "MISSION_ACK", mavlink.MAV_MISSION_OPERATION_CANCELLED, fence)
+    assert (count.get_type(), count.mission_type) == ("MISSION_COUNT", 0)
+    up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, 3, 0), 0.15)  # in flight
+    assert not up.done and up.poll(0.2) == [] and up.stale_transfers == 1
+    # no answer to that count: the count again, after which a stale request is cancelled again
+    assert [m.get_type() for m in up.poll(1.2)] == ["MISSION_COUNT"]
+    up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, 3, 0), 1.3)
+    assert [m.get_type() for m in up.poll(1.3)] == ["MISSION_ACK", "MISSION_COUNT"]
+    for seq in range(len(up.items)):
+        up.receive(mavlink.MAVLink_mission_request_int_message(255, 190, seq, 0), 1.4)
+    up.receive(mavlink.MAVLink_mission_ack_message(255, 190, 0, 0), 1.5)
+    assert up.done and up.error is None and up.stale_transfers == 2
+
+
+def test_an_old_transfer_that_took_our_items_is_started_again():
+    """PX4 asked for item 0 of its old transfer (same type, another count) and took ours:
+    a request beyond our count, or an ACCEPTED before our last item was asked for, starts
+    ours again (its cancel, then the count); a vehicle that keeps doing so is an error
+    once the retries are spent."""
+    items = sample_items()
+    n = len(items)
+    longer = MissionUploader(SYSID, 1, items, timeout_s=1.0, retries=1)
+    longer.poll(0.0)
+    for seq in range(n + 1):  # the old transfer had one more item
+        longer.receive(mavlink.MAVLink_mission_request_int_message(255, 190, seq, 0), 0.1)
+    cancel, count = longer.poll(0.1)[-2:]
+    assert (cancel.type, count.get_type()) == (mavlink.MAV_MISSION_OPERATION_CANCELLED,
+                                               "MISSION_COUNT")
+    assert not longer.done and not longer.requested
+    for seq in range(n + 1):
+        longer.receive(mavlink.MAVLink_mission_request_int_message(255, 190, seq, 0), 0.2)
+    assert isinstance(longer.error, ProtocolError) and f"item {n} of a {n}-item" in str(
+        longer.error)
+    shorter = MissionUploader(SYSID, 1, items, timeout_s=1.0)
+    shorter.poll(0.0)
+    for seq in range(n - 1):  # the old transfer had one item fewer
+        shorter.receive(mavlink.MAVLink_mission_request_int_message(255, 190, seq, 0), 0.1)
+    shorter.receive(mavlink.MAVLink_mission_ack_message(255, 190, 0, 0), 0.1)
+    assert [m.get_type() for m in shorter.poll(0.1)][-2:] == ["MISSION_ACK", "MISSION_COUNT"]
+    for seq in range(n):
+        shorter.receive(mavlink.MAVLink_mission_request_int_message(255, 190, seq, 0), 0.2)
+    shorter.receive(mavlink.MAVLink_mission_ack_message(255, 190, 0, 0), 0.3)
+    assert shorter.done and shorter.error is None and shorter.result == n
 
 
 @pytest.mark.parametrize("result", [mavlink.MAV_MISSION_ERROR,

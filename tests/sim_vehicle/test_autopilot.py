@@ -8,6 +8,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from econdor_gcs.core.tasks import SENSOR_LAG_COMMAND
+from econdor_gcs.link.transfer import MissionUploader
 from sim_vehicle import navigator
 from sim_vehicle.ardupilot import (
     COPTER_AUTO,
@@ -461,6 +462,55 @@ def test_px4_is_busy_with_an_upload_until_the_gcs_cancels_it():
         1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, 0)), 0.0)
     assert ap.server.upload is None and len(ap.server.mission) == len(old)
     assert [m.get_type() for m in _px4_count(ap, 3)] == ["MISSION_REQUEST_INT"]
+
+
+def _station_upload(ap, specs, mission_type, t0):
+    """The station's uploader against ``ap`` in simulated time (20 ms steps): its result."""
+    up = MissionUploader(1, 1, specs, mission_type, timeout_s=1.5)
+    for k in range(2000):
+        now = t0 + 0.02 * k
+        for msg in up.poll(now):
+            ap.receive(rx(msg), now)
+        ap.poll(now)
+        for reply in ap.outbox.drain(now):
+            if reply.get_type().startswith("MISSION_"):
+                up.receive(rx(reply), now)
+        if up.done:
+            return up
+    raise AssertionError("the upload never ended")
+
+
+@pytest.mark.parametrize("old_type, items_taken, new_type", [
+    (mavlink.MAV_MISSION_TYPE_MISSION, 0, mavlink.MAV_MISSION_TYPE_FENCE),  # CI: stuck
+    (mavlink.MAV_MISSION_TYPE_MISSION, 0, mavlink.MAV_MISSION_TYPE_MISSION),
+    (mavlink.MAV_MISSION_TYPE_MISSION, 2, mavlink.MAV_MISSION_TYPE_MISSION),
+    (mavlink.MAV_MISSION_TYPE_MISSION, 2, mavlink.MAV_MISSION_TYPE_FENCE),
+    (mavlink.MAV_MISSION_TYPE_FENCE, 2, mavlink.MAV_MISSION_TYPE_MISSION),
+], ids=["mission-none-then-fence", "mission-none-then-mission", "mission-two-then-mission",
+        "mission-two-then-fence", "fence-two-then-mission"])
+def test_a_station_started_again_ends_px4s_transfer_of_the_one_that_died(
+        old_type, items_taken, new_type):
+    """A station killed part-way through an upload to PX4, started again (the same ids):
+    PX4 keeps the dead transfer while it hears counts (asking for item 0 of its old type
+    again, or refusing the count as busy once it has an item); the new station cancels it
+    and uploads its own, whatever the two transfers' types."""
+    from econdor_gcs.link.items import MissionItemSpec, fence_items
+
+    fence = fence_items(MISSION.origin, MISSION.region, 10.0)
+    mission = [MissionItemSpec.from_message(rx(it)) for it in copter_mission()]
+    old = fence if old_type == mavlink.MAV_MISSION_TYPE_FENCE else mission
+    ap = make(Px4Autopilot)
+    # the station that died: a count and some items, then silence
+    ap.receive(rx(mavlink.MAVLink_mission_count_message(1, 1, len(old), old_type)), 0.0)
+    for it in old[:items_taken]:
+        ap.receive(rx(it.to_message(1, 1)), 0.0)
+    ap.outbox.drain(0.0)
+    assert ap.server.upload is not None and ap.server.upload.mission_type == old_type
+    new = fence if new_type == mavlink.MAV_MISSION_TYPE_FENCE else mission[:2]
+    up = _station_upload(ap, new, new_type, 0.1)
+    assert up.error is None and up.result == len(new)
+    assert up.stale_transfers >= 1
+    assert len(ap.server.stores[new_type]) == len(new)
 
 
 def test_px4_gives_up_an_upload_with_a_statustext_and_no_ack():
