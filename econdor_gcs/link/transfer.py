@@ -220,17 +220,16 @@ class MissionUploader(_Machine):
         self._stale_ended = True
         self._count_again(now, getattr(msg, "mission_type", 0) or 0)
 
-    def _count_again(self, now: float, cancel_type: int | None) -> None:
-        """Start this transfer again from the count, after cancelling the vehicle's transfer
-        of ``cancel_type`` (``None``: it has none running)."""
+    def _count_again(self, now: float, cancel_type: int) -> None:
+        """Cancel the vehicle's transfer of ``cancel_type``, then start this one again from
+        the count."""
         self.stale_transfers += 1
         self.requested.clear()
         self._last_seq = None
         self._invalid = None  # an ERROR to the count was the old transfer's "busy"
-        if cancel_type is not None:
-            self._outbox.append(mavlink.MAVLink_mission_ack_message(
-                self.target_system, self.target_component,
-                mavlink.MAV_MISSION_OPERATION_CANCELLED, cancel_type))
+        self._outbox.append(mavlink.MAVLink_mission_ack_message(
+            self.target_system, self.target_component,
+            mavlink.MAV_MISSION_OPERATION_CANCELLED, cancel_type))
         self._send(self._count_msg(), now)
 
     def _took_ours_into_another(self, now: float, what: str) -> None:
