@@ -375,7 +375,12 @@ class MissionDownloader(_Machine):
 
 
 class MissionClear(_Machine):
-    """MISSION_CLEAR_ALL -> MISSION_ACK (``result`` is ``True``)."""
+    """MISSION_CLEAR_ALL -> MISSION_ACK (``result`` is ``True``).
+
+    MISSION_ACK(OPERATION_CANCELLED) is no answer to a clear: it is a vehicle ending an
+    upload it gave up waiting for (ArduPilot, 8 s of its time after an upload the station
+    left part-way), which can arrive while the clear is on its way; the clear's own answer
+    follows it."""
 
     what = "mission clear"
 
@@ -394,6 +399,8 @@ class MissionClear(_Machine):
     def _on_message(self, msg: MAVLinkMessage, now: float) -> None:
         if msg.get_type() != "MISSION_ACK" or not self._mine(msg, self.mission_type):
             return
+        if msg.type == mavlink.MAV_MISSION_OPERATION_CANCELLED:
+            return  # the end of an upload, not this clear's answer
         if msg.type == mavlink.MAV_MISSION_ACCEPTED:
             self._succeed(True)
         else:

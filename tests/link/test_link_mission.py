@@ -514,3 +514,21 @@ def test_the_sensor_lag_item_has_no_position_and_survives_the_wire():
     assert (item.x, item.y, item.z) == (0, 0, 0.0)
     assert MissionItemSpec.from_message(item.to_message(SYSID, 1)) == item
     assert MissionItemSpec.from_message(item.to_legacy_message(SYSID, 1)) == item
+
+
+def test_a_clear_is_not_answered_by_the_end_of_an_upload_given_up():
+    """ArduPilot's OPERATION_CANCELLED for an upload the station left (its 8 s over) can
+    arrive while a clear is on its way: the clear's own answer is the one that counts."""
+    clear = MissionClear(SYSID, 1, mavlink.MAV_MISSION_TYPE_RALLY)
+    assert [m.get_type() for m in clear.poll(0.0)] == ["MISSION_CLEAR_ALL"]
+    clear.receive(mavlink.MAVLink_mission_ack_message(
+        255, 190, mavlink.MAV_MISSION_OPERATION_CANCELLED, mavlink.MAV_MISSION_TYPE_RALLY), 0.1)
+    assert not clear.done
+    clear.receive(mavlink.MAVLink_mission_ack_message(
+        255, 190, mavlink.MAV_MISSION_ACCEPTED, mavlink.MAV_MISSION_TYPE_RALLY), 0.2)
+    assert clear.done and clear.error is None and clear.result is True
+    refused = MissionClear(SYSID, 1)
+    refused.poll(0.0)
+    refused.receive(mavlink.MAVLink_mission_ack_message(255, 190, mavlink.MAV_MISSION_DENIED,
+                                                        0), 0.1)
+    assert isinstance(refused.error, ProtocolError)
