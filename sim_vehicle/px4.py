@@ -11,7 +11,7 @@ Its mission protocol (``MavlinkMissionManager`` in ``src/modules/mavlink/mavlink
 only when complete, so one that ends early leaves the mission as it was. While it takes an
 upload it refuses a new MISSION_COUNT with MAV_MISSION_ERROR ("busy") once it has an item
 (before that it asks for item 0 again), from any other GCS at once; it ends the transfer on
-the uploading GCS's MISSION_ACK(OPERATION_CANCELLED) (no other ACK), ignores
+the uploading GCS's MISSION_ACK(OPERATION_CANCELLED) of any mission type (no other ACK), ignores
 MISSION_CLEAR_ALL and download requests ("busy"), asks again for the missing item every
 0.25 s and gives up 5 s after it last heard from the GCS, with a STATUSTEXT and no
 MISSION_ACK.
@@ -70,8 +70,11 @@ class Px4MissionServer(MissionServer):
         return [self._request(up)]
 
     def _on_ack(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:
-        if msg.type == mavlink.MAV_MISSION_OPERATION_CANCELLED:
-            return super()._on_ack(msg, peer, now)
+        up = self.upload
+        if (up is not None and up.peer == peer
+                and msg.type == mavlink.MAV_MISSION_OPERATION_CANCELLED):
+            self.upload = None  # whatever the cancel's mission type, as PX4 does
+            self.counters["uploads_failed"] += 1
         return []
 
     def _on_clear(self, msg: Any, peer: tuple[int, int], now: float) -> list[Any]:

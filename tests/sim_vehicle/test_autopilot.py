@@ -20,6 +20,7 @@ from sim_vehicle.px4 import PX4_MODES, Px4Autopilot
 from sim_vehicle.state import FlightMode
 from tests.helpers.autopilot import (
     DECODER,
+    GCS,
     MISSION,
     command,
     copter_mission,
@@ -460,6 +461,31 @@ def test_px4_is_busy_with_an_upload_until_the_gcs_cancels_it():
     assert ap.server.upload is not None and len(ap.server.mission) == len(old)
     ap.receive(rx(mavlink.MAVLink_mission_ack_message(
         1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, 0)), 0.0)
+    assert ap.server.upload is None and len(ap.server.mission) == len(old)
+    assert [m.get_type() for m in _px4_count(ap, 3)] == ["MISSION_REQUEST_INT"]
+
+
+@pytest.mark.parametrize("cancel_type", [mavlink.MAV_MISSION_TYPE_MISSION,
+                                         mavlink.MAV_MISSION_TYPE_FENCE], ids=["mission", "fence"])
+def test_px4_ends_an_upload_on_its_gcss_cancel_of_any_mission_type(cancel_type):
+    """PX4 taking an upload ends it on the uploading GCS's MISSION_ACK(OPERATION_CANCELLED)
+    whatever the ACK's mission type (``handle_mission_ack`` in GETLIST does not compare it);
+    another GCS's cancel, or another result from the uploader, leaves the transfer running."""
+    ap = make(Px4Autopilot)
+    old = copter_mission()
+    upload(ap, old)
+    _px4_count(ap, 3)
+    ap.receive(rx(old[0]), 0.0)
+    ap.outbox.drain(0.0)
+    other = mavlink.MAVLink(None, srcSystem=255, srcComponent=191)
+    for msg in (mavlink.MAVLink_mission_ack_message(
+                    1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, cancel_type).pack(other),
+                mavlink.MAVLink_mission_ack_message(
+                    1, 1, mavlink.MAV_MISSION_ERROR, cancel_type).pack(GCS)):
+        ap.receive(DECODER.decode(bytearray(msg)), 0.0)
+        assert ap.server.upload is not None
+    ap.receive(rx(mavlink.MAVLink_mission_ack_message(
+        1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, cancel_type)), 0.0)
     assert ap.server.upload is None and len(ap.server.mission) == len(old)
     assert [m.get_type() for m in _px4_count(ap, 3)] == ["MISSION_REQUEST_INT"]
 
