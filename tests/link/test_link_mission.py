@@ -179,8 +179,13 @@ def test_upload_survives_lost_final_ack():
 def test_upload_times_out_when_retries_exhausted():
     up = MissionUploader(SYSID, 1, sample_items(), timeout_s=0.5, retries=3)
     sent: list[str] = []
+
+    def lose_every_message(i: int, kind: str) -> bool:
+        sent.append(kind)
+        return True
+
     vehicle = FakeVehicle()
-    end = drive(up, vehicle, drop_up=lambda i, k: sent.append(k) or True)
+    end = drive(up, vehicle, drop_up=lose_every_message)
     assert isinstance(up.error, VehicleTimeout)
     assert "vehicle 2" in str(up.error) and "mission upload" in str(up.error)
     assert sent == ["MISSION_COUNT"] * 4  # first send + 3 retries
