@@ -52,7 +52,7 @@ from typing import Self
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import minimize, minimize_scalar
+from scipy.optimize import OptimizeResult, minimize, minimize_scalar
 from scipy.spatial import cKDTree
 
 from ..errors import ReconstructionError
@@ -172,6 +172,7 @@ def fit_matern(
     cell_m: float = 1.0,
     seed: int = 0,
     noise_std: float = 0.0,
+    start: MaternHyper | None = None,
 ) -> MaternHyper:
     """Maximum-likelihood Matérn hyperparameters from (a subsample of) the samples.
 
@@ -187,7 +188,10 @@ def fit_matern(
     form). A nugget fitted by likelihood alone on a few hundred points a few metres apart
     comes out low (the field's short-range variation and the noise look alike at that
     spacing); the noise seen between neighbouring samples along a track is the
-    better-founded number.
+    better-founded number. Given the fit of a sample set this one grew from (``start``),
+    the search is one descent from its optimum instead: a planner refitting after every
+    flight moves the optimum little, and three searches from afar cost it most of its
+    time.
 
     Parameters
     ----------
@@ -209,6 +213,9 @@ def fit_matern(
     noise_std : float
         Standard deviation of the samples' noise in field units, when known (``0``: the
         relative ``nugget`` is used as given).
+    start : MaternHyper, optional
+        With ``noise_std > 0``: a previous fit (of fewer samples of the same field) to
+        start the one search from; ``None`` searches from three lengths.
 
     Returns
     -------
@@ -235,7 +242,7 @@ def fit_matern(
     d = np.hypot(px[:, None] - px[None, :], py[:, None] - py[None, :])
     lo, hi = (math.log(b) for b in length_bounds_m)
     if noise_std > 0:
-        return _fit_known_noise(d, pv, nu, noise_std, (lo, hi))
+        return _fit_known_noise(d, pv, nu, noise_std, (lo, hi), start)
     res = minimize_scalar(lambda t: _profile_nll(t, d, pv, nu, nugget)[0], bounds=(lo, hi),
                           method="bounded", options={"xatol": 1e-3})
     _, mean, amp = _profile_nll(float(res.x), d, pv, nu, nugget)
@@ -263,18 +270,28 @@ def _known_noise_nll(theta: FloatArray, d: FloatArray, v: FloatArray, nu: float,
 
 
 def _fit_known_noise(d: FloatArray, v: FloatArray, nu: float, noise_std: float,
-                     log_length_bounds: tuple[float, float]) -> MaternHyper:
+                     log_length_bounds: tuple[float, float],
+                     warm: MaternHyper | None = None) -> MaternHyper:
     noise_var = noise_std * noise_std
     spread = max(float(np.std(v)), noise_std)
     amp_bounds = (math.log(1e-3 * spread), math.log(1e3 * spread))
+
+    def search(starts: list[tuple[float, float]]) -> OptimizeResult | None:
+        best = None
+        for log_l, log_a in starts:
+            start = np.array([min(max(log_l, log_length_bounds[0]), log_length_bounds[1]),
+                              min(max(log_a, amp_bounds[0]), amp_bounds[1])])
+            res = minimize(_known_noise_nll, start, args=(d, v, nu, noise_var),
+                           method="L-BFGS-B", bounds=[log_length_bounds, amp_bounds])
+            if math.isfinite(float(res.fun)) and (best is None or res.fun < best.fun):
+                best = res
+        return best
+
     best = None
-    for length in (3.0, 10.0, 30.0):
-        start = np.array([min(max(math.log(length), log_length_bounds[0]),
-                              log_length_bounds[1]), math.log(spread)])
-        res = minimize(_known_noise_nll, start, args=(d, v, nu, noise_var), method="L-BFGS-B",
-                       bounds=[log_length_bounds, amp_bounds])
-        if math.isfinite(float(res.fun)) and (best is None or res.fun < best.fun):
-            best = res
+    if warm is not None and warm.amplitude > 0.0:
+        best = search([(math.log(warm.length_m), math.log(warm.amplitude))])
+    if best is None:  # no previous fit, or its optimum is singular now: three searches
+        best = search([(math.log(length), math.log(spread)) for length in (3.0, 10.0, 30.0)])
     if best is None:
         raise ReconstructionError("GP fit failed: the covariance is singular at every length scale")
     length, amp = math.exp(float(best.x[0])), math.exp(float(best.x[1]))

@@ -7,6 +7,7 @@ better than interpolating the noise, more samples no worse than fewer).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -260,3 +261,65 @@ def test_recorded_noisy_runs_have_their_sensor_noise_estimated(name):
         est = estimate_noise(d["x_m"], d["y_m"], d["value"])
         sensor = json.loads(str(d["meta"]))["noise_std"]
     assert est.noise_std == pytest.approx(sensor, rel=0.05)
+
+
+def test_fit_matern_started_from_a_previous_optimum_finds_the_same_one():
+    """A planner refits after each flight from the last optimum: one descent from there
+    finds what three searches from afar find."""
+    rng = np.random.default_rng(9)
+    x, y = rng.uniform(0, 60, 600), rng.uniform(0, 60, 600)
+    d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
+    from econdor_gcs.core.gp import matern
+
+    c = 4.0 * matern(d / 8.0, 2.5) + 1e-8 * np.eye(x.size)
+    v = 3.0 + np.linalg.cholesky(c) @ rng.normal(size=x.size) + rng.normal(0, 0.5, x.size)
+    before = fit_matern(x[:300], y[:300], v[:300], max_points=300, noise_std=0.5)
+    cold = fit_matern(x, y, v, max_points=600, noise_std=0.5)
+    warm = fit_matern(x, y, v, max_points=600, noise_std=0.5, start=before)
+    assert warm.length_m == pytest.approx(cold.length_m, rel=0.02)
+    assert warm.amplitude == pytest.approx(cold.amplitude, rel=0.02)
+    # a start far from the optimum still descends to it
+    far = dataclasses.replace(before, length_m=60.0, amplitude=0.1)
+    assert fit_matern(x, y, v, max_points=600, noise_std=0.5, start=far).length_m == \
+        pytest.approx(cold.length_m, rel=0.05)
+
+
+def test_the_planner_fits_its_gp_to_noisy_samples_again_only_as_they_grow(monkeypatch):
+    from econdor_gcs.core.adaptive import AdaptiveParams, adaptive_planner, base
+    from econdor_gcs.core.planners import PlanContext
+    from econdor_gcs.core.spline import reconstruct
+    from econdor_gcs.core.tasks import SampleLog
+
+    calls: list[tuple[int, object]] = []
+
+    def counted(x, y, v, **kw):
+        calls.append((len(x), kw.get("start")))
+        return fit_matern(x, y, v, **kw)
+
+    monkeypatch.setattr(base, "fit_matern", counted)
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(0, 100, 1400), rng.uniform(0, 100, 1400)
+    v = np.sin(x / 15.0) + np.cos(y / 20.0) + rng.normal(0, 0.1, x.size)
+    planner = adaptive_planner(AdaptiveParams(model="gp"))
+
+    def plan(n: int, noise: float) -> None:
+        s = SampleLog(np.arange(n) * 0.1, x[:n], y[:n], v[:n], np.zeros(n, np.int8),
+                      np.zeros(n, np.int16))
+        est = reconstruct(s.x_m, s.y_m, s.value, GRID, noise_std=noise)
+        planner.uncertainty(PlanContext(iteration=n, region=REGION, n_vehicles=1, grid=GRID,
+                                        estimate=est, samples=s, noise_std=noise))
+
+    plan(300, 0.1)
+    first = planner.hyper
+    assert first is not None and calls == [(300, None)]
+    plan(330, 0.2)  # grown by a tenth: the last fit, its nugget of the new noise
+    assert len(calls) == 1 and planner.hyper is not None
+    assert planner.hyper.length_m == first.length_m
+    assert planner.hyper.nugget == pytest.approx((0.2 / first.amplitude) ** 2)
+    plan(380, 0.1)  # by more than a fifth: one descent from the last optimum
+    assert len(calls) == 2 and calls[1][0] == 380 and calls[1][1] == first
+    plan(700, 0.1)  # doubled since the search from afar: searched from afar again
+    assert calls[2] == (700, None)
+    plan(760, 0.0)  # exact samples: the length alone, searched every plan
+    plan(770, 0.0)
+    assert [n for n, _ in calls[3:]] == [760, 770]

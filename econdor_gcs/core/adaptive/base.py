@@ -26,6 +26,10 @@ from ..uncertainty import Footprints, UncertaintyMap, resample_polyline, uncerta
 from .greedy import Pick, greedy_plan
 from .params import AdaptiveParams, FirstOrder, Model, Start
 
+REFIT_GROWTH = 1.2
+"""The factor by which the samples grow before the planner's GP is fitted to noisy
+samples again (:meth:`AdaptivePlanner._fit`)."""
+
 WHOLE_TRACE_FACTOR = 2.0
 """A whole-component trace stops after this multiple of the estimated component's length."""
 WHOLE_TRACE_MIN_M = 60.0
@@ -125,6 +129,10 @@ class AdaptivePlanner:
         self.seed = seed
         self.hyper: MaternHyper | None = None
         """The GP fitted for the last plan (``model: gp``)."""
+        self._fitted: MaternHyper | None = None
+        self._fitted_at = self._searched_at = 0
+        """The last likelihood fit, and the samples there were at it and at the last
+        search from afar (:meth:`_fit`)."""
 
     def initiation(self, context: PlanContext) -> Batch | None:
         """The first flight, by ``start``: ``None`` (the mission's initiation pattern,
@@ -176,9 +184,7 @@ class AdaptivePlanner:
                 # for exact ones would see structure at the noise's scale everywhere (a
                 # short length, a large variance between any two samples) and never judge
                 # a place resolved
-                self.hyper = fit_matern(s.x_m, s.y_m, s.value,
-                                        seed=self.seed + context.iteration,
-                                        noise_std=context.noise_std)
+                self.hyper = self._fit(context)
                 if not p.fit_length:
                     self.hyper = dataclasses.replace(self.hyper, length_m=p.length_m)
             umap = uncertainty_map(s.x_m, s.y_m, s.value, context.estimate, context.grid,
@@ -186,6 +192,29 @@ class AdaptivePlanner:
                                    floor=p.floor or None, gradient_gain_m=p.gradient_gain_m,
                                    hyper=self.hyper, noise_std=context.noise_std)
         return umap, plan_grid
+
+    def _fit(self, context: PlanContext) -> MaternHyper:
+        """The GP's hyperparameters for this plan. Exact samples: a search over the
+        length alone, every plan. Noisy ones (length and amplitude searched together, the
+        noise fixed): fitted again once the samples have grown by :data:`REFIT_GROWTH`
+        since the last fit (a few more samples of a field move the optimum less than the
+        choice of the subsample it is fitted on; the nugget follows the noise estimate in
+        between), from the last optimum (one descent) while they have not doubled since
+        the last search from afar (three starting lengths), which a doubling does again."""
+        s = context.samples
+        noise = context.noise_std
+        if noise <= 0.0:
+            return fit_matern(s.x_m, s.y_m, s.value, seed=self.seed + context.iteration)
+        last = self._fitted
+        if last is not None and last.amplitude > 0.0 and len(s) < REFIT_GROWTH * self._fitted_at:
+            return dataclasses.replace(last, nugget=(noise / last.amplitude) ** 2)
+        warm = last if len(s) < 2 * self._searched_at else None
+        self._fitted = fit_matern(s.x_m, s.y_m, s.value, seed=self.seed + context.iteration,
+                                  noise_std=noise, start=warm)
+        self._fitted_at = len(s)
+        if warm is None:
+            self._searched_at = len(s)
+        return self._fitted
 
     def floor_reach_m(self) -> float:
         """How far from a path the cells' value may drop without the model seeing it (a
