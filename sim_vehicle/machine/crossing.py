@@ -16,13 +16,18 @@ from numba import njit
 from .fits import fit_gradient
 from .noise import filter_gain, noise_std
 
+_SQRT2 = math.sqrt(2.0)
+"""The noise of a difference of two readings over the readings' own."""
+
 
 @njit(cache=True)
 def crossing_gradient(ctl, params, cr, recent: np.ndarray, cur_x: float, cur_y: float,
-                      cur_v: float, sigma: float) -> tuple[float, float]:
+                      cur_v: float, sigma: float, noise: float) -> tuple[float, float]:
     """The gradient where the level was crossed between the previous and this sample
-    (``sigma``: the noise of the pair's difference)."""
-    gx, gy, _ = fit_gradient(recent, ctl.rec_start, ctl.rec_len, params.gradient_window)
+    (``sigma``: the noise of the pair's difference; ``noise``: the readings' own, what
+    the plane fit over the recent samples is shrunk for)."""
+    gx, gy, _ = fit_gradient(recent, ctl.rec_start, ctl.rec_len, params.gradient_window,
+                             1e-4, noise)
     if cr.has_prev:
         # the bracketing pair gives the derivative along the last step: trust its sign
         # (unless the difference is within the noise)
@@ -52,9 +57,9 @@ def found_at(ctl, cr, x: float, y: float, gx: float, gy: float) -> None:
 
 @njit(cache=True)
 def _found(ctl, params, cr, recent: np.ndarray, cur_x: float, cur_y: float, cur_v: float,
-           cross_x: float, cross_y: float, sigma: float = 0.0) -> None:
+           cross_x: float, cross_y: float, sigma: float, noise: float) -> None:
     """Record where the level was crossed and the gradient there; return to the caller."""
-    gx, gy = crossing_gradient(ctl, params, cr, recent, cur_x, cur_y, cur_v, sigma)
+    gx, gy = crossing_gradient(ctl, params, cr, recent, cur_x, cur_y, cur_v, sigma, noise)
     found_at(ctl, cr, cross_x, cross_y, gx, gy)
 
 
@@ -86,11 +91,12 @@ def _bracketed_filtered(ctl, params, cr, b, recent: np.ndarray, x: float, y: flo
     t = 1.0 if e1 == 0.0 else e0 / (e0 - e1)
     back = (1.0 - t) + (1.0 - a) / a + params.sensor_lag_s / b.dt_s
     px, py = position_back(ctl, recent, back)
-    sigma = noise_std(b) * math.sqrt(2.0 * a / (2.0 - a))
+    noise = noise_std(b)
+    sigma = noise * math.sqrt(2.0 * a / (2.0 - a))
     # the pair's values for the gradient's sign: the filtered ones
     prev_v = cr.prev_v
     cr.prev_v = cr.prev_vf
-    _found(ctl, params, cr, recent, x, y, cr.vf, px, py, sigma)
+    _found(ctl, params, cr, recent, x, y, cr.vf, px, py, sigma, noise)
     cr.prev_v = prev_v
     return True
 
@@ -112,12 +118,12 @@ def bracketed(ctl, params, cr, b, recent: np.ndarray, x: float, y: float, v: flo
         level = cr.level
         e0, e1 = cr.prev_v - level, v - level
         if e1 == 0.0:
-            _found(ctl, params, cr, recent, x, y, v, x, y)
+            _found(ctl, params, cr, recent, x, y, v, x, y, _SQRT2 * noise_std(b), noise_std(b))
             return True
         if e0 * e1 < 0.0:
             t = e0 / (e0 - e1)
             _found(ctl, params, cr, recent, x, y, v, cr.prev_x + t * (x - cr.prev_x),
-                   cr.prev_y + t * (y - cr.prev_y))
+                   cr.prev_y + t * (y - cr.prev_y), _SQRT2 * noise_std(b), noise_std(b))
             return True
     return False
 

@@ -34,8 +34,16 @@ def ring_push(buf: np.ndarray, start: int, length: int, x: float, y: float, v: f
 
 @njit(cache=True)
 def fit_gradient(buf: np.ndarray, start: int, length: int, count: int,
-                 ridge: float = 1e-4) -> tuple[float, float, float]:
+                 ridge: float = 1e-4, sigma: float = 0.0) -> tuple[float, float, float]:
     """Least-squares plane ``v = a + g . (p - mean p)`` through the last ``count`` samples.
+
+    With readings of noise ``sigma`` the gradient's component along each principal axis
+    of the positions (spread ``s`` there, ``n`` samples) has the standard error
+    ``se = sigma / (s sqrt n)``, and each is shrunk to ``g^2 / (g^2 + se^2)`` of itself
+    (``g`` the component as fitted). Along a straight track the component across it is
+    the noise over the track's few centimetres of wander, and would hand a crossing a
+    gradient several times too steep and pointing anywhere; a component the samples span
+    well keeps nearly all of itself.
 
     Returns
     -------
@@ -83,7 +91,40 @@ def fit_gradient(buf: np.ndarray, start: int, length: int, count: int,
     by = syv / n
     gx = (d * bx - sxy * by) / det
     gy = (a * by - sxy * bx) / det
+    if sigma > 0.0:
+        gx, gy = _shrunk(gx, gy, sxx, syy, sxy, lam_min, n, sigma)
     return gx, gy, math.sqrt(lam_min)
+
+
+@njit(cache=True)
+def _shrunk(gx: float, gy: float, sxx: float, syy: float, sxy: float, lam_min: float,
+            n: int, sigma: float) -> tuple[float, float]:
+    """The gradient's components along the positions' principal axes, each shrunk by its
+    signal over signal plus variance (:func:`fit_gradient`)."""
+    lam_max = sxx + syy - lam_min
+    # the major axis: the eigenvector of the positions' covariance for lam_max
+    if abs(sxy) > 1e-12:
+        ax, ay = lam_max - syy, sxy
+    elif sxx >= syy:
+        ax, ay = 1.0, 0.0
+    else:
+        ax, ay = 0.0, 1.0
+    norm = math.hypot(ax, ay)
+    ax, ay = ax / norm, ay / norm
+    g_major = gx * ax + gy * ay
+    g_minor = -gx * ay + gy * ax
+    g_major = _shrink(g_major, g_major * g_major, sigma * sigma / (n * lam_max)
+                      if lam_max > 0.0 else math.inf)
+    g_minor = _shrink(g_minor, g_minor * g_minor, sigma * sigma / (n * lam_min)
+                      if lam_min > 0.0 else math.inf)
+    return g_major * ax - g_minor * ay, g_major * ay + g_minor * ax
+
+
+@njit(inline="always")
+def _shrink(g: float, prior2: float, var: float) -> float:
+    """``g`` times ``prior2 / (prior2 + var)``: the posterior mean of a component of
+    variance ``prior2`` measured with the error variance ``var``."""
+    return g * prior2 / (prior2 + var) if prior2 + var > 0.0 and var < math.inf else 0.0
 
 
 @njit(cache=True)

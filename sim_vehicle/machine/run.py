@@ -73,7 +73,7 @@ def post(s, b, fv: np.ndarray, fr: np.ndarray, fc: np.ndarray, recent: np.ndarra
     if part == PART_SEARCH:
         search.post(s.ctl, s.params, s.cross, s.search, b, recent, x, y, v)
     elif part == PART_WALK:
-        walk.post(s.ctl, s.task, s.cross, s.trace, s.walk, b, x, y, v)
+        walk.post(s.ctl, s.params, s.task, s.cross, s.trace, s.walk, b, recent, x, y, v)
     elif part == PART_LEG:
         leg.post(s.ctl, s.params, s.task, s.trace, s.leg, s.track, b, fv, fr, fc, window, turns,
                  track, prior, x, y, v)

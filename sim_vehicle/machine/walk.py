@@ -19,6 +19,8 @@ from numba import njit
 
 from ..fence import fence_ray_exit
 from .crossing import found_at, remember
+from .fits import fit_gradient
+from .noise import noise_std
 from .records import PC_TR_AFTER_WALK, PC_WK, PC_WK_START, SEARCHING
 from .records import command as _command
 
@@ -127,7 +129,8 @@ def pre(ctl, params, task, cr, tr, wk, b, fv: np.ndarray, fr: np.ndarray, fc: np
 
 
 @njit(cache=True)
-def post(ctl, task, cr, tr, wk, b, x: float, y: float, v: float) -> None:
+def post(ctl, params, task, cr, tr, wk, b, recent: np.ndarray, x: float, y: float, v: float
+         ) -> None:
     """What the walk does with the sample its command produced."""
     # the walk runs inside the region the trace kept on its left: where the field
     # falls through the level again (and not within WALK_MIN_M / 2 of where the
@@ -144,10 +147,19 @@ def post(ctl, task, cr, tr, wk, b, x: float, y: float, v: float) -> None:
             t = e0 / (e0 - e1)
             cx, cy = cr.prev_x + t * sx, cr.prev_y + t * sy
             # the walk's samples lie on one line: a plane fit cannot tell the gradient
-            # across it, so the derivative along the last step stands for it (the
-            # trace then sets off square to the edge and the controller turns it)
+            # across it, so the derivative along the walk stands for it (the trace then
+            # sets off square to the edge and the controller turns it): the last step's,
+            # or with noisy readings the slope fitted over the recent samples (one step's
+            # difference is mostly noise), where it agrees with the crossing's sense
             step = max(step, 1e-9)
             along = (v - cr.prev_v) / step
+            noise = noise_std(b)
+            if noise > 0.0:
+                fx, fy, _ = fit_gradient(recent, ctl.rec_start, ctl.rec_len,
+                                         params.gradient_window, 1e-4, noise)
+                along_fit = (fx * sx + fy * sy) / step
+                if along_fit * along > 0.0:
+                    along = along_fit
             gx, gy = along * sx / step, along * sy / step
             if walked >= WALK_MIN_M:
                 found_at(ctl, cr, cx, cy, gx, gy)

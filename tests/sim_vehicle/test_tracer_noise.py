@@ -11,6 +11,7 @@ import pytest
 from econdor_gcs.core.geometry import Region
 from econdor_gcs.core.tasks import Phase, TraceTask, Waypoint
 from sim_vehicle.body import SimBody
+from sim_vehicle.machine import fits
 from sim_vehicle.machine import noise as onboard
 from sim_vehicle.sensor import SensorModel
 from sim_vehicle.tracer import TracerParams, run_task_batch
@@ -114,3 +115,49 @@ def test_a_lag_of_unknown_size_changes_only_a_noisy_traces_filter(noise_std: flo
     (told, status), (untold, _) = trace(True), trace(False)
     assert status == "closed"
     assert np.array_equal(told, untold) == (noise_std == 0.0)
+
+
+def _line_fit(rng: np.random.Generator, noise_std: float, sigma: float, across_m: float = 0.03
+              ) -> tuple[float, float]:
+    """A plane fit through 20 noisy readings of the plane ``1.5 x + 0.5 y`` taken every
+    0.8 m along the x axis, the track wandering ``across_m`` (rms) across it."""
+    buf = np.zeros((20, 3))
+    buf[:, 0] = 0.8 * np.arange(20)
+    buf[:, 1] = across_m * rng.standard_normal(20)
+    buf[:, 2] = 1.5 * buf[:, 0] + 0.5 * buf[:, 1] + noise_std * rng.standard_normal(20)
+    gx, gy, _ = fits.fit_gradient(buf, 0, 20, 20, 1e-4, sigma)
+    return gx, gy
+
+
+def _fits(noise_std: float, sigma: float, across_m: float = 0.03) -> np.ndarray:
+    rng = np.random.default_rng(5)
+    return np.array([_line_fit(rng, noise_std, sigma, across_m) for _ in range(300)])
+
+
+def test_a_gradient_fitted_along_a_straight_track_keeps_little_of_the_noise_across_it() -> None:
+    raw, shrunk = _fits(1.0, 0.0), _fits(1.0, 1.0)
+    steep_raw = np.hypot(raw[:, 0], raw[:, 1]) / 1.5
+    steep = np.hypot(shrunk[:, 0], shrunk[:, 1]) / 1.5
+    # the plain fit: the slope across the track is the noise over a few centimetres, and
+    # most crossings on a straight line get a gradient more than twice the true one
+    assert np.median(np.abs(raw[:, 1])) > 3.0 and np.mean(steep_raw > 2.0) > 0.6
+    # shrunk for the noise: a quarter of the slope across, half as many twice too steep,
+    # the slope along the track as it was
+    assert np.median(np.abs(shrunk[:, 1])) < 0.3 * np.median(np.abs(raw[:, 1]))
+    assert np.mean(steep > 2.0) < 0.5 * np.mean(steep_raw > 2.0)
+    assert np.median(np.abs(shrunk[:, 0] - 1.5)) < 0.1
+
+
+def test_a_gradient_fitted_over_samples_that_span_both_ways_is_kept() -> None:
+    """Samples a few metres across the track (a turn) measure both components: the
+    shrinkage leaves them."""
+    raw, shrunk = _fits(0.3, 0.0, across_m=3.0), _fits(0.3, 0.3, across_m=3.0)
+    assert np.median(np.abs(shrunk[:, 1] - 0.5)) < 0.1
+    assert np.median(np.abs(shrunk - raw)) < 0.02
+
+
+def test_noise_free_readings_are_fitted_as_they_are() -> None:
+    """sigma 0: the slope across the track too (less what the fit's ridge of 1e-4 m^2
+    takes from a spread of 0.03 m)."""
+    rng = np.random.default_rng(5)
+    assert _line_fit(rng, 0.0, 0.0) == pytest.approx((1.5, 0.5), rel=0.15)
