@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
+
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    # A suite started in the background (``nohup``, ``&`` in a script) inherits Ctrl-C
+    # ignored, and the product rightly keeps an ignored SIGINT ignored: the tests that send
+    # it (to themselves or to the processes they start, which inherit the disposition) need
+    # it to arrive as at a terminal. Set in every process pytest-xdist starts too.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session", autouse=True)
