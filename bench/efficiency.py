@@ -83,6 +83,7 @@ from saved_rows import (  # noqa: E402
     code_of,
     commit,
     current_code,
+    drop_superseded,
     load,
     read_rows,
     restamp,
@@ -263,6 +264,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}")
         print(f"[{n}/{len(todo)}] {what} {time.perf_counter() - t0:.0f} s",
               file=sys.stderr, flush=True)
+    if a.json and todo:
+        gone = drop_superseded(Path(a.json), lambda r: r.get("job"))
+        print(f"{gone} rows of other code replaced", file=sys.stderr, flush=True)
     missing = [k for k in keyed if k not in saved]
     if missing:
         print(f"{len(missing)} of the {len(keyed)} runs and survey scans asked for are not "

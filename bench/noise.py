@@ -90,11 +90,12 @@ from saved_rows import (  # noqa: E402
     append_row,
     code_of,
     commit,
+    drop_superseded,
     load,
     read_rows,
     restamp,
     restamped,
-    write_rows,
+    superseded,
 )
 from summaries import (  # noqa: E402
     first_reached,
@@ -353,17 +354,11 @@ def _name(r: dict[str, Any]) -> tuple[Any, ...]:
     return r["kind"], r["field"], r["seed"], r.get("planner", ""), r["noise"], r["variant"]
 
 
-def _superseded(rows: list[dict[str, Any]]) -> list[bool]:
-    """Per row: flown with other code, and a current row of the same name replaces it."""
-    replaced = {_name(r) for r in rows if current(r)}
-    return [not current(r) and _name(r) in replaced for r in rows]
-
-
 def stale_rows(path: Path, sel: Selection) -> list[dict[str, Any]]:
     """The selected rows saved in ``path`` that were flown with other code (its sensor the
     same), but for those a current row already replaces."""
     rows = read_rows(path)
-    return [r for r, gone in zip(rows, _superseded(rows), strict=True)
+    return [r for r, gone in zip(rows, superseded(rows, _name, current), strict=True)
             if not gone and not current(r)
             and r.get("sensor") == condition_sensor(r["field"], r["noise"], r["variant"])
             and selected(r, *sel)]
@@ -381,10 +376,7 @@ def fly_again(path: Path, stale: list[dict[str, Any]], cache: str | None,
         print(f"{r['field']} {condition_name(r['noise'], r['variant'])} seed {r['seed']} "
               f"{r.get('planner', 'survey')}: {last['mae_db']:.1f} dB at "
               f"{last['flight_m']:.0f} m", file=sys.stderr, flush=True)
-    rows = read_rows(path)
-    kept = [r for r, gone in zip(rows, _superseded(rows), strict=True) if not gone]
-    write_rows(path, kept)
-    print(f"{len(rows) - len(kept)} rows of other code replaced", file=sys.stderr)
+    print(f"{drop_superseded(path, _name, current)} rows of other code replaced", file=sys.stderr)
     return 0
 
 

@@ -134,6 +134,26 @@ def append_row(path: Path, row: dict[str, Any]) -> None:
         fh.write(json.dumps(row, default=float) + "\n")
 
 
+def superseded(rows: Sequence[dict[str, Any]], name: Callable[[dict[str, Any]], Any],
+               current: Callable[[dict[str, Any]], bool] = current_code) -> list[bool]:
+    """Per row: not ``current`` (flown with other code), and a current row of the same
+    ``name`` replaces it."""
+    replaced = {name(r) for r in rows if current(r)}
+    return [not current(r) and name(r) in replaced for r in rows]
+
+
+def drop_superseded(path: Path, name: Callable[[dict[str, Any]], Any],
+                    current: Callable[[dict[str, Any]], bool] = current_code) -> int:
+    """Remove from ``path`` the rows a current row replaces (:func:`superseded`); how many
+    went."""
+    rows = read_rows(path)
+    kept = [r for r, gone in zip(rows, superseded(rows, name, current), strict=True)
+            if not gone]
+    if len(kept) < len(rows):
+        write_rows(path, kept)
+    return len(rows) - len(kept)
+
+
 def write_rows(path: Path, rows: Sequence[dict[str, Any]]) -> None:
     """Replace ``path`` with ``rows`` (written beside it first, then moved over it)."""
     tmp = path.with_name(path.name + ".tmp" + path.suffix)

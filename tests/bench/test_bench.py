@@ -283,6 +283,19 @@ def test_efficiency_rows_are_named_by_their_job_and_set_aside_when_of_other_code
     assert "2 of the 2 runs and survey scans asked for are not in the saved rows" in err
 
 
+def test_rows_of_other_code_go_once_a_current_row_of_the_same_job_replaces_them(tmp_path):
+    """``saved_rows.drop_superseded`` (both benches, after flying): a stale row whose job a
+    current row now holds goes; a stale row nothing replaces stays, and so do current ones."""
+    now, old = saved_rows.run_code(), "0" * 16
+    rows = [{"kind": "run", "job": "a", "code": old}, {"kind": "run", "job": "b", "code": old},
+            {"kind": "run", "job": "a", "code": now}, {"kind": "run", "job": "c", "code": now}]
+    path = tmp_path / "rows.jsonl.gz"
+    saved_rows.write_rows(path, rows)
+    assert saved_rows.drop_superseded(path, lambda r: r["job"]) == 1
+    assert saved_rows.read_rows(path) == rows[1:]
+    assert saved_rows.drop_superseded(path, lambda r: r["job"]) == 0
+
+
 @pytest.mark.parametrize("same", [True, False], ids=["as-saved", "differs"])
 def test_efficiency_restamp_flies_a_spread_of_the_asked_for_stale_rows_again(
         tmp_path, monkeypatch, capsys, same):
