@@ -255,18 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         saved = {r["job"]: r for r in load(src, current_code, a.any_code) if r.get("job") in keyed}
     todo = [] if a.from_json else [(k, kind, j) for k, (kind, j) in keyed.items()
                                    if k not in saved]
-    for n, (k, row) in enumerate(fly_jobs(todo, a.workers), 1):
-        saved[k] = row
-        if a.json:
-            append_row(Path(a.json), row)
-        kind, j = keyed[k]
-        what = (f"surveys {j[0]} {j[1]}" if kind == "survey" else
-                f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}")
-        print(f"[{n}/{len(todo)}] {what} {time.perf_counter() - t0:.0f} s",
-              file=sys.stderr, flush=True)
-    if a.json and todo:
-        gone = drop_superseded(Path(a.json), lambda r: r.get("job"))
-        print(f"{gone} rows of other code replaced", file=sys.stderr, flush=True)
+    saved.update(fly_and_save(todo, a.workers, Path(a.json) if a.json else None))
     missing = [k for k in keyed if k not in saved]
     if missing:
         print(f"{len(missing)} of the {len(keyed)} runs and survey scans asked for are not "
@@ -316,6 +305,29 @@ def main(argv: list[str] | None = None) -> int:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(text, encoding="utf-8")
     return 0
+
+
+def fly_and_save(todo: list[tuple[str, str, Job]], workers: int, path: Path | None
+                 ) -> dict[str, dict[str, Any]]:
+    """Fly ``todo`` (:func:`fly_jobs`), each row appended to ``path`` as it comes in (a run
+    cut off goes on from there); then drop from ``path`` the rows of other code the new
+    ones replace. The new rows by key."""
+    t0 = time.perf_counter()
+    asked = {k: (kind, j) for k, kind, j in todo}
+    rows: dict[str, dict[str, Any]] = {}
+    for n, (k, row) in enumerate(fly_jobs(todo, workers), 1):
+        rows[k] = row
+        if path is not None:
+            append_row(path, row)
+        kind, j = asked[k]
+        what = (f"surveys {j[0]} {j[1]}" if kind == "survey" else
+                f"{j[2]}{':threshold' if j[5] else ''} {j[0]} {j[1]}")
+        print(f"[{n}/{len(todo)}] {what} {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
+    if path is not None and todo:
+        gone = drop_superseded(path, lambda r: r.get("job"))
+        print(f"{gone} rows of other code replaced", file=sys.stderr, flush=True)
+    return rows
 
 
 def fly_jobs(todo: list[tuple[str, str, Job]], workers: int

@@ -296,6 +296,32 @@ def test_rows_of_other_code_go_once_a_current_row_of_the_same_job_replaces_them(
     assert saved_rows.drop_superseded(path, lambda r: r["job"]) == 0
 
 
+def test_efficiency_appends_what_it_flies_and_drops_the_rows_it_replaces(
+        tmp_path, monkeypatch, capsys):
+    """``efficiency.py --json``: each row flown is appended as it comes in; then the rows of
+    other code of the same jobs go, and a stale row of a job not flown stays."""
+    import efficiency
+
+    jobs, _ = efficiency.jobs_of(efficiency.parse_args(
+        ["--fields", "plume", "--seeds", "3:5", "--threshold-only"]))
+    todo = [(efficiency.job_key("run", j), "run", j) for j in jobs]
+    path = tmp_path / "rows.jsonl.gz"
+    stale = [{"kind": "run", "job": k, "code": "old"} for k, _, _ in todo]
+    other = {"kind": "run", "job": "another", "code": "old"}
+    for r in [*stale, other]:
+        saved_rows.append_row(path, r)
+
+    def fly(todo, workers):
+        for key, kind, _ in todo:
+            yield key, {"kind": kind, "job": key, "code": efficiency.code_of(kind)}
+
+    monkeypatch.setattr(efficiency, "fly_jobs", fly)
+    new = efficiency.fly_and_save(todo, 1, path)
+    assert list(new) == [k for k, _, _ in todo]
+    assert saved_rows.read_rows(path) == [other, *new.values()]
+    assert f"{len(todo)} rows of other code replaced" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("same", [True, False], ids=["as-saved", "differs"])
 def test_efficiency_restamp_flies_a_spread_of_the_asked_for_stale_rows_again(
         tmp_path, monkeypatch, capsys, same):
