@@ -50,11 +50,11 @@ def test_a_disk_that_fills_up_mid_run_is_one_line_and_keeps_what_arrived(
     the samples of the flight that could not be recorded and ``summary.json``."""
     out = tmp_path / "run"
 
-    def flying_2() -> bool:  # planned, and both vehicles' missions saved (iter01_v*)
-        log = out / "log.jsonl"
-        return (log.exists() and "iteration 2 planned" in log.read_text()
-                and all((out / "missions" / f"iter01_v{v}.tasks.json").exists()
-                        for v in (1, 2)))
+    def flying_2() -> bool:  # planned, and both vehicles' missions saved (iter02_v*)
+        # looked at on every write, so the disk fills at the first write after the last of
+        # these (each file is one write), before iteration 2 flies (stats first: cheap)
+        return (all((out / "missions" / f"iter02_v{v}.tasks.json").exists() for v in (1, 2))
+                and "iteration 2 planned" in (out / "log.jsonl").read_text())
 
     with FullDisk(out, when=flying_2) as disk:
         code = cli.main(["run", str(mission_path), "--out", str(out), "--quiet"])

@@ -3,7 +3,7 @@
 :class:`FullDisk` patches ``open`` (``builtins.open`` and ``io.open``, which ``pathlib``
 uses) and ``os.unlink`` for the files under one directory. Until it is full, writes go to
 the real files. It becomes full after the ``n``-th write to a file named ``trigger``, or once
-``when()`` holds (a state of the run, looked at every 0.1 s of writes), or when
+``when()`` holds (a state of the run, looked at on every write: keep it cheap), or when
 :meth:`fill` is called. From then on every write there raises ``OSError(ENOSPC)``, except as far as files
 deleted since (their size) make room again, as on a real file system: what a run frees
 (its space reserve) it can use for its last words.
@@ -16,7 +16,6 @@ import errno
 import io
 import os
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -60,7 +59,6 @@ class FullDisk:
         self.root = Path(root).resolve()
         self.trigger, self.n = trigger, n
         self.when = when
-        self._looked = 0.0
         self.full = False
         self.room = 0
         """Bytes free once full (what deleted files gave back)."""
@@ -92,9 +90,8 @@ class FullDisk:
                 self.n -= 1
                 if self.n <= 0:
                     self.full = True  # this write still fits: the next ones do not
-            elif self.when is not None and time.monotonic() - self._looked > 0.1:
-                self._looked = time.monotonic()
-                self.full = self.when()
+            elif self.when is not None:
+                self.full = self.when()  # this write still fits: the next ones do not
 
     def open(self, file: Any, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
         real = self._open(file, mode, *args, **kwargs)
