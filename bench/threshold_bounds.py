@@ -10,18 +10,28 @@ An idealised study, not the product: samples every 0.8 m along the given polylin
 * ``kK_dD``: K such lines, then every part of the *true* iso-line farther than D m from
   them traced exactly (D = 0: all of it), the parts visited nearest first from the home
   corner, the transits counted — what a planner that knew where the iso-line is, and
-  paid nothing to find it, would fly.
+  paid nothing to find it, would fly;
+* ``kK_dD_cC`` (``--cuts``): the same with each traced part flown as its Douglas-Peucker
+  simplification to C m (a path that cuts the iso-line's bends by up to C m);
+* ``..._t`` (``--sample-transits``): the same with the transits' samples in the map (a
+  vehicle samples on its way; without, only the lines and the traced parts are);
+* ``iso``: the iso-line's length, and the error of a map from samples on it alone.
 
 It prints each seed's shortest pattern of each kind that reaches the target, and the
 median over the seeds of the best trace-based flight over the best lines-only one: a
-floor, on that field, for planners that map an iso-line by tracing it.
+floor, on that field, for planners that map an iso-line by tracing it. With ``--surveys``
+(a bench's saved rows) also over the bench's best survey for the seed, and the iso-line's
+length and ``k0_d0`` (the iso-line and the shortest transits between its pieces, nothing
+else) over it: what any flight that passes along the whole iso-line costs at least.
 
-    python bench/threshold_bounds.py --field authors --seeds 900:920
+    python bench/threshold_bounds.py --field authors --seeds 900:920 \
+        --surveys docs/results/data/threshold-fresh.jsonl.gz
 """
 
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import math
 import statistics
@@ -30,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+from shapely.geometry import LineString
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -57,10 +68,14 @@ def lines(k: int, edges: bool) -> tuple[np.ndarray, float]:
     return pts, k * float(ys[-1] - ys[0]) + float(xs[-1] - xs[0])
 
 
-def parts_beyond(pieces: list[ContourPiece], pts: np.ndarray, d_m: float
-                 ) -> tuple[np.ndarray, float]:
+def parts_beyond(pieces: list[ContourPiece], pts: np.ndarray, d_m: float, cut_m: float = 0.0,
+                 sample_transits: bool = False) -> tuple[np.ndarray, float]:
     """The parts of ``pieces`` farther than ``d_m`` from ``pts`` (sampled), and the flight
-    to trace them: their length and the transits, nearest part next from the home corner."""
+    to trace them: their length and the transits, nearest part next from the home corner.
+    ``cut_m`` > 0: each part is flown as its Douglas-Peucker simplification to that
+    tolerance (corners cut by up to ``cut_m``: shorter than the iso-line where it bends).
+    ``sample_transits``: the samples of the transits are returned too (as a vehicle takes
+    them); else only the parts'."""
     tree = cKDTree(pts) if len(pts) else None
     parts = []
     for p in pieces:
@@ -68,18 +83,26 @@ def parts_beyond(pieces: list[ContourPiece], pts: np.ndarray, d_m: float
         far = np.ones(len(q), bool) if tree is None else tree.query(q)[0] > d_m
         edges = np.flatnonzero(np.diff(np.r_[0, far.astype(np.int8), 0]))
         parts += [q[a:b] for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= 2]
+    if cut_m > 0.0:
+        parts = [resample_polyline(np.asarray(LineString(s).simplify(cut_m).coords), STEP_M)
+                 for s in parts]
     flight = sum(path_length(s[:, 0], s[:, 1]) for s in parts)
-    pos, left = np.zeros(2), list(parts)
+    pos, left, transits = np.zeros(2), list(parts), []
     while left:
         gaps = [min(np.hypot(*(s[0] - pos)), np.hypot(*(s[-1] - pos))) for s in left]
         i = int(np.argmin(gaps))
         s = left.pop(i)
         flight += gaps[i]
-        pos = s[-1] if np.hypot(*(s[0] - pos)) <= np.hypot(*(s[-1] - pos)) else s[0]
-    return (np.vstack(parts) if parts else np.zeros((0, 2))), flight
+        near, far_end = (s[0], s[-1]) if np.hypot(*(s[0] - pos)) <= np.hypot(*(s[-1] - pos)) \
+            else (s[-1], s[0])
+        if sample_transits and gaps[i] > STEP_M:
+            transits.append(resample_polyline(np.array([pos, near]), STEP_M))
+        pos = far_end
+    return (np.vstack(parts + transits) if parts else np.zeros((0, 2))), flight
 
 
-def one_seed(field: str, seed: int) -> dict[str, tuple[float, float]]:
+def one_seed(field: str, seed: int, cuts: tuple[float, ...] = (0.0,),
+             transits: tuple[bool, ...] = (False,)) -> dict[str, tuple[float, float]]:
     m = mission_for(field, 0.0, "lawnmower", "auto")
     truth, grid = m.build_field(seed), m.grid
     xx, yy = grid.mesh
@@ -92,18 +115,37 @@ def one_seed(field: str, seed: int) -> dict[str, tuple[float, float]]:
         return isoline_error(tg, reconstruct(pts[:, 0], pts[:, 1], v, grid), grid, level)
 
     out: dict[str, tuple[float, float]] = {}
+    # the iso-line itself: its length, and the error of a map made from it alone
+    on_line = np.vstack([resample_polyline(p.points_m, STEP_M) for p in pieces])
+    out["iso"] = (sum(path_length(p.points_m[:, 0], p.points_m[:, 1]) for p in pieces),
+                  error(on_line))
     for k in range(2, 16):
         for edges, name in ((True, "survey"), (False, "lines")):
             pts, flight = lines(k, edges)
             out[f"{name}{k}"] = (flight, error(pts))
     for k in range(4):
         for d in (0.0, 3.0, 5.0, 8.0, 10.0):
-            pts, flight = lines(k, False)
-            traced, more = parts_beyond(pieces, pts, d if k else 0.0)
-            both = np.vstack([pts, traced])
-            if len(both) >= 10:
-                out[f"k{k}_d{d:g}"] = (flight + more, error(both))
+            for cut in cuts:
+                for sampled in transits:
+                    pts, flight = lines(k, False)
+                    traced, more = parts_beyond(pieces, pts, d if k else 0.0, cut, sampled)
+                    both = np.vstack([pts, traced])
+                    if len(both) >= 10:
+                        name = (f"k{k}_d{d:g}" + (f"_c{cut:g}" if cut else "")
+                                + ("_t" if sampled else ""))
+                        out[name] = (flight + more, error(both))
     return out
+
+
+def _bench_surveys(path: str, field: str) -> dict[int, float]:
+    """Per seed, the flight of the bench's best survey to the iso-line target (its
+    ``to_iso``), from a bench's saved rows."""
+    opener = gzip.open if path.endswith(".gz") else open
+    with opener(path, "rt") as f:
+        rows = [json.loads(line) for line in f if line.strip()]
+    return {int(r["seed"]): float(r["to_iso"]["flight_m"]) for r in rows
+            if r.get("kind") == "survey" and r.get("field") == field
+            and r.get("to_iso", {}).get("flight_m") is not None}
 
 
 def main() -> int:
@@ -111,10 +153,23 @@ def main() -> int:
     p.add_argument("--field", default="authors")
     p.add_argument("--seeds", default="900:920")
     p.add_argument("--json", default=None, help="write every pattern's flight and error here")
+    p.add_argument("--cuts", default="0", help=(
+        "Douglas-Peucker tolerances (m, comma-separated) the traced parts are also flown "
+        "simplified to: a path that cuts the iso-line's bends instead of following them"))
+    p.add_argument("--surveys", default=None, help=(
+        "the bench's saved rows (e.g. docs/results/data/threshold-fresh.jsonl.gz): also "
+        "give the best trace-based flight over the bench's best survey for the seed"))
+    p.add_argument("--sample-transits", action="store_true", help=(
+        "also fly each trace-based pattern with the samples of its transits between the "
+        "parts (as a vehicle takes them; names ending _t)"))
     a = p.parse_args()
-    ratios, saved = [], {}
+    cuts = tuple(float(c) for c in a.cuts.split(","))
+    transits = (False, True) if a.sample_transits else (False,)
+    bench = _bench_surveys(a.surveys, a.field) if a.surveys else {}
+    ratios, to_bench, saved = [], [], {}
+    iso_only: list[tuple[float, float, float]] = []
     for seed in parse_seeds(a.seeds):
-        got = one_seed(a.field, seed)
+        got = one_seed(a.field, seed, cuts, transits)
         saved[seed] = got
 
         def best(prefix: str, got: dict[str, tuple[float, float]] = got
@@ -125,10 +180,27 @@ def main() -> int:
         lines_only = min(best("survey"), best("lines"))
         traced = best("k")
         ratios.append(traced[0] / lines_only[0])
+        also = ""
+        if seed in bench:
+            to_bench.append(traced[0] / bench[seed])
+            iso_only.append((got["iso"][0] / bench[seed], got["k0_d0"][0] / bench[seed],
+                             got["k0_d0"][1]))
+            also = (f"; bench survey {bench[seed]:.0f} m: {to_bench[-1]:.3f}; the iso-line "
+                    f"{got['iso'][0]:.0f} m, with the transits between its pieces "
+                    f"{got['k0_d0'][0]:.0f} m (error {got['k0_d0'][1]:.2f} m)")
         print(f"{a.field} {seed}: lines only {lines_only[0]:.0f} m ({lines_only[1]}), "
-              f"traced {traced[0]:.0f} m ({traced[1]}): {ratios[-1]:.3f}", flush=True)
+              f"traced {traced[0]:.0f} m ({traced[1]}): {ratios[-1]:.3f}{also}", flush=True)
     print(f"median, traced over lines only: {statistics.median(ratios):.3f} "
           f"({sum(r <= 0.5 for r in ratios)} of {len(ratios)} seeds <= 0.5)")
+    if to_bench:
+        print(f"median, traced over the bench's best survey: {statistics.median(to_bench):.3f} "
+              f"({sum(r <= 0.5 for r in to_bench)} of {len(to_bench)} seeds <= 0.5)")
+        alone, flown, errs = zip(*iso_only, strict=True)
+        print(f"median over the bench's best survey: the iso-line's length "
+              f"{statistics.median(alone):.3f}, the iso-line and the shortest transits between "
+              f"its pieces from the home corner {statistics.median(flown):.3f} (a map from "
+              f"those samples alone within {TARGET_M} m on {sum(e <= TARGET_M for e in errs)} "
+              f"of {len(errs)} seeds)")
     if a.json:
         Path(a.json).write_text(json.dumps(saved))
     return 0

@@ -434,3 +434,30 @@ def test_noise_again_flies_exactly_the_stale_saved_rows_and_replaces_them(
         (900, "adaptive", True), (901, "adaptive", True), (902, "econdor", False)]
     assert noise.main(argv) == 2  # nothing left of other code
     assert "no selected row of other code" in capsys.readouterr().err
+
+
+def test_the_idealised_traces_cut_bends_and_read_the_bench_surveys(tmp_path: Path) -> None:
+    """bench/threshold_bounds.py: a part flown with its bends cut (``--cuts``) is shorter
+    than the part where it bends and as long where it is straight; the bench's best survey
+    per seed is read from its saved rows (surveys only, of the field asked)."""
+    import gzip
+    import json
+
+    import threshold_bounds as tb
+    from econdor_gcs.core.contours import ContourPiece
+
+    t = np.linspace(0.0, np.pi, 200)
+    arc = ContourPiece(0.0, np.column_stack([50 + 30 * np.cos(t), 50 + 30 * np.sin(t)]), False)
+    line = ContourPiece(0.0, np.column_stack([np.linspace(10, 90, 50), np.full(50, 5.0)]), False)
+    none = np.zeros((0, 2))
+    for piece, shorter in ((arc, True), (line, False)):
+        _, whole = tb.parts_beyond([piece], none, 0.0)
+        _, cut = tb.parts_beyond([piece], none, 0.0, cut_m=5.0)
+        assert (cut < whole - 1.0) if shorter else math.isclose(cut, whole, rel_tol=1e-9)
+    path = tmp_path / "rows.jsonl.gz"
+    with gzip.open(path, "wt") as f:
+        for r in ({"kind": "survey", "field": "authors", "seed": 900, "to_iso": {"flight_m": 921.0}},
+                  {"kind": "survey", "field": "paper", "seed": 900, "to_iso": {"flight_m": 5.0}},
+                  {"kind": "run", "field": "authors", "seed": 901}):
+            f.write(json.dumps(r) + "\n")
+    assert tb._bench_surveys(str(path), "authors") == {900: 921.0}
