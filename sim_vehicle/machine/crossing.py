@@ -118,13 +118,15 @@ def bracketed(ctl, params, cr, b, recent: np.ndarray, x: float, y: float, v: flo
         level = cr.level
         e0, e1 = cr.prev_v - level, v - level
         if e1 == 0.0:
-            _found(ctl, params, cr, recent, x, y, v, x, y, _SQRT2 * noise_std(b), noise_std(b))
-            return True
-        if e0 * e1 < 0.0:
+            px, py = x, y
+        elif e0 * e1 < 0.0:
             t = e0 / (e0 - e1)
-            _found(ctl, params, cr, recent, x, y, v, cr.prev_x + t * (x - cr.prev_x),
-                   cr.prev_y + t * (y - cr.prev_y), _SQRT2 * noise_std(b), noise_std(b))
-            return True
+            px, py = cr.prev_x + t * (x - cr.prev_x), cr.prev_y + t * (y - cr.prev_y)
+        else:
+            return False
+        noise = noise_std(b)
+        _found(ctl, params, cr, recent, x, y, v, px, py, _SQRT2 * noise, noise)
+        return True
     return False
 
 
