@@ -60,7 +60,7 @@ def instrument(dfc: Any) -> dict[int, dict[str, float]]:
     metres: dict[int, dict[str, float]] = {}
     kinds: list[str] = []
     route_kinds: list[str] = []
-    planned: dict[int, list[tuple[Any, str]]] = {}
+    planned: dict[int, list[tuple[Any, str, bool]]] = {}
     start_route, step_batch, make_batch = planner._route.start, planner._step_batch, planner._batch
 
     def start(route: Any) -> None:

@@ -95,7 +95,7 @@ def measure(settings: list[str], seeds: list[int]) -> dict[str, Any]:
 
 def _total(runs: list[dict[str, Any]], key: str) -> str:
     values = [r.get(key) for r in runs]
-    return "—" if any(v is None for v in values) else str(sum(values))
+    return "—" if any(v is None for v in values) else str(sum(v for v in values if v is not None))
 
 
 def _table(title: str, data: dict[str, Any]) -> None:

@@ -33,6 +33,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -95,7 +96,7 @@ def compare_reconstructions(fields: list[str], seeds: list[int], planners: list[
 
 
 def compare_noise(fields: list[str], seeds: list[int], budget_m: float
-                  ) -> list[dict[str, float]]:
+                  ) -> list[dict[str, Any]]:
     """The noise found by differences along the tracks and by scikit-learn's WhiteKernel."""
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
@@ -129,7 +130,7 @@ def compare_noise(fields: list[str], seeds: list[int], budget_m: float
     return out
 
 
-def compare_fits(fields: list[str], seeds: list[int], budget_m: float) -> list[dict[str, float]]:
+def compare_fits(fields: list[str], seeds: list[int], budget_m: float) -> list[dict[str, Any]]:
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel

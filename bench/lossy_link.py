@@ -81,7 +81,7 @@ def serve_relay(listen_port: int, to_port: int, drop: float, duplicate: float,
     sel.register(lsock, selectors.EVENT_READ, None)
     up: dict[tuple[str, int], socket.socket] = {}
     held: list[_Held] = []
-    counts = Counter()
+    counts: Counter[str] = Counter()
     first: list[float] = []
     stop: list[int] = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))

@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     counts: list[int] = []
     original = dfc_module.Dfc._reconstruct
 
-    def recording(self: dfc_module.Dfc):  # type: ignore[no-untyped-def]
+    def recording(self: dfc_module.Dfc):
         counts.append(sum(len(log) for log in self.logs))
         return original(self)
 

@@ -32,6 +32,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -113,7 +114,8 @@ class Router:
 
 def mission_items(origin, sysid: int, field) -> list:
     """A long mission: takeoff, 5 x lawnmower (10 m spacing), 2 trace items (~6 km)."""
-    def item(seq, cmd, x=0.0, y=0.0, alt=20.0, p1=0.0, p2=0.0, p3=0.0, p4=0.0):
+    def item(seq: int, cmd: int, x: float = 0.0, y: float = 0.0, alt: float = 20.0,
+             p1: float = 0.0, p2: float = 0.0, p3: float = 0.0, p4: float = 0.0) -> Any:
         lat, lon, _ = origin.to_global(x, y) if (x or y) else (0.0, 0.0, 0.0)
         return mavlink.MAVLink_mission_item_int_message(
             sysid, 1, seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, cmd, int(seq == 0), 1,
@@ -121,9 +123,9 @@ def mission_items(origin, sysid: int, field) -> list:
 
     pts = []
     for _rep in range(5):
-        for i, x in enumerate(range(5, 100, 10)):
+        for i, col in enumerate(range(5, 100, 10)):
             ys = (5, 95) if i % 2 == 0 else (95, 5)
-            pts += [(float(x), float(ys[0])), (float(x), float(ys[1]))]
+            pts += [(float(col), float(ys[0])), (float(col), float(ys[1]))]
     items = [item(0, mavlink.MAV_CMD_NAV_TAKEOFF)]
     for x, y in pts:
         items.append(item(len(items), mavlink.MAV_CMD_NAV_WAYPOINT, x, y))

@@ -444,6 +444,7 @@ def test_the_idealised_traces_cut_bends_and_read_the_bench_surveys(tmp_path: Pat
     import json
 
     import threshold_bounds as tb
+
     from econdor_gcs.core.contours import ContourPiece
 
     t = np.linspace(0.0, np.pi, 200)

@@ -213,9 +213,14 @@ class GcsLink:
             req = (mavlink.MAVLink_mission_request_message if legacy
                    else mavlink.MAVLink_mission_request_int_message)
             self.send(req(target, 1, seq, mission_type))
-            items.append(self.recv_match(want, lambda m, s=seq: m.seq == s, timeout=timeout))
+            items.append(self.recv_match(want, _seq_is(seq), timeout=timeout))
         self.send(mavlink.MAVLink_mission_ack_message(target, 1, 0, mission_type))
         return items
+
+
+def _seq_is(seq: int) -> Callable[[Any], bool]:
+    """A ``recv_match`` condition: the message's ``seq`` is ``seq``."""
+    return lambda m: bool(m.seq == seq)
 
 
 def item_int(seq: int, command: int, lat: float = 0.0, lon: float = 0.0, alt: float = 0.0,
