@@ -21,8 +21,8 @@ It prints each seed's shortest pattern of each kind that reaches the target, and
 median over the seeds of the best trace-based flight over the best lines-only one: a
 floor, on that field, for planners that map an iso-line by tracing it. With ``--surveys``
 (a bench's saved rows) also over the bench's best survey for the seed, and the iso-line's
-length and ``k0_d0`` (the iso-line and the shortest transits between its pieces, nothing
-else) over it: what any flight that passes along the whole iso-line costs at least.
+length and ``k0_d0`` (the iso-line and the transits between its pieces, nearest first,
+nothing else) over it: about what a flight that passes along the whole iso-line costs.
 
     python bench/threshold_bounds.py --field authors --seeds 900:920 \
         --surveys docs/results/data/threshold-fresh.jsonl.gz
@@ -167,7 +167,7 @@ def main() -> int:
     transits = (False, True) if a.sample_transits else (False,)
     bench = _bench_surveys(a.surveys, a.field) if a.surveys else {}
     ratios, to_bench, saved = [], [], {}
-    iso_only: list[tuple[float, float, float]] = []
+    iso_only: list[tuple[float, float, float, float]] = []
     for seed in parse_seeds(a.seeds):
         got = one_seed(a.field, seed, cuts, transits)
         saved[seed] = got
@@ -184,7 +184,7 @@ def main() -> int:
         if seed in bench:
             to_bench.append(traced[0] / bench[seed])
             iso_only.append((got["iso"][0] / bench[seed], got["k0_d0"][0] / bench[seed],
-                             got["k0_d0"][1]))
+                             got["k0_d0"][1], got.get("k0_d0_t", (math.nan, math.nan))[1]))
             also = (f"; bench survey {bench[seed]:.0f} m: {to_bench[-1]:.3f}; the iso-line "
                     f"{got['iso'][0]:.0f} m, with the transits between its pieces "
                     f"{got['k0_d0'][0]:.0f} m (error {got['k0_d0'][1]:.2f} m)")
@@ -195,12 +195,14 @@ def main() -> int:
     if to_bench:
         print(f"median, traced over the bench's best survey: {statistics.median(to_bench):.3f} "
               f"({sum(r <= 0.5 for r in to_bench)} of {len(to_bench)} seeds <= 0.5)")
-        alone, flown, errs = zip(*iso_only, strict=True)
+        alone, flown, errs, errs_t = zip(*iso_only, strict=True)
+        with_t = (f"; with the transits' samples on {sum(e <= TARGET_M for e in errs_t)}"
+                  if a.sample_transits else "")
         print(f"median over the bench's best survey: the iso-line's length "
-              f"{statistics.median(alone):.3f}, the iso-line and the shortest transits between "
-              f"its pieces from the home corner {statistics.median(flown):.3f} (a map from "
-              f"those samples alone within {TARGET_M} m on {sum(e <= TARGET_M for e in errs)} "
-              f"of {len(errs)} seeds)")
+              f"{statistics.median(alone):.3f}, the iso-line and the transits between its "
+              f"pieces, nearest first from the home corner, {statistics.median(flown):.3f} (a "
+              f"map from the iso-line's samples alone within {TARGET_M} m on "
+              f"{sum(e <= TARGET_M for e in errs)}{with_t} of {len(errs)} seeds)")
     if a.json:
         Path(a.json).write_text(json.dumps(saved))
     return 0
