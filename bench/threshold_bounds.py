@@ -179,7 +179,8 @@ def main() -> int:
 
         lines_only = min(best("survey"), best("lines"))
         traced = best("k")
-        ratios.append(traced[0] / lines_only[0])
+        # no lines-only pattern of the study (2-15 lines) reaching the target: no ratio
+        ratios.append(traced[0] / lines_only[0] if math.isfinite(lines_only[0]) else math.nan)
         also = ""
         if seed in bench:
             to_bench.append(traced[0] / bench[seed])
@@ -190,8 +191,11 @@ def main() -> int:
                     f"{got['k0_d0'][0]:.0f} m (error {got['k0_d0'][1]:.2f} m)")
         print(f"{a.field} {seed}: lines only {lines_only[0]:.0f} m ({lines_only[1]}), "
               f"traced {traced[0]:.0f} m ({traced[1]}): {ratios[-1]:.3f}{also}", flush=True)
-    print(f"median, traced over lines only: {statistics.median(ratios):.3f} "
-          f"({sum(r <= 0.5 for r in ratios)} of {len(ratios)} seeds <= 0.5)")
+    known = [r for r in ratios if not math.isnan(r)]
+    unknown = (f"; {len(ratios) - len(known)} seeds without a lines-only pattern of 2-15 lines "
+               "that reaches the target left out" if len(known) < len(ratios) else "")
+    print(f"median, traced over lines only: {statistics.median(known) if known else math.nan:.3f} "
+          f"({sum(r <= 0.5 for r in known)} of {len(known)} seeds <= 0.5{unknown})")
     if to_bench:
         print(f"median, traced over the bench's best survey: {statistics.median(to_bench):.3f} "
               f"({sum(r <= 0.5 for r in to_bench)} of {len(to_bench)} seeds <= 0.5)")
