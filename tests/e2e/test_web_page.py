@@ -26,6 +26,7 @@ from tests.helpers.web import (
     confirm_control,
     estimate_iteration,
     estimate_shown,
+    pieces_and_vehicles,
     positions_of,
     require_chromium,
     vehicle_positions,
@@ -53,17 +54,14 @@ def _watch(page: Any, proc: EcondorProcess, timeout_s: float) -> dict[str, Any]:
     while proc.proc.poll() is None:
         if time.monotonic() > deadline:
             raise AssertionError(f"the run did not end within {timeout_s} s:\n{proc.output()}")
-        rows = vehicle_rows(page)
+        title, pieces, rows = pieces_and_vehicles(page)  # one reading: the page as it was
         seen["positions"].append(positions_of(rows))
         for sysid, cells in rows.items():
             seen["flight_time"][sysid] = cells.get("flight-time", "")
         it, digest, painted = estimate_shown(page)
         if it is not None and it not in seen["estimates"]:
             seen["estimates"][it] = (digest, painted)
-        title = page.text_content("#pieces-title") or ""
         if "(flying)" in title:
-            pieces = page.eval_on_selector_all(
-                "#pieces tbody tr", "rows => rows.map(tr => [...tr.cells].map(td => td.textContent))")
             seen["pieces"].append((title, pieces, rows))
         seen["states"].append(page.inner_text("#run-state"))
         time.sleep(0.1)

@@ -155,6 +155,21 @@ def vehicle_rows(page: Any) -> dict[int, dict[str, str]]:
     return {int(sysid): cells for sysid, cells in rows}
 
 
+def pieces_and_vehicles(page: Any) -> tuple[str, list[list[str]], dict[int, dict[str, str]]]:
+    """The pieces table's title and rows and the vehicles table (as :func:`vehicle_rows`),
+    read in one go: the page cannot redraw between them."""
+    title, pieces, rows = page.evaluate("""() => {
+        const text = tr => [...tr.cells].map(td => td.textContent);
+        const classed = tr => Object.fromEntries([...tr.cells].filter(td => td.className)
+            .map(td => [td.className.replace('num ', ''), td.textContent]));
+        return [document.getElementById('pieces-title').textContent || '',
+                [...document.querySelectorAll('#pieces tbody tr')].map(text),
+                [...document.querySelectorAll('#vehicles tbody tr')]
+                    .map(tr => [tr.dataset.sysid, classed(tr)])];
+    }""")
+    return title, pieces, {int(sysid): cells for sysid, cells in rows}
+
+
 def positions_of(rows: dict[int, dict[str, str]]) -> dict[int, tuple[float, float]]:
     out = {}
     for sysid, cells in rows.items():

@@ -266,6 +266,10 @@ function cell(tr, text, cls) {
 function renderVehicles() {
   const body = $("vehicles").querySelector("tbody");
   body.textContent = "";
+  // while an iteration flies, each vehicle's pieces come from the plan the pieces table shows
+  // (a new plan can arrive before the vehicles' next state does)
+  const view = piecesOnView();
+  const flying = view && view.flying ? view.pieces : null;
   for (const v of vehiclesOnView()) {
     const tr = document.createElement("tr");
     tr.dataset.sysid = String(v.sysid);
@@ -283,7 +287,9 @@ function renderVehicles() {
     cell(tr, v.replay ? "–" : clock(v.flight_time_s), "num flight-time");
     cell(tr, fmt(v.flown_m, 0), "num flown");
     cell(tr, v.replay ? "–" : `${v.item}/${v.items}`, "num item");
-    cell(tr, (v.pieces || []).join(", "), "pieces");
+    const mine = flying ? flying.filter(p => p.vehicle === v.index && p.piece_id >= 0)
+      .map(p => p.piece_id) : (v.pieces || []);
+    cell(tr, mine.join(", "), "pieces");
     body.appendChild(tr);
   }
 }
