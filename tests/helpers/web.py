@@ -145,28 +145,26 @@ class EcondorProcess:
 # -- reading the page (DOM and canvas pixels) ------------------------------------------------
 
 
+_VEHICLE_ROW = """tr => [tr.dataset.sysid,
+    Object.fromEntries([...tr.cells].filter(td => td.className)
+      .map(td => [td.className.replace('num ', ''), td.textContent]))]"""
+"""A row of the vehicles table as ``[sysid, {column class: text}]`` (JavaScript)."""
+
+
 def vehicle_rows(page: Any) -> dict[int, dict[str, str]]:
     """The vehicles table: sysid -> {column class: text}."""
-    rows = page.eval_on_selector_all(
-        "#vehicles tbody tr",
-        """rows => rows.map(tr => [tr.dataset.sysid,
-             Object.fromEntries([...tr.cells].filter(td => td.className)
-               .map(td => [td.className.replace('num ', ''), td.textContent])) ])""")
+    rows = page.eval_on_selector_all("#vehicles tbody tr", f"rows => rows.map({_VEHICLE_ROW})")
     return {int(sysid): cells for sysid, cells in rows}
 
 
 def pieces_and_vehicles(page: Any) -> tuple[str, list[list[str]], dict[int, dict[str, str]]]:
     """The pieces table's title and rows and the vehicles table (as :func:`vehicle_rows`),
     read in one go: the page cannot redraw between them."""
-    title, pieces, rows = page.evaluate("""() => {
-        const text = tr => [...tr.cells].map(td => td.textContent);
-        const classed = tr => Object.fromEntries([...tr.cells].filter(td => td.className)
-            .map(td => [td.className.replace('num ', ''), td.textContent]));
-        return [document.getElementById('pieces-title').textContent || '',
-                [...document.querySelectorAll('#pieces tbody tr')].map(text),
-                [...document.querySelectorAll('#vehicles tbody tr')]
-                    .map(tr => [tr.dataset.sysid, classed(tr)])];
-    }""")
+    title, pieces, rows = page.evaluate(f"""() => [
+        document.getElementById('pieces-title').textContent || '',
+        [...document.querySelectorAll('#pieces tbody tr')]
+            .map(tr => [...tr.cells].map(td => td.textContent)),
+        [...document.querySelectorAll('#vehicles tbody tr')].map({_VEHICLE_ROW})]""")
     return title, pieces, {int(sysid): cells for sysid, cells in rows}
 
 
